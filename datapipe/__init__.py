@@ -1,0 +1,6 @@
+"""DataPipe: synthetic 6D-pose datasets for bin picking with a simulated structured-light camera.
+
+`datapipe.config` and `datapipe.sl` are free of Blender; everything under `datapipe.core` and
+`datapipe.ui` needs the `bpy` module (or runs inside Blender).
+"""
+__version__ = "0.1.0"

@@ -1,0 +1,33 @@
+"""Errors a user can act on. Each names the field (or file) and the fix; never shown as a traceback."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+class DataPipeError(Exception):
+    """A problem the user can fix (bad input, missing file, refused output folder)."""
+
+
+@dataclass(frozen=True)
+class Problem:
+    path: str      # dotted field path, e.g. "objects[1].min_instances"
+    message: str   # what is wrong
+    fix: str       # what to do about it
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.message} (fix: {self.fix})"
+
+
+class ConfigError(DataPipeError):
+    """One or more configuration problems, all reported at once."""
+
+    def __init__(self, problems: list[Problem] | Problem):
+        if isinstance(problems, Problem):
+            problems = [problems]
+        self.problems = list(problems)
+        lines = [f"{len(self.problems)} problem(s) in the configuration:"]
+        lines += [f"  - {p}" for p in self.problems]
+        super().__init__("\n".join(lines))
+
+    def paths(self) -> list[str]:
+        return [p.path for p in self.problems]
