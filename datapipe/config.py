@@ -44,7 +44,7 @@ class SceneConfig:
     """How many renders, how they group into scenes (one drop each), and where parts are dropped."""
     num_renders: int = 4               # total renders in the run
     min_renders_per_scene: int = 1     # camera poses per scene, drawn without replacement
-    max_renders_per_scene: int = 2
+    max_renders_per_scene: int = 1
     drop_zone_loc: list[float] = _vec(0.0, 0.0, 0.1)     # centre of the bin's inner volume, m
     drop_zone_scale: list[float] = _vec(0.15, 0.1, 0.1)  # half-extents, m
     make_bin: bool = True              # build a floor + walls around the drop zone (else: floor only)
@@ -168,10 +168,13 @@ class Config:
             problems.append(Problem("schema_version", f"unsupported schema version {version!r}",
                                     f"use schema_version {SCHEMA_VERSION} (re-save the preset)"))
         cfg = _build(cls, data, "", problems)
-        if problems:
-            raise ConfigError(problems)
         if base_dir is not None:
             cfg.resolve_paths(base_dir)
+        if problems:
+            # report the semantic problems too (all at once), except at fields already flagged
+            flagged = {p.path for p in problems}
+            problems += [p for p in validate(cfg) if p.path not in flagged]
+            raise ConfigError(problems)
         return cfg
 
     def resolve_paths(self, base_dir: str | os.PathLike) -> None:

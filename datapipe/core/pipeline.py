@@ -1,0 +1,324 @@
+"""The run loop: Config -> scenes -> renders -> files. A generator of Progress events, so the same loop
+runs in a plain `for` headless and step by step under a timer in the UI.
+
+Everything a scene does is derived from (base seed, scene index): a killed run resumes to the same
+dataset, and shards (`shard=(i, n)`) produce the same scenes as one process would.
+"""
+from __future__ import annotations
+
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .. import __version__
+from ..config import Config
+from ..errors import DataPipeError, Problem, ConfigError
+from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
+from .writers import native
+
+STAGES = ("placement", "simulation", "render", "structured_light", "write")
+
+
+@dataclass
+class Progress:
+    stage: str                 # setup | scene | render | scene_done | skip | done | cancelled
+    done: int                  # renders finished in this run (skipped-complete scenes included)
+    total: int                 # renders this run (this shard) makes
+    scene: int | None = None
+    render: int | None = None
+    elapsed: float = 0.0
+    eta: float | None = None
+    seconds: dict = field(default_factory=dict)    # per-stage seconds of the last render / scene
+    message: str = ""
+
+    def line(self) -> str:
+        eta = f", ETA {_fmt_s(self.eta)}" if self.eta is not None else ""
+        stages = ", ".join(f"{k} {v:.2f}s" for k, v in self.seconds.items() if v > 0)
+        stages = f" ({stages})" if stages else ""
+        where = ""
+        if self.scene is not None:
+            where = f" {native.scene_name(self.scene)}"
+            if self.render is not None:
+                where += f"/{native.render_name(self.render)}"
+        return f"[{self.done}/{self.total}]{where} {self.message}{stages}{eta}".rstrip()
+
+
+def _fmt_s(s: float) -> str:
+    s = int(round(s))
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else (f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s")
+
+
+def _config_identity(cfg: Config) -> dict:
+    d = cfg.to_dict()
+    d["output"] = {k: v for k, v in d["output"].items() if k != "path"}   # same run, any folder
+    return d
+
+
+class Pipeline:
+    def __init__(self, cfg: Config, out_dir: str | Path | None = None, *, resume: bool = False,
+                 force: bool = False, shard: tuple[int, int] = (0, 1), seed: int | None = None):
+        self.cfg = cfg.copy()
+        if seed is not None:
+            self.cfg.scene.seed = seed
+        self.out = Path(out_dir if out_dir is not None else self.cfg.output.path).resolve()
+        self.cfg.output.path = str(self.out)
+        self.resume, self.force, self.shard = resume, force, shard
+        s = self.cfg.scene
+        self.plan = plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
+        self.scene_ids = shard_scenes(len(self.plan), shard)
+        self.first_image_id = np.concatenate([[0], np.cumsum(self.plan)]).astype(int)
+        self.total = int(sum(self.plan[i] for i in self.scene_ids))
+        self._cancel = False
+        self.stats: dict = {"imports": 0, "frames": {}, "seconds": {k: 0.0 for k in STAGES}}
+        self.stats["seconds"]["setup"] = 0.0
+
+    # -- checks before any Blender work ----------------------------------------------------------
+    def check(self) -> None:
+        """Raise ConfigError/DataPipeError for bad input or a refused output folder. Writes nothing."""
+        self.cfg.validate()
+        if self.out.exists() and not self.out.is_dir():
+            raise DataPipeError(f"output: {self.out} exists and is not a folder (fix: choose a folder path)")
+        if self.out.is_dir() and any(self.out.iterdir()):
+            run_file = self.out / native.RUN_FILE
+            if self.resume:
+                if not run_file.is_file():
+                    raise DataPipeError(f"output: cannot resume {self.out}: it has no {native.RUN_FILE} "
+                                        "(fix: choose the folder of an earlier DataPipe run, or an empty folder)")
+                prev = native.read_json(run_file)
+                if prev.get("config_identity") != _config_identity(self.cfg):
+                    raise DataPipeError(f"output: {self.out} holds a run of a different preset or seed "
+                                        "(fix: resume with the same preset and --seed, or choose another folder)")
+            elif self.force:
+                if not run_file.is_file():
+                    raise DataPipeError(f"output: refusing to empty {self.out}: it does not look like a DataPipe "
+                                        f"run (no {native.RUN_FILE}) (fix: choose another folder)")
+            else:
+                raise DataPipeError(f"output: {self.out} is not empty (fix: pass --resume to continue that run, "
+                                    "or choose an empty folder; nothing was written)")
+
+    def cancel(self) -> None:
+        """Stop after the render in progress; everything written so far stays."""
+        self._cancel = True
+
+    # -- the loop -----------------------------------------------------------------------------------
+    def run(self) -> Iterator[Progress]:
+        self.check()
+        t_start = time.perf_counter()
+        if self.force and self.out.is_dir() and not self.resume:
+            shutil.rmtree(self.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self._write_run_file(status="running")
+
+        done = 0
+        todo = []
+        for i in self.scene_ids:
+            sdir = self.out / native.scene_name(i)
+            if self.resume and native.scene_complete(sdir):
+                done += self.plan[i]
+                yield Progress("skip", done, self.total, scene=i, message="already complete")
+            else:
+                todo.append(i)
+        if not todo:
+            self._write_run_file(status="complete")
+            yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
+                           message="nothing to do: every scene is complete")
+            return
+
+        yield Progress("setup", done, self.total, message="setting up Blender scene")
+        t0 = time.perf_counter()
+        world = _BlenderWorld(self.cfg, self.out)
+        world.setup()
+        self.stats["seconds"]["setup"] = time.perf_counter() - t0
+        self.stats["imports"] = world.objects.import_count
+
+        made = 0           # renders made in this call (for the ETA)
+        t_loop = time.perf_counter()
+        try:
+            for i in todo:
+                sdir = self.out / native.scene_name(i)
+                if sdir.exists():                   # a scene killed mid-way is made again from scratch
+                    shutil.rmtree(sdir)
+                sdir.mkdir(parents=True)
+                yield Progress("scene", done, self.total, scene=i, message="dropping parts")
+                scene, sim_seconds = world.start_scene(i, self.cfg.scene.seed)
+                for k, v in sim_seconds.items():
+                    self.stats["seconds"][k] += v
+                self.stats["frames"][scene["name"]] = scene["simulation"]["frames"]
+                for r, pose_index in enumerate(scene["_pose_indices"]):
+                    rec, secs = world.render(i, r, pose_index, sdir, self.cfg.scene.seed,
+                                             image_id=int(self.first_image_id[i] + r))
+                    scene["renders"].append(rec)
+                    for k, v in secs.items():
+                        self.stats["seconds"][k] += v
+                    done += 1
+                    made += 1
+                    rate = (time.perf_counter() - t_loop) / made
+                    if r == 0:
+                        secs = {**sim_seconds, **secs}
+                    yield Progress("render", done, self.total, scene=i, render=r,
+                                   elapsed=time.perf_counter() - t_start, eta=rate * (self.total - done),
+                                   seconds=secs, message="rendered")
+                    if self._cancel:
+                        break
+                t0 = time.perf_counter()
+                complete = len(scene["renders"]) == self.plan[i]
+                world.finish_scene(scene, sdir, complete=complete)
+                self.stats["seconds"]["write"] += time.perf_counter() - t0
+                if not complete or self._cancel:
+                    self._write_run_file(status="cancelled")
+                    yield Progress("cancelled", done, self.total, scene=i,
+                                   elapsed=time.perf_counter() - t_start,
+                                   message="cancelled: everything written so far is kept; --resume continues")
+                    return
+                self._mark_scene_done(i)
+                yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - t_start,
+                               message=f"{len(scene['objects'])} parts, {scene['simulation']['frames']} frames")
+        finally:
+            world.close()
+        self._write_run_file(status="complete")
+        yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
+                       message=f"finished {made} render(s) in {_fmt_s(time.perf_counter() - t_start)}")
+
+    # -- run.json ---------------------------------------------------------------------------------
+    def _run_record(self) -> dict:
+        path = self.out / native.RUN_FILE
+        return native.read_json(path) if path.is_file() else {}
+
+    def _write_run_file(self, status: str) -> None:
+        rec = self._run_record()
+        rec.update({
+            "datapipe_version": __version__,
+            "config": self.cfg.to_dict(),
+            "config_identity": _config_identity(self.cfg),
+            "seed": self.cfg.scene.seed,
+            "plan": self.plan,
+            "shard": list(self.shard),
+            "scenes": [native.scene_name(i) for i in self.scene_ids],
+            "status": status,
+            "stats": self.stats,
+        })
+        rec.setdefault("scenes_done", [])
+        native.write_json_atomic(self.out / native.RUN_FILE, rec)
+
+    def _mark_scene_done(self, i: int) -> None:
+        rec = self._run_record()
+        done = set(rec.get("scenes_done", []))
+        done.add(native.scene_name(i))
+        rec["scenes_done"] = sorted(done)
+        rec["stats"] = self.stats
+        native.write_json_atomic(self.out / native.RUN_FILE, rec)
+
+
+class _BlenderWorld:
+    """The bpy side of one run: built once, then scene after scene."""
+
+    def __init__(self, cfg: Config, out: Path):
+        self.cfg, self.out = cfg, out
+
+    def setup(self) -> None:
+        from .camera import BlendCamera
+        from .objects import ObjectManager
+        from .renderer import Renderer
+        from .scene import BlendScene
+        from .simulation import Simulation
+
+        self.blend = BlendScene(self.cfg)
+        self.blend.setup()
+        bscene = self.blend.scene
+        self.camera = BlendCamera(self.cfg, bscene)
+        self.camera.setup()
+        self.objects = ObjectManager(self.cfg, self.blend)
+        self.objects.load_sources()
+        self.simulation = Simulation(self.cfg, self.blend)
+        self.renderer = Renderer(self.cfg, bscene, self.camera)
+        self.renderer.setup()
+        self.sl = None
+        if self.cfg.structured_light.enabled:
+            from .structured_light import StructuredLightCamera
+            self.sl = StructuredLightCamera(self.cfg, bscene, self.camera, self.renderer)
+            self.sl.setup()
+        self._write_models()
+
+    def _write_models(self) -> None:
+        from .writers.bop import write_models
+        meshes = {i + 1: self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
+        write_models(self.out / "models", meshes)
+
+    def start_scene(self, i: int, base: int):
+        seed_python(base, i)
+        rng = scene_rng(base, i)
+        t0 = time.perf_counter()
+        instances = self.objects.populate(rng)
+        t1 = time.perf_counter()
+        sim = self.simulation.run(instances, rng)
+        t2 = time.perf_counter()
+        n = self._plan_renders(i)
+        pose_indices = self.camera.draw_poses(rng, n)
+        self.instances = sim.kept
+        objects = [self._object_record(inst) for inst in sim.kept]
+        scene = {
+            "scene_id": i, "name": native.scene_name(i), "seed": scene_seed(base, i),
+            "simulation": {"frames": sim.frames, "settled": sim.settled,
+                           "removed": [{"name": inst.name, "reason": why} for inst, why in sim.removed]},
+            "objects": objects, "renders": [], "_pose_indices": pose_indices,
+        }
+        return scene, {"placement": t1 - t0, "simulation": t2 - t1}
+
+    def _plan_renders(self, i: int) -> int:
+        s = self.cfg.scene
+        return plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)[i]
+
+    def _object_record(self, inst) -> dict:
+        return {"name": inst.name, "filename": inst.filename, "obj_id": inst.entry_index + 1,
+                "mask_index": inst.mask_index}
+
+    def render(self, i: int, r: int, pose_index: int, sdir: Path, base: int, *, image_id: int):
+        rdir = sdir / native.render_name(r)
+        rdir.mkdir(parents=True, exist_ok=True)
+        T_world_cam = self.camera.set_pose(pose_index)
+        T_world_blcam = np.array(self.camera.obj.matrix_world, dtype=np.float64)
+        seed = render_seed(base, i, r)
+        t0 = time.perf_counter()
+        out = self.renderer.render(rdir, seed)
+        t1 = time.perf_counter()
+        rec = {
+            "render_id": r, "name": native.render_name(r), "image_id": image_id, "pose_index": int(pose_index),
+            "K": self.camera.K, "resolution": list(self.camera.resolution),
+            "T_world_cam": T_world_cam, "T_world_blcam": T_world_blcam, "seed": seed,
+            "files": {k: str(Path(p).relative_to(sdir)) for k, p in out.files.items()},
+            "objects": [],
+        }
+        T_cam_world = np.linalg.inv(T_world_cam)
+        T_blcam_world = np.linalg.inv(T_world_blcam)
+        for inst in self.instances:
+            T_world_obj = np.array(inst.obj.matrix_world, dtype=np.float64)
+            o = self._object_record(inst)
+            o["T_cam_obj"] = T_cam_world @ T_world_obj
+            o["cam2obj_pose"] = T_blcam_world @ T_world_obj
+            o["px_count_visib"] = int(np.count_nonzero(out.mask == inst.mask_index)) if out.mask is not None else None
+            rec["objects"].append(o)
+        secs = {"render": t1 - t0}
+        if self.sl is not None:
+            t2 = time.perf_counter()
+            rec["structured_light"] = self.sl.process(out, rdir, seed, T_world_cam, sdir)
+            rec["files"].update(rec["structured_light"].pop("files", {}))
+            secs["structured_light"] = time.perf_counter() - t2
+        return rec, secs
+
+    def finish_scene(self, scene: dict, sdir: Path, *, complete: bool) -> None:
+        scene.pop("_pose_indices", None)
+        scene["complete"] = complete
+        native.write_scene(sdir, scene)
+        if complete and self.cfg.output.legacy_pickle:
+            native.update_legacy_pickle(self.out, scene)
+        if complete and "bop" in self.cfg.output.formats:
+            from .writers.bop import BopWriter
+            BopWriter(self.out / "bop").add_scene(sdir)
+        self.objects.clear()
+
+    def close(self) -> None:
+        pass

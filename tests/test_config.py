@@ -1,0 +1,190 @@
+"""Config: JSON and legacy-pickle round trips, the restricted unpickler, and every validation error."""
+import json
+import math
+import os
+import pickle
+
+import pytest
+
+from datapipe import config as C
+from datapipe.errors import ConfigError
+
+
+@pytest.fixture
+def cfg():
+    return C.default_config()
+
+
+def test_default_preset_is_valid(cfg):
+    assert cfg.validate() is cfg
+    assert all(os.path.isabs(o.filepath) and os.path.isfile(o.filepath) for o in cfg.objects)
+
+
+def test_json_round_trip(cfg, tmp_path):
+    cfg.structured_light.enabled = True
+    cfg.projector.rotation = [1.0, 0.0, 0.0, 0.0]
+    C.save(cfg, tmp_path / "p.json")
+    back = C.load(tmp_path / "p.json")
+    assert back.to_dict() == cfg.to_dict()
+    assert json.loads((tmp_path / "p.json").read_text())["schema_version"] == C.SCHEMA_VERSION
+
+
+def test_relative_paths_resolve_against_preset_folder(tmp_path, assets_dir):
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "p.obj").write_bytes((assets_dir / "peg.obj").read_bytes())
+    d = C.Config().to_dict()
+    d["objects"] = [{"filepath": "meshes/p.obj"}]
+    (tmp_path / "x.json").write_text(json.dumps(d))
+    cfg = C.load(tmp_path / "x.json")
+    assert cfg.objects[0].filepath == str(tmp_path / "meshes" / "p.obj")
+    cfg.validate()
+
+
+def _legacy(objfile, key="world2cam_pose_list", rot=(0.0, -0.148, 0.0)):
+    return {
+        "camera": {key: [{"rotation": [1, 0, 0, 0], "location": [0, 0, 1.2]},
+                         {"rotation": [0.9659, 0.2588, 0, 0], "location": [0, -0.3, 1.1]}],
+                   "focal_length": 50, "sensor_width": 36, "resolution": [480, 720], "is_structured_light": True},
+        "projector": {"proj2cam_pose": {"rotation": list(rot), "location": [-0.15, 0, 0]},
+                      "focal_length": 50, "sensor_width": 36, "resolution": [480, 720]},
+        "scene": {"num_renders": 3, "max_renders_per_scene": 2, "min_renders_per_scene": 1,
+                  "drop_zone_loc": [0, 0, 2], "drop_zone_scale": [0.5, 0.5, 0.5]},
+        "objects": {"objects_list": [{"filepath": str(objfile), "scale": 1.0, "mass": 0.5,
+                                      "collision_shape": "MESH", "max": 2, "min": 0}]},
+        "output": {"path": "/tmp/out"},
+    }
+
+
+@pytest.mark.parametrize("key", ["world2cam_pose_list", "wrlld2cam_pose_list", "wrl2cam_pose_list"])
+def test_legacy_pickle_all_spellings(tmp_path, assets_dir, key):
+    p = tmp_path / "inputs.pickle"
+    p.write_bytes(pickle.dumps(_legacy(assets_dir / "peg.obj", key)))
+    cfg = C.load(p)
+    assert [pose.location for pose in cfg.camera.poses] == [[0, 0, 1.2], [0, -0.3, 1.1]]
+    assert cfg.camera.resolution == [720, 480]          # [h, w] in the original -> [w, h]
+    assert cfg.projector.resolution == [720, 480]
+    assert cfg.structured_light.enabled
+    assert cfg.objects[0].min_instances == 0 and cfg.objects[0].max_instances == 2
+    assert cfg.objects[0].collision_shape == "MESH"
+    assert cfg.scene.drop_zone_loc == [0, 0, 2]
+    assert cfg.projector.rotation == [0.0, -0.148, 0.0]
+    cfg.validate()
+
+
+def test_legacy_round_trip(tmp_path, assets_dir):
+    cfg = C.load_legacy_pickle(pickle.dumps(_legacy(assets_dir / "peg.obj", rot=(1, 0, 0, 0))))
+    again = C.from_legacy_dict(C.to_legacy_dict(cfg))
+    assert again.to_dict() == cfg.to_dict()
+
+
+class _Evil:
+    def __reduce__(self):
+        return (os.system, ("touch /tmp/datapipe_pwned_marker",))
+
+
+def test_malicious_pickle_is_refused_without_running(tmp_path):
+    marker = "/tmp/datapipe_pwned_marker"
+    if os.path.exists(marker):
+        os.remove(marker)
+    p = tmp_path / "evil.pickle"
+    p.write_bytes(pickle.dumps({"camera": _Evil()}))
+    with pytest.raises(ConfigError, match="refused to load"):
+        C.load(p)
+    assert not os.path.exists(marker)
+
+
+def test_corrupt_pickle_and_bad_json(tmp_path):
+    (tmp_path / "x.pickle").write_bytes(pickle.dumps({"a": 1})[:5])
+    with pytest.raises(ConfigError, match="cannot read the pickle"):
+        C.load(tmp_path / "x.pickle")
+    (tmp_path / "x.json").write_text("{ nope")
+    with pytest.raises(ConfigError, match="not valid JSON"):
+        C.load(tmp_path / "x.json")
+    with pytest.raises(ConfigError, match="preset not found"):
+        C.load(tmp_path / "missing.json")
+
+
+def _problems(cfg, **kw):
+    return {p.path: p for p in cfg.problems(**kw)}
+
+
+# (mutation, field path expected, fragment of the message)
+CASES = [
+    (lambda c: setattr(c.scene, "num_renders", 0), "scene.num_renders", ">= 1"),
+    (lambda c: (setattr(c.scene, "min_renders_per_scene", 3), setattr(c.scene, "max_renders_per_scene", 2)),
+     "scene.min_renders_per_scene", "> max_renders_per_scene"),
+    (lambda c: setattr(c.scene, "drop_zone_scale", [0.1, 0, 0.1]), "scene.drop_zone_scale", "> 0"),
+    (lambda c: setattr(c.scene, "drop_zone_loc", [0, 0]), "scene.drop_zone_loc", "needs 3"),
+    (lambda c: setattr(c.scene, "drop_zone_loc", [0, math.nan, 0]), "scene.drop_zone_loc", "NaN"),
+    (lambda c: setattr(c.scene, "blend_file", "/nonexistent/x.blend"), "scene.blend_file", "not found"),
+    (lambda c: setattr(c, "objects", []), "objects", "no objects"),
+    (lambda c: setattr(c.objects[0], "filepath", "/nonexistent/part.obj"), "objects[0].filepath", "not found"),
+    (lambda c: setattr(c.objects[0], "filepath", __file__), "objects[0].filepath", "not a mesh file"),
+    (lambda c: setattr(c.objects[1], "scale", 0.0), "objects[1].scale", "> 0"),
+    (lambda c: setattr(c.objects[1], "mass", -1.0), "objects[1].mass", "> 0"),
+    (lambda c: setattr(c.objects[0], "collision_shape", "BLOB"), "objects[0].collision_shape", "unknown value"),
+    (lambda c: (setattr(c.objects[2], "min_instances", 5), setattr(c.objects[2], "max_instances", 1)),
+     "objects[2].min_instances", "> max_instances"),
+    (lambda c: setattr(c.camera, "focal_length", 0), "camera.focal_length", "> 0"),
+    (lambda c: setattr(c.camera, "resolution", [0, 240]), "camera.resolution", "width 0"),
+    (lambda c: setattr(c.camera, "resolution", [320, 100000]), "camera.resolution", "height 100000"),
+    (lambda c: setattr(c.camera, "poses", []), "camera.poses", "no camera poses"),
+    (lambda c: setattr(c.camera.poses[0], "rotation", [0, 0, 0, 0]), "camera.poses[0].rotation", "zero quaternion"),
+    (lambda c: setattr(c.scene, "max_renders_per_scene", 99), "scene.max_renders_per_scene", "only 6 camera poses"),
+    (lambda c: setattr(c.camera, "clip_end", 0.01), "camera.clip_end", "clip_start"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "steps", 2)),
+     "structured_light.steps", ">= 3"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "periods", [1, 400])),
+     "structured_light.periods", "fewer than 3 px"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.projector, "rotation", [0, 0])),
+     "projector.rotation", "needs 3"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "unwrap", "magic")),
+     "structured_light.unwrap", "unknown value"),
+    (lambda c: setattr(c.render, "samples", 0), "render.samples", ">= 1"),
+    (lambda c: setattr(c.render, "outputs", ["rgb", "thermal"]), "render.outputs[1]", "unknown value"),
+    (lambda c: setattr(c.render, "engine", "BLENDER_EEVEE"), "render.engine", "unknown value"),
+    (lambda c: (setattr(c.output, "formats", ["bop"]), setattr(c.render, "outputs", ["rgb", "depth"])),
+     "render.outputs", "BOP format needs"),
+    (lambda c: setattr(c.simulation, "max_frames", 0), "simulation.max_frames", ">= 1"),
+    (lambda c: setattr(c.output, "path", ""), "output.path", "empty"),
+]
+
+
+@pytest.mark.parametrize("mutate,path,fragment", CASES, ids=[c[1] + ":" + c[2] for c in CASES])
+def test_each_validation_error_names_field_and_fix(cfg, mutate, path, fragment):
+    mutate(cfg)
+    probs = _problems(cfg)
+    assert path in probs, f"expected a problem at {path}, got {list(probs)}"
+    assert fragment in probs[path].message
+    assert probs[path].fix
+    with pytest.raises(ConfigError) as ei:
+        cfg.validate()
+    assert path in str(ei.value) and "fix:" in str(ei.value)
+
+
+def test_all_problems_reported_at_once(cfg):
+    cfg.scene.num_renders = 0
+    cfg.objects[0].scale = -1
+    cfg.camera.poses = []
+    assert {"scene.num_renders", "objects[0].scale", "camera.poses"} <= set(_problems(cfg))
+
+
+def test_unknown_keys_and_wrong_types_in_json():
+    d = C.Config().to_dict()
+    d["scene"]["colour"] = "red"
+    d["camera"]["focal_length"] = "fifty"
+    d["render"]["samples"] = 3.5
+    d["objects"] = [{"filepath": 3}]
+    with pytest.raises(ConfigError) as ei:
+        C.Config.from_dict(d)
+    paths = ei.value.paths()
+    assert "scene.colour" in paths and "camera.focal_length" in paths
+    assert "render.samples" in paths and "objects[0].filepath" in paths
+    assert "unknown key" in str(ei.value) and "expected a number" in str(ei.value)
+
+
+def test_schema_version_checked():
+    d = C.Config().to_dict()
+    d["schema_version"] = 99
+    with pytest.raises(ConfigError, match="schema version"):
+        C.Config.from_dict(d)
