@@ -1,0 +1,129 @@
+"""The render camera: one Blender camera object, its intrinsics K and its poses (OpenCV frame).
+
+Conventions (design.md): metres; `T_world_cam` is the camera pose in the world in the OpenCV frame
+(x right, y down, z forward); pixel centres at integers, so an unshifted camera has
+cx = W/2 - 0.5, cy = H/2 - 0.5. The config's poses are Blender camera-object poses (location +
+quaternion w, x, y, z; the camera looks down its local -Z); the Blender <-> OpenCV conversion is
+`datapipe.geometry.blender_camera_to_opencv`, nowhere else.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+import bpy
+
+from .. import geometry
+from ..config import Config
+from ..errors import DataPipeError
+
+CAMERA_NAME = "datapipe_camera"
+
+
+class BlendCamera:
+    """Creates and drives the scene's render camera.
+
+    >>> cam = BlendCamera(cfg, scene); cam.setup()
+    >>> T_world_cam = cam.set_pose(0)      # 4x4, OpenCV camera frame
+    >>> cam.K, cam.resolution              # 3x3 intrinsics, (W, H)
+    """
+
+    def __init__(self, cfg: Config, scene):
+        self.cfg = cfg
+        self.scene = scene
+        self.obj = None
+        self.pose_index: int | None = None
+
+    # -- setup ------------------------------------------------------------------------------------
+    def setup(self) -> "BlendCamera":
+        """Create (or reuse) the camera object "datapipe_camera", make it the scene camera and set
+        the render resolution. Leaves the camera at pose 0."""
+        c = self.cfg.camera
+        obj = self.scene.objects.get(CAMERA_NAME)
+        if obj is not None and obj.type != "CAMERA":
+            raise DataPipeError(f"object {CAMERA_NAME!r} in the scene is a {obj.type}, not a camera "
+                                f"(rename or delete it in the .blend file)")
+        if obj is None:
+            data = bpy.data.cameras.new(CAMERA_NAME)
+            obj = bpy.data.objects.new(CAMERA_NAME, data)
+            self.scene.collection.objects.link(obj)
+        obj.parent = None
+        data = obj.data
+        data.type = "PERSP"
+        data.lens_unit = "MILLIMETERS"
+        data.lens = c.focal_length
+        data.sensor_fit = c.sensor_fit
+        # With VERTICAL fit Blender uses sensor_height; the config's sensor_width is the size of the
+        # fitted sensor dimension in every case (what intrinsics_from_blender takes).
+        data.sensor_width = c.sensor_width
+        if c.sensor_fit == "VERTICAL":
+            data.sensor_height = c.sensor_width
+        data.shift_x = data.shift_y = 0.0
+        data.clip_start = c.clip_start
+        data.clip_end = c.clip_end
+        data.dof.use_dof = False
+        obj.rotation_mode = "QUATERNION"
+        obj.scale = (1.0, 1.0, 1.0)
+        self.scene.camera = obj
+
+        r = self.scene.render
+        r.resolution_x, r.resolution_y = (int(v) for v in c.resolution)
+        r.resolution_percentage = 100
+        r.pixel_aspect_x = r.pixel_aspect_y = 1.0
+        r.use_border = False
+        self.obj = obj
+        self.set_pose(0)
+        return self
+
+    # -- intrinsics -------------------------------------------------------------------------------
+    @property
+    def resolution(self) -> tuple[int, int]:
+        w, h = self.cfg.camera.resolution
+        return int(w), int(h)
+
+    @property
+    def K(self) -> np.ndarray:
+        c = self.cfg.camera
+        w, h = self.resolution
+        return geometry.intrinsics_from_blender(c.focal_length, c.sensor_width, w, h, c.sensor_fit)
+
+    # -- poses ------------------------------------------------------------------------------------
+    def set_pose(self, pose_index: int) -> np.ndarray:
+        """Move the camera to `cfg.camera.poses[pose_index]`; returns T_world_cam (4x4, OpenCV)."""
+        self._require_setup()
+        poses = self.cfg.camera.poses
+        if not 0 <= pose_index < len(poses):
+            raise DataPipeError(f"camera pose {pose_index} does not exist (camera.poses has {len(poses)})")
+        p = poses[pose_index]
+        q = np.asarray(p.rotation, dtype=np.float64)
+        q = q / np.linalg.norm(q)
+        self.obj.location = [float(v) for v in p.location]
+        self.obj.rotation_quaternion = [float(v) for v in q]
+        # Evaluate so that matrix_world (and anything parented to the camera, e.g. the projector)
+        # reflects the new pose now. This does not change the frame, so simulated parts stay put.
+        self.scene.view_layers[0].update()
+        self.pose_index = pose_index
+        return geometry.camera_pose_from_config(p.location, q)
+
+    def T_world_cam(self) -> np.ndarray:
+        """The camera's current pose from its matrix_world: 4x4, OpenCV frame, scale removed."""
+        self._require_setup()
+        M = np.array(self.obj.matrix_world, dtype=np.float64)
+        R = M[:3, :3]
+        M[:3, :3] = R / np.linalg.norm(R, axis=0, keepdims=True)
+        return geometry.blender_camera_to_opencv(M)
+
+    def draw_poses(self, rng, n: int) -> list[int]:
+        """`n` distinct pose indices (without replacement), in draw order.
+
+        `rng` is a numpy Generator (or a `random.Random`)."""
+        total = len(self.cfg.camera.poses)
+        if not 0 <= n <= total:
+            raise DataPipeError(f"asked for {n} camera poses from a pool of {total} (drawn without "
+                                f"replacement): add camera poses or lower scene.max_renders_per_scene")
+        if isinstance(rng, np.random.Generator):
+            return [int(i) for i in rng.choice(total, size=n, replace=False)]
+        return [int(i) for i in rng.sample(range(total), n)]
+
+    def _require_setup(self) -> None:
+        if self.obj is None:
+            raise DataPipeError("BlendCamera.setup() must run before poses are set")

@@ -1,0 +1,223 @@
+"""Every bpy 4.2 .. 5.x difference DataPipe relies on, in one place.
+
+Callers never test `bpy.app.version` themselves: they call these helpers. Each fact here was
+observed by running both bpy 4.2.0 and 5.0.1 (see shared/bpy-notes.md); where only 5.0.1 could be
+re-checked in this repository's venv, the 4.2 branch follows those notes.
+
+Topics: engine ids, the compositor node tree and its sink (Composite vs. Group Output), the File
+Output node (paths, items, multilayer 32-bit EXR, the file name it writes), Render Layers socket
+names, the Cycles device, colour management.
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import bpy
+
+VERSION: tuple[int, int, int] = tuple(bpy.app.version)
+IS_5 = VERSION >= (5, 0, 0)
+
+# ------------------------------------------------------------------------------------------------
+# engines
+
+CYCLES = "CYCLES"
+EEVEE = "BLENDER_EEVEE" if IS_5 else "BLENDER_EEVEE_NEXT"
+
+
+def engine_id(name: str) -> str:
+    """Config engine name -> this Blender's engine id ("EEVEE" spellings differ between 4.2 and 5.0)."""
+    if name.upper() in ("EEVEE", "BLENDER_EEVEE", "BLENDER_EEVEE_NEXT"):
+        return EEVEE
+    return name.upper()
+
+
+# ------------------------------------------------------------------------------------------------
+# compositor tree
+
+COMPOSITOR_TREE_NAME = "datapipe_compositor"
+
+
+def compositor_tree(scene, *, clear: bool = True):
+    """The scene's compositor node tree, created if missing; emptied when `clear`.
+
+    5.x: `scene.compositing_node_group` (a CompositorNodeTree data-block; `scene.node_tree` is
+    gone). 4.2: `scene.use_nodes = True; scene.node_tree` (comes with Composite + Render Layers).
+    """
+    if IS_5:
+        tree = scene.compositing_node_group
+        if tree is None:
+            tree = bpy.data.node_groups.new(COMPOSITOR_TREE_NAME, "CompositorNodeTree")
+            scene.compositing_node_group = tree
+    else:
+        scene.use_nodes = True
+        tree = scene.node_tree
+    if clear:
+        tree.nodes.clear()
+        if IS_5:
+            for item in list(tree.interface.items_tree):
+                tree.interface.remove(item)
+    scene.render.use_compositing = True
+    return tree
+
+
+def add_compositor_sink(tree, image_socket):
+    """Route `image_socket` to the compositor's result (the Render Result / viewer image).
+
+    5.x: a Group Output node with an "Image" colour interface socket; 4.2: a Composite node.
+    Returns the sink node.
+    """
+    if IS_5:
+        if tree.interface.items_tree.get("Image") is None:
+            tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+        sink = tree.nodes.new("NodeGroupOutput")
+    else:
+        sink = tree.nodes.new("CompositorNodeComposite")
+    sink.name = sink.label = "datapipe_sink"
+    tree.links.new(image_socket, sink.inputs["Image"])
+    return sink
+
+
+def render_layers_node(tree, scene, view_layer_name: str, name: str | None = None):
+    """A Render Layers node reading `view_layer_name` of `scene`."""
+    rl = tree.nodes.new("CompositorNodeRLayers")
+    rl.scene = scene
+    rl.layer = view_layer_name
+    if name:
+        rl.name = rl.label = name
+    return rl
+
+
+# Render Layers output socket names per pass; 5.0 renamed "IndexOB" to "Object Index".
+_RL_SOCKETS = {
+    "image": ("Image",),
+    "alpha": ("Alpha",),
+    "depth": ("Depth",),
+    "normal": ("Normal",),
+    "index": ("Object Index", "IndexOB"),
+}
+
+
+def rl_socket(rl, kind: str):
+    """The Render Layers output for a pass kind ('image', 'alpha', 'depth', 'normal', 'index').
+
+    The pass must be enabled on the view layer first, or the socket is hidden (KeyError)."""
+    names = _RL_SOCKETS.get(kind, (kind,))
+    for n in names:
+        s = rl.outputs.get(n)
+        if s is not None and s.enabled:
+            return s
+    raise KeyError(f"Render Layers node {rl.name!r} has no enabled output {names} "
+                   f"(is the pass enabled on view layer {rl.layer!r}?)")
+
+
+# ------------------------------------------------------------------------------------------------
+# File Output node: one multilayer 32-bit EXR per render
+
+def _set_multilayer_exr(fmt) -> None:
+    if IS_5:
+        fmt.media_type = "MULTI_LAYER_IMAGE"      # must precede file_format on 5.x
+    fmt.file_format = "OPEN_EXR_MULTILAYER"
+    fmt.color_depth = "32"
+    fmt.exr_codec = "ZIP"
+
+
+def new_file_output(tree, directory: str | os.PathLike, basename: str, name: str = "datapipe_file_output"):
+    """A File Output node writing one multilayer float32 EXR; starts with no inputs.
+
+    Braces are path templates on 5.x (a silent skip of the write), so they are refused here."""
+    fo = tree.nodes.new("CompositorNodeOutputFile")
+    fo.name = fo.label = name
+    _set_multilayer_exr(fo.format)
+    if IS_5:
+        if hasattr(fo, "save_as_render"):
+            fo.save_as_render = False             # write scene-linear data, never view-transformed
+    else:
+        fo.layer_slots.clear()
+    set_file_output_path(fo, directory, basename)
+    return fo
+
+
+def set_file_output_path(fo, directory: str | os.PathLike, basename: str) -> None:
+    path = os.path.join(os.fspath(directory), basename)
+    if "{" in path or "}" in path:
+        raise ValueError(f"braces are path templates in Blender 5 and would skip the write: {path!r}")
+    if IS_5:
+        fo.directory = os.fspath(directory) + os.sep
+        fo.file_name = basename
+    else:
+        fo.base_path = path
+
+
+def file_output_add_input(fo, name: str, socket_type: str):
+    """Add an input layer `name` (socket_type 'FLOAT', 'VECTOR' or 'RGBA'); returns its socket.
+
+    In the multilayer EXR its channels are "<name>.V" (FLOAT), "<name>.X/Y/Z" (VECTOR) or
+    "<name>.R/G/B/A" (RGBA)."""
+    if IS_5:
+        fo.file_output_items.new(socket_type, name)
+    else:
+        fo.layer_slots.new(name)
+    return fo.inputs[name]
+
+
+def file_output_input_names(fo) -> list[str]:
+    if IS_5:
+        return [item.name for item in fo.file_output_items]
+    return [slot.name for slot in fo.layer_slots]
+
+
+_FRAME_SUFFIX = re.compile(r"^\d*$")
+
+
+def written_files(directory: str | os.PathLike, basename: str) -> list[Path]:
+    """Multilayer EXRs the File Output node wrote for `basename` in `directory`.
+
+    5.x writes `<basename>.exr`; 4.2 appends the frame number, `<basename>0001.exr`. Both match."""
+    d = Path(directory)
+    if not d.is_dir():
+        return []
+    out = []
+    for p in d.iterdir():
+        if p.suffix.lower() == ".exr" and p.name.startswith(basename):
+            if _FRAME_SUFFIX.match(p.name[len(basename):-len(p.suffix)]):
+                out.append(p)
+    return sorted(out)
+
+
+# ------------------------------------------------------------------------------------------------
+# Cycles device, colour management
+
+def set_cycles_device(scene, device: str) -> None:
+    """'CPU', or 'GPU' with the first available compute backend enabled. Raises RuntimeError when
+    a GPU is asked for and none can be used."""
+    scene.cycles.device = device
+    if device != "GPU":
+        return
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    for backend in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+        try:
+            prefs.compute_device_type = backend
+        except TypeError:
+            continue
+        prefs.get_devices()
+        gpus = [d for d in prefs.devices if d.type == backend]
+        if gpus:
+            for d in prefs.devices:
+                d.use = d.type == backend
+            return
+    prefs.compute_device_type = "NONE"
+    raise RuntimeError("no GPU compute device found for Cycles")
+
+
+def set_linear_color_management(scene) -> None:
+    """View transform Standard, no look, exposure 0, gamma 1, no curves, dither 0 (same ids in 4.2/5.x)."""
+    scene.display_settings.display_device = "sRGB"
+    vs = scene.view_settings
+    vs.view_transform = "Standard"
+    vs.look = "None"
+    vs.exposure = 0.0
+    vs.gamma = 1.0
+    vs.use_curve_mapping = False
+    scene.render.dither_intensity = 0.0

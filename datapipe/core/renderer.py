@@ -1,0 +1,279 @@
+"""Cycles setup, the native view layer and its passes, the compositor, and one render -> files.
+
+Once per run, `Renderer.setup()` configures Cycles, colour management for exact linear data, the
+native view layer ("datapipe") with only the passes the config's outputs need, and the compositor:
+Render Layers -> File Output writing ONE multilayer float32 EXR per render into the render folder
+(temporary name `_passes`). Per render, `Renderer.render(render_dir, seed)` renders, reads that EXR
+back, writes the final files of docs/ARCHITECTURE.md and deletes it:
+
+    rgb.png      8-bit sRGB (the standard sRGB OETF of the linear combined image = view transform
+                 Standard), written by cv2
+    depth.exr    "Z": planar depth along the camera z axis, m; NaN where no surface was hit
+    normals.exr  "X","Y","Z": unit normals in the OpenCV camera frame; 0 where nothing was hit
+    mask.exr     "Y": the pass_index of the visible object (0 = background)
+
+Facts verified by rendering with bpy 5.0.1 (tests/blender/test_renderer.py keeps them checked):
+EXR row 0 is the top of the image; Cycles' Z pass is planar depth (not ray length); depth and
+object index come from the pixel centre (seed- and sample-count independent, no mixing at edges),
+while the Normal pass is averaged over all samples (mixed at edges); the Normal pass is in world
+space; background depth is 1e10.
+
+Extra view layers (structured-light fringes, a later addition) hook in without rework:
+`add_view_layer_output(view_layer, item, kind, socket_type)` adds a Render Layers node for the
+layer (one per layer) and an input `item` on the same File Output node; the arrays come back in
+`RenderOutput.layers[item]`.
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import bpy
+
+from . import compat
+from ..config import Config
+from ..errors import DataPipeError
+from ..exr import read_exr, write_exr
+
+NATIVE_LAYER = "datapipe"
+TEMP_BASENAME = "_passes"           # the File Output's per-render multilayer EXR (no braces!)
+NO_HIT_DEPTH = 1e9                  # Cycles writes 1e10 where a ray hits nothing
+
+# Native File Output layers: config output -> (EXR layer name, Render Layers pass, socket type)
+_NATIVE_ITEMS = {
+    "rgb": ("Image", "image", "RGBA"),
+    "depth": ("Depth", "depth", "FLOAT"),
+    "normals": ("Normal", "normal", "VECTOR"),
+    "mask": ("IndexOB", "index", "FLOAT"),
+}
+_PASS_FLAGS = {"depth": "use_pass_z", "normals": "use_pass_normal", "mask": "use_pass_object_index"}
+_FILES = {"rgb": "rgb.png", "depth": "depth.exr", "normals": "normals.exr", "mask": "mask.exr"}
+_CHANNELS = {"FLOAT": ("V",), "VECTOR": ("X", "Y", "Z"), "RGBA": ("R", "G", "B", "A")}
+
+
+@dataclass
+class RenderOutput:
+    """What one render produced. Arrays are None when their output was not asked for."""
+    files: dict[str, Path]                      # kind ("rgb", "depth", ...) -> written file
+    depth: np.ndarray | None = None             # (H, W) float32, m, NaN = no hit
+    mask: np.ndarray | None = None              # (H, W) int32 pass_index, 0 = background
+    normals: np.ndarray | None = None           # (H, W, 3) float32, OpenCV camera frame
+    rgb: np.ndarray | None = None               # (H, W, 3) uint8 sRGB
+    fringes: object | None = None               # filled by the structured-light addition
+    seconds: float = 0.0                        # wall time of the Cycles render itself
+    T_world_cam: np.ndarray | None = None       # camera pose the render was made from
+    layers: dict[str, np.ndarray] = field(default_factory=dict)   # extra view-layer outputs
+
+
+def srgb_oetf(linear: np.ndarray) -> np.ndarray:
+    """The standard sRGB encoding (IEC 61966-2-1) of linear values, clipped to [0, 1]."""
+    x = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def linear_to_srgb8(linear_rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) linear -> (H, W, 3) uint8 sRGB, what Blender's Standard view transform shows."""
+    return np.rint(srgb_oetf(linear_rgb) * 255.0).astype(np.uint8)
+
+
+class Renderer:
+    """Cycles + passes + compositor, configured once per run; `render()` once per camera pose."""
+
+    def __init__(self, cfg: Config, scene, camera):
+        self.cfg = cfg
+        self.scene = scene
+        self.camera = camera
+        self.outputs: list[str] = [k for k in _FILES if k in cfg.render.outputs]
+        self.view_layer = None
+        self.tree = None
+        self.file_output = None
+        self._rl_nodes: dict[str, object] = {}           # view layer name -> Render Layers node
+        self._items: dict[str, tuple[str, str, str]] = {}  # EXR layer -> (view layer, pass, socket type)
+        self._extra: list[str] = []                       # items added by add_view_layer_output
+
+    # -- once per run -----------------------------------------------------------------------------
+    def setup(self) -> "Renderer":
+        self._setup_cycles()
+        compat.set_linear_color_management(self.scene)
+        self._setup_native_layer()
+        self._build_compositor()
+        return self
+
+    def _setup_cycles(self) -> None:
+        sc, r = self.scene, self.cfg.render
+        sc.render.engine = compat.engine_id(r.engine)
+        try:
+            compat.set_cycles_device(sc, r.device)
+        except RuntimeError as e:
+            raise DataPipeError(f"render.device = {r.device!r}: {e} (fix: set render.device to \"CPU\")") from None
+        cy = sc.cycles
+        cy.samples = int(r.samples)
+        cy.use_adaptive_sampling = False      # `samples` means what it says: a fixed noise level
+        cy.max_bounces = int(r.max_bounces)
+        cy.use_denoising = bool(r.denoise)
+        cy.use_preview_denoising = False
+        cy.time_limit = 0.0
+        if r.threads > 0:
+            sc.render.threads_mode = "FIXED"
+            sc.render.threads = int(r.threads)
+        else:
+            sc.render.threads_mode = "AUTO"
+        sc.render.film_transparent = False
+        sc.render.use_compositing = True
+        sc.render.use_sequencer = False
+        sc.render.use_motion_blur = False
+
+    def _setup_native_layer(self) -> None:
+        layers = self.scene.view_layers
+        vl = layers.get(NATIVE_LAYER) or layers[0]
+        vl.name = NATIVE_LAYER
+        vl.use = True
+        for other in layers:                 # layers from a .blend would each cost a full render
+            if other != vl:
+                other.use = False
+        for kind, flag in _PASS_FLAGS.items():
+            setattr(vl, flag, kind in self.outputs)
+        # Depth, object index and (with one sample) normals come from the pixel centre; without an
+        # RGB output the extra samples would only be averaged into the normals.
+        vl.samples = 0 if "rgb" in self.outputs else 1
+        self.view_layer = vl
+
+    def _build_compositor(self) -> None:
+        self.tree = compat.compositor_tree(self.scene, clear=True)
+        self._rl_nodes.clear()
+        self._items.clear()
+        self._extra.clear()
+        self.file_output = compat.new_file_output(self.tree, bpy.app.tempdir or "/tmp", TEMP_BASENAME)
+        rl = self._render_layers(self.view_layer)
+        compat.add_compositor_sink(self.tree, compat.rl_socket(rl, "image"))
+        for kind in self.outputs:
+            item, pass_kind, socket_type = _NATIVE_ITEMS[kind]
+            self._link(self.view_layer, item, pass_kind, socket_type)
+
+    def _render_layers(self, view_layer):
+        rl = self._rl_nodes.get(view_layer.name)
+        if rl is None:
+            rl = compat.render_layers_node(self.tree, self.scene, view_layer.name,
+                                           name=f"datapipe_rl_{len(self._rl_nodes)}")
+            rl.location = (-400, -300 * len(self._rl_nodes))
+            self._rl_nodes[view_layer.name] = rl
+        return rl
+
+    def _link(self, view_layer, item: str, pass_kind: str, socket_type: str) -> None:
+        if item in self._items:
+            raise ValueError(f"File Output layer {item!r} already exists")
+        socket = compat.rl_socket(self._render_layers(view_layer), pass_kind)
+        self.tree.links.new(socket, compat.file_output_add_input(self.file_output, item, socket_type))
+        self._items[item] = (view_layer.name, pass_kind, socket_type)
+
+    # -- hooks for extra view layers (structured light) ------------------------------------------
+    def add_view_layer_output(self, view_layer, item: str, kind: str = "image",
+                              socket_type: str = "RGBA") -> str:
+        """Write pass `kind` ('image', 'depth', 'normal', 'index', 'alpha') of `view_layer` into
+        each render's EXR as layer `item` (no braces, unique); it comes back as
+        `RenderOutput.layers[item]`: (H, W) for FLOAT, (H, W, 3) for VECTOR and RGB of RGBA.
+        Enable the layer's passes before calling. Call after setup(); once per run."""
+        if self.tree is None:
+            raise DataPipeError("Renderer.setup() must run before view-layer outputs are added")
+        if "{" in item or "}" in item or "." in item:
+            raise ValueError(f"File Output layer name {item!r} must not contain braces or dots")
+        view_layer.use = True
+        self._link(view_layer, item, kind, socket_type)
+        self._extra.append(item)
+        return item
+
+    # -- once per render --------------------------------------------------------------------------
+    def render(self, render_dir: str | os.PathLike, seed: int) -> RenderOutput:
+        """Render the current camera pose with Cycles seed `seed`; write the requested files into
+        `render_dir` (created if missing) and return them with their arrays."""
+        if self.tree is None:
+            raise DataPipeError("Renderer.setup() must run before render()")
+        render_dir = Path(render_dir)
+        render_dir.mkdir(parents=True, exist_ok=True)
+        for stale in compat.written_files(render_dir, TEMP_BASENAME):
+            stale.unlink()
+        try:
+            compat.set_file_output_path(self.file_output, render_dir, TEMP_BASENAME)
+        except ValueError as e:
+            raise DataPipeError(f"output folder {render_dir}: {e} (fix: choose an output folder "
+                                "whose path has no '{' or '}')") from None
+        self.scene.cycles.seed = int(seed) & 0x7FFFFFFF
+        T_world_cam = self.camera.T_world_cam()
+
+        t0 = time.perf_counter()
+        bpy.ops.render.render(write_still=False, scene=self.scene.name)
+        seconds = time.perf_counter() - t0
+
+        written = compat.written_files(render_dir, TEMP_BASENAME)
+        if not written:
+            raise DataPipeError(f"Blender wrote no pass file {TEMP_BASENAME}*.exr into {render_dir} "
+                                "(check free disk space and write permission of the output folder)")
+        tmp = max(written, key=lambda p: p.stat().st_mtime)
+        try:
+            channels = read_exr(tmp)
+        finally:
+            for p in written:
+                p.unlink(missing_ok=True)
+        out = self._convert(channels, T_world_cam)
+        out.seconds = seconds
+        out.T_world_cam = T_world_cam
+        out.files = self._write(render_dir, out)
+        return out
+
+    def _layer(self, channels: dict, item: str) -> np.ndarray:
+        socket_type = self._items[item][2]
+        names = _CHANNELS[socket_type]
+        try:
+            arrs = [channels[f"{item}.{c}"] for c in names]
+        except KeyError:
+            raise DataPipeError(f"the pass file lacks layer {item!r} (channels: {sorted(channels)})") from None
+        if socket_type == "FLOAT":
+            return arrs[0]
+        if socket_type == "RGBA":
+            arrs = arrs[:3]
+        return np.stack(arrs, axis=-1)
+
+    def _convert(self, channels: dict, T_world_cam: np.ndarray) -> RenderOutput:
+        out = RenderOutput(files={})
+        if "rgb" in self.outputs:
+            out.rgb = linear_to_srgb8(self._layer(channels, "Image"))
+        if "depth" in self.outputs:
+            z = self._layer(channels, "Depth").astype(np.float32)
+            z[~(np.isfinite(z) & (z < NO_HIT_DEPTH) & (z > 0))] = np.nan
+            out.depth = z
+        if "mask" in self.outputs:
+            out.mask = np.rint(self._layer(channels, "IndexOB")).astype(np.int32)
+        if "normals" in self.outputs:
+            n_world = self._layer(channels, "Normal").astype(np.float64)
+            n_cam = n_world @ T_world_cam[:3, :3]              # R_wc^T n, row-vector form
+            norm = np.linalg.norm(n_cam, axis=-1, keepdims=True)
+            hit = norm > 1e-6
+            out.normals = np.where(hit, n_cam / np.where(hit, norm, 1.0), 0.0).astype(np.float32)
+        for item in self._extra:
+            out.layers[item] = self._layer(channels, item)
+        return out
+
+    def _write(self, render_dir: Path, out: RenderOutput) -> dict[str, Path]:
+        files: dict[str, Path] = {}
+        if out.rgb is not None:
+            path = render_dir / _FILES["rgb"]
+            tmp = render_dir / "rgb.tmp.png"
+            if not cv2.imwrite(str(tmp), np.ascontiguousarray(out.rgb[..., ::-1])):
+                raise DataPipeError(f"cannot write {path} (check the output folder)")
+            os.replace(tmp, path)
+            files["rgb"] = path
+        if out.depth is not None:
+            files["depth"] = render_dir / _FILES["depth"]
+            write_exr(files["depth"], {"Z": out.depth})
+        if out.normals is not None:
+            files["normals"] = render_dir / _FILES["normals"]
+            write_exr(files["normals"], {c: out.normals[..., i] for i, c in enumerate("XYZ")})
+        if out.mask is not None:
+            files["mask"] = render_dir / _FILES["mask"]
+            write_exr(files["mask"], {"Y": out.mask.astype(np.float32)})
+        return files
