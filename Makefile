@@ -29,3 +29,5 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out build dist *.egg-info
+
+include make/extension.mk

@@ -1,0 +1,215 @@
+"""The ONE place that maps `Scene.datapipe` (the sidebar's PropertyGroup tree) to and from a `Config`.
+
+Fields map by name, section by section; the few that differ in shape are listed in `_SPECIAL`
+(periods as text, output/format sets, the optional blend file, the projector's Euler/quaternion
+rotation). Floats come back from Blender as float32; they are written as the shortest decimal that
+round-trips in float32 (0.06, not 0.05999999865889549), so a preset saved from the sidebar reads
+exactly like one written by hand, and save -> load -> save is a fixed point.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import typing
+
+import bpy
+import numpy as np
+
+from .. import config as C
+from ..errors import ConfigError, Problem
+from .props import INT_MAX, format_periods, parse_periods
+
+SECTIONS = ("scene", "camera", "projector", "structured_light", "render", "simulation", "output")
+_COLLECTIONS = {("camera", "poses")}          # handled with the object list
+
+
+def f32(value: float) -> float:
+    """A float as Blender stores it (float32), spelled as the shortest decimal that round-trips."""
+    return float(str(np.float32(value)))
+
+
+def _abspath(path: str) -> str:
+    """Blender-relative '//' paths become absolute (the headless runner has no .blend to resolve them)."""
+    if path.startswith("//") and bpy.data.filepath:
+        return os.path.normpath(bpy.path.abspath(path))
+    return path
+
+
+# ------------------------------------------------------------------------------------------------
+# fields whose property differs in shape: (props -> config value, config value -> [(prop, value)])
+
+def _rot_get(grp):
+    if grp.rotation_mode == "QUATERNION":
+        return [f32(v) for v in grp.rotation_quaternion]
+    return [f32(v) for v in grp.rotation_euler]
+
+
+def _rot_set(value):
+    if len(value) == 4:
+        return [("rotation_mode", "QUATERNION"), ("rotation_quaternion", tuple(value))]
+    if len(value) == 3:
+        return [("rotation_mode", "XYZ"), ("rotation_euler", tuple(value))]
+    raise ValueError(f"needs 3 (XYZ Euler) or 4 (quaternion wxyz) numbers, got {len(value)}")
+
+
+def _ordered(options):
+    return lambda grp, name: [k for k in options if k in getattr(grp, name)]
+
+
+_SPECIAL = {
+    ("scene", "blend_file"): (lambda grp, name: _abspath(grp.blend_file) or None,
+                              lambda value: [("blend_file", value or "")]),
+    ("projector", "rotation"): (lambda grp, name: _rot_get(grp), _rot_set),
+    ("structured_light", "periods"): (lambda grp, name: parse_periods(grp.periods),
+                                      lambda value: [("periods", format_periods(value))]),
+    ("render", "outputs"): (_ordered(C.OUTPUT_KINDS), lambda value: [("outputs", set(value))]),
+    ("output", "formats"): (_ordered(C.FORMATS), lambda value: [("formats", set(value))]),
+    ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),
+}
+
+
+def _read(grp, name: str, hint):
+    value = getattr(grp, name)
+    origin = typing.get_origin(hint)
+    if origin is list:
+        (item,) = typing.get_args(hint)
+        return [f32(v) if item is float else int(v) for v in value]
+    if hint is float:
+        return f32(value)
+    if hint is int:
+        return int(value)
+    if hint is bool:
+        return bool(value)
+    if hint is str:
+        return _abspath(value) if name == "filepath" else str(value)
+    raise TypeError(f"no property mapping for {name} ({hint})")
+
+
+def _read_group(grp, dc_type) -> dict:
+    hints = typing.get_type_hints(dc_type)
+    return {f.name: _read(grp, f.name, hints[f.name]) for f in dataclasses.fields(dc_type)}
+
+
+# ------------------------------------------------------------------------------------------------
+# props -> Config
+
+def props_to_config(props) -> C.Config:
+    """Build a `Config` from `Scene.datapipe`. Not validated: call `cfg.validate()`."""
+    cfg = C.Config()
+    for section in SECTIONS:
+        dc = getattr(cfg, section)
+        grp = getattr(props, section)
+        hints = typing.get_type_hints(type(dc))
+        for f in dataclasses.fields(dc):
+            key = (section, f.name)
+            if key in _COLLECTIONS:
+                continue
+            if key in _SPECIAL:
+                value = _SPECIAL[key][0](grp, f.name)
+            else:
+                value = _read(grp, f.name, hints[f.name])
+            setattr(dc, f.name, value)
+    cfg.camera.poses = [C.CameraPose(**_read_group(p, C.CameraPose)) for p in props.camera.poses]
+    cfg.objects = [C.ObjectEntry(**_read_group(o, C.ObjectEntry)) for o in props.objects]
+    return cfg
+
+
+# ------------------------------------------------------------------------------------------------
+# Config -> props (checked first: nothing changes when a value cannot be shown)
+
+def _check(rna, name: str, value, path: str, problems: list[Problem]) -> None:
+    """Would `value` survive assignment to property `name` unchanged (limits, enum items)?"""
+    prop = rna.properties[name]
+    values = value if isinstance(value, (list, tuple)) else [value]
+    if prop.type in ("INT", "FLOAT"):
+        lo, hi = prop.hard_min, prop.hard_max
+        if prop.type == "INT":
+            lo, hi = max(lo, -INT_MAX - 1), min(hi, INT_MAX)
+        for v in values:
+            if isinstance(v, float) and not math.isfinite(v):
+                problems.append(Problem(path, f"{v} is not a finite number", "give a finite number"))
+            elif not lo <= v <= hi:
+                problems.append(Problem(path, f"{v} is outside the range the sidebar allows ({lo:g}..{hi:g})",
+                                        f"give a value between {lo:g} and {hi:g}"))
+        if getattr(prop, "is_array", False) and prop.array_length != len(values):
+            problems.append(Problem(path, f"needs {prop.array_length} numbers, got {len(values)}",
+                                    f"give {prop.array_length} numbers"))
+    elif prop.type == "ENUM":
+        known = {item.identifier for item in prop.enum_items}
+        chosen = value if isinstance(value, set) else {value}
+        for v in sorted(chosen):
+            if v not in known:
+                problems.append(Problem(path, f"unknown value {v!r}", f"use one of {', '.join(sorted(known))}"))
+
+
+def _plan_group(obj, rna, dc_type, section: str, path: str, problems) -> list[tuple[str, object]]:
+    """[(property, value)] that set a group from dataclass instance `obj`, after checking each."""
+    hints = typing.get_type_hints(dc_type)
+    plan = []
+    for f in dataclasses.fields(dc_type):
+        key = (section, f.name)
+        if key in _COLLECTIONS:
+            continue
+        value = getattr(obj, f.name)
+        fpath = f"{path}.{f.name}"
+        if key in _SPECIAL:
+            try:
+                pairs = _SPECIAL[key][1](value)
+            except ValueError as e:
+                problems.append(Problem(fpath, str(e), "fix the value in the preset"))
+                continue
+        else:
+            if typing.get_origin(hints[f.name]) is list:
+                value = tuple(value)
+            pairs = [(f.name, value)]
+        for name, v in pairs:
+            if name == "periods":
+                try:
+                    parse_periods(v)
+                except ValueError as e:
+                    problems.append(Problem(fpath, str(e), "give integers >= 1, e.g. [1, 8, 64]"))
+                    continue
+            else:
+                _check(rna, name, v, fpath, problems)
+            plan.append((name, v))
+    return plan
+
+
+def config_to_props(cfg: C.Config, props) -> None:
+    """Fill `Scene.datapipe` from `cfg` (the panels then show the preset).
+
+    Raises ConfigError, changing nothing, when a value cannot be held by the sidebar (outside a
+    property's limits, an unknown choice). Paired limits are set low-then-high so the update
+    callbacks that keep min <= max never alter a valid config."""
+    from . import props as P
+    problems: list[Problem] = []
+    plans = []
+    for section in SECTIONS:
+        rna = getattr(props, section).bl_rna
+        plans.append((getattr(props, section),
+                      _plan_group(getattr(cfg, section), rna, type(getattr(cfg, section)), section, section,
+                                  problems)))
+    objects = [_plan_group(o, P.DATAPIPE_PG_object.bl_rna, C.ObjectEntry, "objects", f"objects[{i}]", problems)
+               for i, o in enumerate(cfg.objects)]
+    poses = [_plan_group(p, P.DATAPIPE_PG_pose.bl_rna, C.CameraPose, "poses", f"camera.poses[{i}]", problems)
+             for i, p in enumerate(cfg.camera.poses)]
+    if problems:
+        raise ConfigError(problems)
+
+    for grp, plan in plans:
+        _apply(grp, plan)
+    props.objects.clear()
+    for plan in objects:
+        _apply(props.objects.add(), plan)
+    props.objects_index = 0
+    props.camera.poses.clear()
+    for plan in poses:
+        _apply(props.camera.poses.add(), plan)
+    props.camera.poses_index = 0
+
+
+def _apply(grp, plan) -> None:
+    # in field order: min before max, clip start before end, rotation mode before the rotation
+    for name, value in plan:
+        setattr(grp, name, value)

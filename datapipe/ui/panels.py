@@ -1,0 +1,321 @@
+"""The `DataPipe` tab of the 3D viewport sidebar (N panel): Initialize, Scene, Objects, Camera,
+Structured Light, Output & Run (with Simulation and Render settings as closed sub-panels).
+
+Panels only draw `Scene.datapipe` and call `datapipe.*` operators; no logic lives here.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from bpy.types import Panel, UIList
+
+from . import preview, runner
+
+
+def _props(context):
+    return context.scene.datapipe
+
+
+class _DataPipePanel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "DataPipe"
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and hasattr(context.scene, "datapipe")
+
+
+# ------------------------------------------------------------------------------------------------
+# lists
+
+class DATAPIPE_UL_objects(UIList):
+    """Object entries: name (or file stem), instances min-max, scale."""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
+        label = item.name or (Path(item.filepath).stem if item.filepath else "(no file)")
+        row = layout.row(align=True)
+        row.label(text=f"{index + 1}. {label}", icon="MESH_DATA")
+        row.label(text=f"{item.min_instances}-{item.max_instances}x")
+
+
+class DATAPIPE_UL_poses(UIList):
+    """Camera poses: index and location."""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
+        x, y, z = item.location
+        layout.label(text=f"{index + 1}.  ({x:.3f}, {y:.3f}, {z:.3f}) m", icon="CAMERA_DATA")
+
+
+def _list_buttons(col, add: str, remove: str, move: str) -> None:
+    col.operator(add, icon="ADD", text="")
+    col.operator(remove, icon="REMOVE", text="")
+    col.separator()
+    col.operator(move, icon="TRIA_UP", text="").direction = "UP"
+    col.operator(move, icon="TRIA_DOWN", text="").direction = "DOWN"
+
+
+# ------------------------------------------------------------------------------------------------
+# panels
+
+class DATAPIPE_PT_initialize(_DataPipePanel, Panel):
+    bl_label = "Initialize"
+    bl_idname = "DATAPIPE_PT_initialize"
+    bl_order = 0
+
+    def draw(self, context):
+        layout = self.layout
+        props = _props(context)
+        col = layout.column(align=True)
+        col.prop(props, "preset", text="Preset")
+        row = col.row(align=True)
+        row.operator("datapipe.initialize", icon="FILE_REFRESH")
+        row.operator("datapipe.preset_load_selected", text="Load", icon="IMPORT")
+        layout.operator("datapipe.preset_load", text="Load File (JSON / Pickle)...", icon="FILEBROWSER")
+
+
+class DATAPIPE_PT_scene(_DataPipePanel, Panel):
+    bl_label = "Scene"
+    bl_idname = "DATAPIPE_PT_scene"
+    bl_order = 1
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        s = _props(context).scene
+        col = layout.column(align=True)
+        col.prop(s, "num_renders")
+        col.prop(s, "min_renders_per_scene", text="Per Scene Min")
+        col.prop(s, "max_renders_per_scene", text="Max")
+        layout.prop(s, "seed")
+        box = layout.box()
+        box.label(text="Drop Zone", icon="CUBE")
+        box.prop(s, "drop_zone_loc", text="Location")
+        box.prop(s, "drop_zone_scale", text="Half Size")
+        row = box.row(align=True)
+        row.operator("datapipe.drop_zone_place", text="Place", icon="IMPORT")
+        row.operator("datapipe.drop_zone_read", text="Read Back", icon="EXPORT")
+        col = layout.column()
+        col.prop(s, "make_bin")
+        sub = col.column()
+        sub.active = s.make_bin
+        sub.prop(s, "bin_wall_thickness")
+        layout.prop(s, "blend_file")
+
+
+class DATAPIPE_PT_simulation(_DataPipePanel, Panel):
+    bl_label = "Simulation"
+    bl_idname = "DATAPIPE_PT_simulation"
+    bl_parent_id = "DATAPIPE_PT_scene"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        m = _props(context).simulation
+        col = layout.column(align=True)
+        for name in ("substeps", "solver_iterations", "max_frames", "settle_speed", "settle_frames", "layer_gap"):
+            col.prop(m, name)
+
+
+class DATAPIPE_PT_objects(_DataPipePanel, Panel):
+    bl_label = "Objects"
+    bl_idname = "DATAPIPE_PT_objects"
+    bl_order = 2
+
+    def draw(self, context):
+        layout = self.layout
+        props = _props(context)
+        row = layout.row()
+        row.template_list("DATAPIPE_UL_objects", "", props, "objects", props, "objects_index", rows=3)
+        _list_buttons(row.column(align=True), "datapipe.object_add", "datapipe.object_remove",
+                      "datapipe.object_move")
+        on = preview.is_on("object")
+        layout.operator("datapipe.object_preview", text="Hide Preview" if on else "Preview Selected",
+                        icon="HIDE_OFF" if on else "HIDE_ON", depress=on)
+        if not 0 <= props.objects_index < len(props.objects):
+            layout.label(text="Add an object entry (a mesh file)", icon="INFO")
+            return
+        item = props.objects[props.objects_index]
+        col = layout.column()
+        col.use_property_split = True
+        col.use_property_decorate = False
+        col.prop(item, "filepath")
+        col.prop(item, "name")
+        col.prop(item, "scale")
+        col.prop(item, "mass")
+        col.prop(item, "collision_shape")
+        sub = col.column(align=True)
+        sub.prop(item, "min_instances", text="Instances Min")
+        sub.prop(item, "max_instances", text="Max")
+        sub = col.column(align=True)
+        sub.prop(item, "friction")
+        sub.prop(item, "restitution")
+
+
+class DATAPIPE_PT_camera(_DataPipePanel, Panel):
+    bl_label = "Camera"
+    bl_idname = "DATAPIPE_PT_camera"
+    bl_order = 3
+
+    def draw(self, context):
+        layout = self.layout
+        cam = _props(context).camera
+        col = layout.column()
+        col.use_property_split = True
+        col.use_property_decorate = False
+        col.prop(cam, "focal_length")
+        col.prop(cam, "sensor_width")
+        col.prop(cam, "sensor_fit")
+        sub = col.column(align=True)
+        sub.prop(cam, "resolution", index=0, text="Resolution X")
+        sub.prop(cam, "resolution", index=1, text="Y")
+        sub = col.column(align=True)
+        sub.prop(cam, "clip_start")
+        sub.prop(cam, "clip_end", text="End")
+
+        on = preview.is_on("camera")
+        layout.operator("datapipe.camera_preview", text="Hide Camera" if on else "Preview Camera",
+                        icon="HIDE_OFF" if on else "OUTLINER_OB_CAMERA", depress=on)
+        layout.label(text=f"Poses ({len(cam.poses)})")
+        row = layout.row()
+        row.template_list("DATAPIPE_UL_poses", "", cam, "poses", cam, "poses_index", rows=3)
+        _list_buttons(row.column(align=True), "datapipe.pose_add", "datapipe.pose_remove", "datapipe.pose_move")
+        row = layout.row(align=True)
+        row.operator("datapipe.pose_add", text="Add Current Pose", icon="ADD")
+        row.operator("datapipe.pose_jump", text="Jump to Pose", icon="VIEW_CAMERA")
+        if 0 <= cam.poses_index < len(cam.poses):
+            pose = cam.poses[cam.poses_index]
+            box = layout.box()
+            box.use_property_split = True
+            box.prop(pose, "location")
+            box.prop(pose, "rotation")
+
+
+class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
+    bl_label = "Structured Light"
+    bl_idname = "DATAPIPE_PT_structured_light"
+    bl_order = 4
+
+    def draw_header(self, context):
+        self.layout.prop(_props(context).structured_light, "enabled", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        props = _props(context)
+        sl, pr = props.structured_light, props.projector
+        layout.active = sl.enabled
+        col = layout.column()
+        col.use_property_split = True
+        col.use_property_decorate = False
+        col.prop(sl, "periods")
+        col.prop(sl, "steps")
+        col.prop(sl, "unwrap")
+        col.prop(sl, "samples")
+        col.prop(sl, "sensor")
+        col.prop(sl, "exposure")
+        col.prop(sl, "debug")
+        box = layout.box()
+        box.label(text="Projector", icon="LIGHT_SPOT")
+        bcol = box.column()
+        bcol.use_property_split = True
+        bcol.use_property_decorate = False
+        bcol.prop(pr, "focal_length")
+        bcol.prop(pr, "sensor_width")
+        sub = bcol.column(align=True)
+        sub.prop(pr, "resolution", index=0, text="Resolution X")
+        sub.prop(pr, "resolution", index=1, text="Y")
+        bcol.prop(pr, "power")
+        bcol.label(text="Pose relative to the camera")
+        bcol.prop(pr, "location")
+        bcol.prop(pr, "rotation_mode")
+        if pr.rotation_mode == "QUATERNION":
+            bcol.prop(pr, "rotation_quaternion")
+        else:
+            bcol.prop(pr, "rotation_euler")
+        on = preview.is_on("projector")
+        row = box.row()
+        row.enabled = preview.is_on("camera") or on
+        row.operator("datapipe.projector_preview", text="Hide Projector" if on else "Preview Projector",
+                     icon="HIDE_OFF" if on else "LIGHT_SPOT", depress=on)
+
+
+class DATAPIPE_PT_output(_DataPipePanel, Panel):
+    bl_label = "Output & Run"
+    bl_idname = "DATAPIPE_PT_output"
+    bl_order = 5
+
+    def draw(self, context):
+        layout = self.layout
+        props = _props(context)
+        out, r = props.output, props.render
+        col = layout.column()
+        col.use_property_split = True
+        col.use_property_decorate = False
+        col.prop(out, "path")
+        col.prop(r, "outputs")
+        col.prop(out, "formats")
+        col.prop(out, "legacy_pickle")
+        col.prop(out, "overview")
+
+        box = layout.box()
+        box.label(text="Preset", icon="PRESET")
+        row = box.row(align=True)
+        row.prop(props, "preset_name", text="")
+        row.operator("datapipe.preset_save", text="Save", icon="FILE_TICK")
+        row = box.row(align=True)
+        row.operator("datapipe.preset_save", text="Save As...", icon="FILEBROWSER").browse = True
+        row.operator("datapipe.preset_load", text="Load...", icon="IMPORT")
+
+        running = runner.is_running()
+        row = layout.row(align=True)
+        row.prop(props, "resume")
+        row.prop(props, "force")
+        layout.operator("datapipe.check", icon="CHECKMARK")
+        row = layout.row(align=True)
+        row.scale_y = 1.5
+        sub = row.row(align=True)
+        sub.enabled = not running
+        sub.operator("datapipe.run", icon="PLAY")
+        sub = row.row(align=True)
+        sub.enabled = running
+        sub.operator("datapipe.cancel", icon="CANCEL")
+        if props.status:
+            col = layout.column(align=True)
+            if running:
+                col.prop(props, "progress", text="Progress", slider=True)
+            row = col.row()
+            row.alert = props.status.startswith("Error")
+            row.label(text=props.status)
+
+
+class DATAPIPE_PT_render(_DataPipePanel, Panel):
+    bl_label = "Render Settings"
+    bl_idname = "DATAPIPE_PT_render"
+    bl_parent_id = "DATAPIPE_PT_output"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        r = _props(context).render
+        col = layout.column()
+        for name in ("engine", "device", "samples", "threads", "denoise", "max_bounces", "light_power"):
+            col.prop(r, name)
+
+
+CLASSES = (
+    DATAPIPE_UL_objects,
+    DATAPIPE_UL_poses,
+    DATAPIPE_PT_initialize,
+    DATAPIPE_PT_scene,
+    DATAPIPE_PT_simulation,
+    DATAPIPE_PT_objects,
+    DATAPIPE_PT_camera,
+    DATAPIPE_PT_structured_light,
+    DATAPIPE_PT_output,
+    DATAPIPE_PT_render,
+)

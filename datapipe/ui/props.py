@@ -1,0 +1,458 @@
+"""The sidebar's properties: one PropertyGroup tree registered as `bpy.types.Scene.datapipe`.
+
+The tree mirrors `datapipe.config.Config` section by section and field by field (same names), so a
+problem path such as `objects[1].min_instances` names the sidebar field too. Defaults are read from
+the Config dataclasses (never restated here); `datapipe.ui.convert` is the one place that maps the
+tree to and from a `Config`.
+
+Properties carry units (metres, kilograms, camera millimetres, radians), hard limits matching
+`Config.validate()`, and tooltips. Paired limits (min <= max, clip start < end) are kept consistent
+by update callbacks, so the sidebar cannot hold an impossible pair.
+"""
+
+import dataclasses
+
+import bpy
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty,
+                       FloatVectorProperty, IntProperty, IntVectorProperty, PointerProperty,
+                       StringProperty)
+from bpy.types import PropertyGroup
+from mathutils import Euler, Quaternion
+
+from .. import config as C
+
+INT_MAX = 2**31 - 1          # Blender's IntProperty is a signed 32-bit integer
+
+
+def default(dc, name: str):
+    """The Config dataclass default of `dc.name` (default or default_factory)."""
+    for f in dataclasses.fields(dc):
+        if f.name == name:
+            if f.default is not dataclasses.MISSING:
+                return f.default
+            return f.default_factory()
+    raise KeyError(f"{dc.__name__} has no field {name!r}")
+
+
+def _items(values, descriptions=None):
+    descriptions = descriptions or {}
+    return [(v, v.replace("_", " ").title(), descriptions.get(v, v)) for v in values]
+
+
+# ------------------------------------------------------------------------------------------------
+# update callbacks
+
+def _keep_order(lo: str, hi: str, *, strict: bool = False):
+    """Two update callbacks keeping `lo <= hi` (or `lo < hi` when strict) by moving the other one."""
+    def lo_changed(self, context):
+        a, b = getattr(self, lo), getattr(self, hi)
+        if a > b or (strict and a >= b):
+            setattr(self, hi, a * 2 if strict else a)
+
+    def hi_changed(self, context):
+        a, b = getattr(self, lo), getattr(self, hi)
+        if a > b or (strict and a >= b):
+            setattr(self, lo, b / 2 if strict else b)
+
+    return lo_changed, hi_changed
+
+
+def _sync_previews(self, context):
+    """Keep the viewport previews (camera, projector, object) in step with edited properties."""
+    from . import preview
+    preview.sync(context)
+
+
+def _chain(*callbacks):
+    def run(self, context):
+        for cb in callbacks:
+            cb(self, context)
+    return run
+
+
+# ------------------------------------------------------------------------------------------------
+# scene
+
+_renders_lo, _renders_hi = _keep_order("min_renders_per_scene", "max_renders_per_scene")
+_S = C.SceneConfig
+
+
+class DATAPIPE_PG_scene(PropertyGroup):
+    num_renders: IntProperty(
+        name="Renders", description="Total number of renders in the run (over all scenes)",
+        default=default(_S, "num_renders"), min=1, soft_max=10000)
+    min_renders_per_scene: IntProperty(
+        name="Min per Scene", description="Fewest camera poses rendered per scene (one drop of parts per "
+        "scene; poses are drawn without replacement). Raising it above Max raises Max",
+        default=default(_S, "min_renders_per_scene"), min=1, soft_max=100, update=_renders_lo)
+    max_renders_per_scene: IntProperty(
+        name="Max per Scene", description="Most camera poses rendered per scene (at most the number of camera "
+        "poses). Lowering it below Min lowers Min",
+        default=default(_S, "max_renders_per_scene"), min=1, soft_max=100, update=_renders_hi)
+    drop_zone_loc: FloatVectorProperty(
+        name="Drop Zone Location", description="Centre of the bin's inner volume (world, metres)",
+        size=3, subtype="TRANSLATION", unit="LENGTH", default=default(_S, "drop_zone_loc"))
+    drop_zone_scale: FloatVectorProperty(
+        name="Drop Zone Half Size", description="Half-extents of the drop zone box along X, Y, Z (metres)",
+        size=3, subtype="XYZ_LENGTH", unit="LENGTH", min=1e-4, soft_max=5.0,
+        default=default(_S, "drop_zone_scale"))
+    make_bin: BoolProperty(
+        name="Bin Walls", description="Build a floor and walls around the drop zone (off: floor only)",
+        default=default(_S, "make_bin"))
+    bin_wall_thickness: FloatProperty(
+        name="Wall Thickness", description="Thickness of the bin's floor and walls",
+        subtype="DISTANCE", unit="LENGTH", min=1e-5, soft_max=0.1, default=default(_S, "bin_wall_thickness"))
+    blend_file: StringProperty(
+        name="Blend File", description="Open this .blend as the base scene (empty: a fresh scene); its "
+        "object 'drop_zone', when present, overrides the drop zone above",
+        subtype="FILE_PATH", default=default(_S, "blend_file") or "")
+    seed: IntProperty(
+        name="Seed", description="Base seed of the run: scene i derives its own seed from it, so any scene "
+        "can be re-made alone and shards match a single run",
+        default=default(_S, "seed"), min=0, max=INT_MAX)
+
+
+# ------------------------------------------------------------------------------------------------
+# simulation
+
+_M = C.SimulationConfig
+
+
+class DATAPIPE_PG_simulation(PropertyGroup):
+    substeps: IntProperty(name="Substeps", description="Rigid-body substeps per frame",
+                          default=default(_M, "substeps"), min=1, soft_max=100)
+    solver_iterations: IntProperty(name="Solver Iterations", description="Rigid-body constraint solver iterations",
+                                   default=default(_M, "solver_iterations"), min=1, soft_max=100)
+    max_frames: IntProperty(name="Max Frames", description="Hard cap on simulated frames per scene (24 fps)",
+                            default=default(_M, "max_frames"), min=1, soft_max=2000)
+    settle_speed: FloatProperty(
+        name="Settle Speed", description="A part moving slower than this is at rest",
+        unit="VELOCITY", min=1e-6, soft_max=1.0, precision=4,
+        default=default(_M, "settle_speed"))
+    settle_frames: IntProperty(name="Settle Frames", description="Consecutive frames at rest before the drop "
+                               "counts as settled", default=default(_M, "settle_frames"), min=1, soft_max=100)
+    layer_gap: FloatProperty(name="Layer Gap", description="Vertical gap between spawn layers of parts",
+                             subtype="DISTANCE", unit="LENGTH", min=0.0, soft_max=0.1, precision=4,
+                             default=default(_M, "layer_gap"))
+
+
+# ------------------------------------------------------------------------------------------------
+# objects
+
+_O = C.ObjectEntry
+_inst_lo, _inst_hi = _keep_order("min_instances", "max_instances")
+
+
+class DATAPIPE_PG_object(PropertyGroup):
+    filepath: StringProperty(
+        name="File", description="Mesh file of the part (" + ", ".join(C.MESH_SUFFIXES) + ")",
+        subtype="FILE_PATH", default=default(_O, "filepath"))
+    name: StringProperty(name="Name", description="Name of the part in annotations (empty: the file name "
+                         "without extension)", default=default(_O, "name"))
+    scale: FloatProperty(
+        name="Scale", description="File units to metres (e.g. 0.001 for a mesh modelled in millimetres)",
+        min=1e-6, soft_max=100.0, precision=4, default=default(_O, "scale"), update=_sync_previews)
+    mass: FloatProperty(name="Mass", description="Mass of each instance", unit="MASS",
+                        min=1e-6, soft_max=100.0, precision=3, default=default(_O, "mass"))
+    collision_shape: EnumProperty(
+        name="Collision Shape", description="Rigid-body collision shape (Convex Hull is fast and stable; "
+        "Mesh follows concave parts but is slower)",
+        items=_items(C.COLLISION_SHAPES), default=default(_O, "collision_shape"))
+    min_instances: IntProperty(
+        name="Min Instances", description="Fewest copies of this part per scene. Raising it above Max "
+        "raises Max", default=default(_O, "min_instances"), min=0, max=500, update=_inst_lo)
+    max_instances: IntProperty(
+        name="Max Instances", description="Most copies of this part per scene. Lowering it below Min "
+        "lowers Min", default=default(_O, "max_instances"), min=0, max=500, update=_inst_hi)
+    friction: FloatProperty(name="Friction", description="Rigid-body friction", min=0.0, soft_max=1.0,
+                            default=default(_O, "friction"))
+    restitution: FloatProperty(name="Restitution", description="Rigid-body bounciness (0..1)",
+                               min=0.0, max=1.0, default=default(_O, "restitution"))
+
+
+# ------------------------------------------------------------------------------------------------
+# camera
+
+_P = C.CameraPose
+_K = C.CameraConfig
+_clip_lo, _clip_hi = _keep_order("clip_start", "clip_end", strict=True)
+
+
+class DATAPIPE_PG_pose(PropertyGroup):
+    location: FloatVectorProperty(
+        name="Location", description="World location of the Blender camera object",
+        size=3, subtype="TRANSLATION", unit="LENGTH", default=default(_P, "location"))
+    rotation: FloatVectorProperty(
+        name="Rotation", description="World rotation of the Blender camera object as a quaternion (w, x, y, z); "
+        "the camera looks down its local -Z", size=4, subtype="QUATERNION", default=default(_P, "rotation"))
+
+
+class DATAPIPE_PG_camera(PropertyGroup):
+    focal_length: FloatProperty(
+        name="Focal Length", description="Lens focal length (millimetres, as Blender's camera)",
+        subtype="DISTANCE_CAMERA", unit="CAMERA", min=1e-3, soft_min=1.0, soft_max=300.0,
+        default=default(_K, "focal_length"), update=_sync_previews)
+    sensor_width: FloatProperty(
+        name="Sensor Width", description="Sensor width (millimetres)",
+        subtype="DISTANCE_CAMERA", unit="CAMERA", min=1e-3, soft_min=1.0, soft_max=100.0,
+        default=default(_K, "sensor_width"), update=_sync_previews)
+    sensor_fit: EnumProperty(
+        name="Sensor Fit", description="Which image dimension the sensor width applies to",
+        items=_items(C.SENSOR_FITS), default=default(_K, "sensor_fit"), update=_sync_previews)
+    resolution: IntVectorProperty(
+        name="Resolution", description="Image size in pixels (width, height)", size=2,
+        min=1, max=C.MAX_RESOLUTION, default=default(_K, "resolution"), update=_sync_previews)
+    clip_start: FloatProperty(
+        name="Clip Start", description="Nearest rendered distance. Raising it past Clip End moves Clip End",
+        subtype="DISTANCE", unit="LENGTH", min=1e-5, soft_max=10.0, precision=3,
+        default=default(_K, "clip_start"), update=_chain(_clip_lo, _sync_previews))
+    clip_end: FloatProperty(
+        name="Clip End", description="Farthest rendered distance. Lowering it below Clip Start moves Clip Start",
+        subtype="DISTANCE", unit="LENGTH", min=2e-5, soft_max=1000.0, precision=3,
+        default=default(_K, "clip_end"), update=_chain(_clip_hi, _sync_previews))
+    poses: CollectionProperty(type=DATAPIPE_PG_pose, name="Poses",
+                              description="Pool of camera poses; each scene draws its renders' poses from it")
+    poses_index: IntProperty(name="Active Pose", description="Selected camera pose", min=0)
+
+
+# ------------------------------------------------------------------------------------------------
+# projector
+
+_J = C.ProjectorConfig
+_PROJ_ROT = default(_J, "rotation")
+_PROJ_EULER = tuple(_PROJ_ROT) if len(_PROJ_ROT) == 3 else tuple(Quaternion(_PROJ_ROT).to_euler("XYZ"))
+_PROJ_QUAT = tuple(_PROJ_ROT) if len(_PROJ_ROT) == 4 else tuple(Euler(_PROJ_ROT, "XYZ").to_quaternion())
+
+
+def _euler_changed(self, context):
+    """The Euler angles are the rotation: keep the quaternion equal (both always describe one pose)."""
+    if self.rotation_mode == "XYZ":
+        self.rotation_quaternion = Euler(self.rotation_euler, "XYZ").to_quaternion()
+    _sync_previews(self, context)
+
+
+def _quaternion_changed(self, context):
+    if self.rotation_mode == "QUATERNION":
+        self.rotation_euler = Quaternion(self.rotation_quaternion).normalized().to_euler("XYZ")
+    _sync_previews(self, context)
+
+
+class DATAPIPE_PG_projector(PropertyGroup):
+    focal_length: FloatProperty(
+        name="Focal Length", description="Projector lens focal length (millimetres)",
+        subtype="DISTANCE_CAMERA", unit="CAMERA", min=1e-3, soft_min=1.0, soft_max=300.0,
+        default=default(_J, "focal_length"), update=_sync_previews)
+    sensor_width: FloatProperty(
+        name="Sensor Width", description="Projector image (DMD) width (millimetres)",
+        subtype="DISTANCE_CAMERA", unit="CAMERA", min=1e-3, soft_min=1.0, soft_max=100.0,
+        default=default(_J, "sensor_width"), update=_sync_previews)
+    resolution: IntVectorProperty(
+        name="Resolution", description="Projector image size in pixels (width, height)", size=2,
+        min=1, max=C.MAX_RESOLUTION, default=default(_J, "resolution"), update=_sync_previews)
+    location: FloatVectorProperty(
+        name="Location", description="Projector position relative to the camera, in the camera object's "
+        "local axes", size=3, subtype="TRANSLATION", unit="LENGTH", default=default(_J, "location"),
+        update=_sync_previews)
+    rotation_mode: EnumProperty(
+        name="Rotation Mode", description="How the projector's rotation relative to the camera is given",
+        items=[("XYZ", "XYZ Euler", "Euler angles, XYZ order"),
+               ("QUATERNION", "Quaternion", "Quaternion (w, x, y, z)")],
+        default="XYZ" if len(_PROJ_ROT) == 3 else "QUATERNION", update=_sync_previews)
+    rotation_euler: FloatVectorProperty(
+        name="Rotation", description="Projector rotation relative to the camera (XYZ Euler)", size=3,
+        subtype="EULER", unit="ROTATION", default=_PROJ_EULER, update=_euler_changed)
+    rotation_quaternion: FloatVectorProperty(
+        name="Rotation", description="Projector rotation relative to the camera (quaternion w, x, y, z)",
+        size=4, subtype="QUATERNION", default=_PROJ_QUAT, update=_quaternion_changed)
+    power: FloatProperty(name="Strength", description="Emission strength of the projector light's node tree",
+                         min=1e-6, soft_max=100.0, default=default(_J, "power"))
+
+
+# ------------------------------------------------------------------------------------------------
+# structured light
+
+_L = C.StructuredLightConfig
+
+
+def parse_periods(text: str) -> list[int]:
+    """'8, 7' -> [8, 7]. Raises ValueError for anything but a non-empty list of integers >= 1."""
+    tokens = [t for t in text.replace(",", " ").replace(";", " ").replace("[", " ").replace("]", " ").split()]
+    if not tokens:
+        raise ValueError("no periods given")
+    values = [int(t) for t in tokens]
+    if any(v < 1 for v in values):
+        raise ValueError("periods must be >= 1")
+    return values
+
+
+def format_periods(values) -> str:
+    return ", ".join(str(int(v)) for v in values)
+
+
+def _get_periods(self):
+    return self.periods_text
+
+
+def _set_periods(self, value):
+    try:
+        self.periods_text = format_periods(parse_periods(value))
+    except ValueError as e:        # keep the last valid list; the field shows it again
+        print(f"DataPipe: structured_light.periods: ignored {value!r} ({e}); give integers >= 1, e.g. '1, 8, 64'")
+
+
+def _sensor_search(self, context, edit_text):
+    """Suggestions for the sensor field, read when the field is edited (datapipe.sl imports scipy:
+    too slow for add-on registration). Unknown names are reported by Config.validate()."""
+    try:
+        from ..sl.sensor import PRESETS
+    except ImportError:
+        return []
+    return [name for name in sorted(PRESETS) if edit_text.lower() in name.lower()]
+
+
+class DATAPIPE_PG_structured_light(PropertyGroup):
+    enabled: BoolProperty(name="Structured Light", description="Render phase-shifted fringe images lit by "
+                          "the projector and decode a structured-light depth map per render",
+                          default=default(_L, "enabled"))
+    periods_text: StringProperty(default=format_periods(default(_L, "periods")), options={"HIDDEN"})
+    periods: StringProperty(
+        name="Periods", description="Fringe periods across the projector width, coarse to fine, comma "
+        "separated (e.g. '1, 8, 64' hierarchical, or '8, 7' two-frequency heterodyne)",
+        get=_get_periods, set=_set_periods)
+    steps: IntProperty(name="Steps", description="Phase steps per period (4 or more avoids gamma errors)",
+                       default=default(_L, "steps"), min=3, soft_max=16)
+    unwrap: EnumProperty(name="Unwrapping", description="Temporal phase unwrapping method",
+                         items=_items(C.UNWRAP_METHODS), default=default(_L, "unwrap"))
+    samples: IntProperty(name="Samples", description="Cycles samples for each fringe image",
+                         default=default(_L, "samples"), min=1, soft_max=4096)
+    sensor: StringProperty(name="Sensor Model", description="Camera noise model preset (datapipe.sl.sensor: "
+                           "shot and read noise, ADC bits, saturation), e.g. ideal, industrial",
+                           default=default(_L, "sensor"), search=_sensor_search)
+    exposure: FloatProperty(name="Exposure", description="Scales the linear radiance before the sensor model",
+                            min=1e-6, soft_max=10.0, default=default(_L, "exposure"))
+    debug: BoolProperty(name="Debug Maps", description="Also write wrapped/absolute phase, modulation and "
+                        "reason codes", default=default(_L, "debug"))
+
+
+# ------------------------------------------------------------------------------------------------
+# render
+
+_R = C.RenderConfig
+
+
+_ENGINES = getattr(C, "ENGINES", ("CYCLES",))      # what Config.validate() accepts
+_DEVICES = getattr(C, "DEVICES", ("CPU", "GPU"))
+
+
+class DATAPIPE_PG_render(PropertyGroup):
+    engine: EnumProperty(name="Engine", description="Render engine", items=_items(_ENGINES),
+                         default=default(_R, "engine"))
+    device: EnumProperty(name="Device", description="Cycles device (GPU uses the first available backend)",
+                         items=_items(_DEVICES), default=default(_R, "device"))
+    samples: IntProperty(name="Samples", description="Cycles samples for the RGB / depth / normals / mask render",
+                         default=default(_R, "samples"), min=1, soft_max=4096)
+    threads: IntProperty(name="Threads", description="CPU threads (0: all cores)",
+                         default=default(_R, "threads"), min=0, soft_max=256)
+    denoise: BoolProperty(name="Denoise", description="Denoise the RGB render", default=default(_R, "denoise"))
+    max_bounces: IntProperty(name="Max Bounces", description="Cycles light bounces",
+                             default=default(_R, "max_bounces"), min=0, soft_max=32)
+    light_power: FloatProperty(name="Key Light", description="Power of the area light above the bin",
+                               unit="POWER", min=0.0, soft_max=1000.0,
+                               default=default(_R, "light_power"))
+    outputs: EnumProperty(
+        name="Outputs", description="What to write for each render",
+        items=[(k, k.title(), f"Write the {k} image of each render") for k in C.OUTPUT_KINDS],
+        options={"ENUM_FLAG"}, default=set(default(_R, "outputs")))
+
+
+# ------------------------------------------------------------------------------------------------
+# output
+
+_T = C.OutputConfig
+
+
+def _formats_changed(self, context):
+    if not self.formats:                    # at least one format: an empty set is never a valid run
+        self.formats = {C.FORMATS[0]}
+
+
+class DATAPIPE_PG_output(PropertyGroup):
+    path: StringProperty(name="Folder", description="Output folder of the dataset (must be empty, or an "
+                         "earlier run's folder with Resume)", subtype="DIR_PATH", default=default(_T, "path"))
+    formats: EnumProperty(
+        name="Formats", description="Dataset formats to write",
+        items=[("native", "Native", "DataPipe's scene.NNNN/render.NNNN layout"),
+               ("bop", "BOP", "BOP toolkit layout (needs RGB, depth and mask)")],
+        options={"ENUM_FLAG"}, default=set(default(_T, "formats")), update=_formats_changed)
+    legacy_pickle: BoolProperty(name="Legacy Pickle", description="Also write the original DataPipe's "
+                                "output_dict.pickle", default=default(_T, "legacy_pickle"))
+    overview: BoolProperty(name="Overview Sheet", description="Write an overview sheet of the run at the end",
+                           default=default(_T, "overview"))
+
+
+# ------------------------------------------------------------------------------------------------
+# root
+
+def _preset_items(self, context):
+    from . import presets
+    return presets.enum_items()
+
+
+class DATAPIPE_PG_root(PropertyGroup):
+    """`Scene.datapipe`: every sidebar setting (Config sections) plus a little UI state."""
+    scene: PointerProperty(type=DATAPIPE_PG_scene, name="Scene", description="Renders, seed, drop zone, bin")
+    objects: CollectionProperty(type=DATAPIPE_PG_object, name="Objects",
+                                description="Parts to drop: one entry per mesh file")
+    objects_index: IntProperty(name="Active Object", description="Selected object entry", min=0)
+    camera: PointerProperty(type=DATAPIPE_PG_camera, name="Camera", description="Intrinsics and pose pool")
+    projector: PointerProperty(type=DATAPIPE_PG_projector, name="Projector",
+                               description="Fringe projector intrinsics and pose relative to the camera")
+    structured_light: PointerProperty(type=DATAPIPE_PG_structured_light, name="Structured Light",
+                                      description="Fringe patterns and decoding")
+    render: PointerProperty(type=DATAPIPE_PG_render, name="Render", description="Cycles settings and outputs")
+    simulation: PointerProperty(type=DATAPIPE_PG_simulation, name="Simulation",
+                                description="Rigid-body drop settings")
+    output: PointerProperty(type=DATAPIPE_PG_output, name="Output", description="Output folder and formats")
+
+    # UI state (not part of the Config)
+    preset: EnumProperty(name="Preset", description="Built-in (read-only) and user presets",
+                         items=_preset_items)
+    preset_name: StringProperty(name="Preset Name", description="Name to save the current settings under "
+                                "(in the user presets folder)", default="my_preset")
+    resume: BoolProperty(name="Resume", description="Continue an earlier run in the output folder (same "
+                         "preset and seed); complete scenes are skipped", default=False)
+    force: BoolProperty(name="Overwrite", description="Empty the output folder first if it holds an earlier "
+                        "DataPipe run", default=False)
+    status: StringProperty(name="Status", description="Last run status", default="")
+    progress: FloatProperty(name="Progress", description="Share of the run's renders done",
+                            subtype="PERCENTAGE", min=0.0, max=100.0, default=0.0)
+
+
+CLASSES = (
+    DATAPIPE_PG_scene,
+    DATAPIPE_PG_simulation,
+    DATAPIPE_PG_object,
+    DATAPIPE_PG_pose,
+    DATAPIPE_PG_camera,
+    DATAPIPE_PG_projector,
+    DATAPIPE_PG_structured_light,
+    DATAPIPE_PG_render,
+    DATAPIPE_PG_output,
+    DATAPIPE_PG_root,
+)
+
+
+def register_pointer() -> None:
+    bpy.types.Scene.datapipe = PointerProperty(type=DATAPIPE_PG_root, name="DataPipe",
+                                               description="DataPipe dataset settings")
+
+
+def unregister_pointer() -> None:
+    if hasattr(bpy.types.Scene, "datapipe"):
+        del bpy.types.Scene.datapipe
+
+
+def props(context=None):
+    """`Scene.datapipe` of the context's scene."""
+    context = context or bpy.context
+    return context.scene.datapipe

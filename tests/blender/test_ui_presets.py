@@ -1,0 +1,207 @@
+"""Config <-> properties conversion and JSON presets (built-in read-only, user folder, legacy pickle)."""
+import json
+import math
+import pickle
+
+import bpy
+import pytest
+
+from datapipe import config as C
+from datapipe.errors import ConfigError
+import datapipe.ui as ui
+from datapipe.ui import presets
+from datapipe.ui.convert import config_to_props, f32, props_to_config
+
+
+@pytest.fixture(autouse=True)
+def registered(tmp_path, monkeypatch):
+    monkeypatch.setenv("DATAPIPE_USER_PRESETS", str(tmp_path / "user_presets"))
+    was = hasattr(bpy.types.Scene, "datapipe")
+    if not was:
+        ui.register()
+    yield bpy.context.scene.datapipe
+    if not was:
+        ui.unregister()
+
+
+def dump(pg, skip=("preset", "status", "progress")):
+    """Every property value of a PropertyGroup tree, recursively (the UI's complete state)."""
+    out = {}
+    for prop in pg.bl_rna.properties:
+        k = prop.identifier
+        if k == "rna_type" or k in skip:
+            continue
+        v = getattr(pg, k)
+        if prop.type == "POINTER":
+            out[k] = dump(v, skip)
+        elif prop.type == "COLLECTION":
+            out[k] = [dump(item, skip) for item in v]
+        elif prop.type == "ENUM" and prop.is_enum_flag:
+            out[k] = sorted(v)
+        elif getattr(prop, "is_array", False):
+            out[k] = list(v)
+        else:
+            out[k] = v
+    return out
+
+
+def test_f32_shortest_decimal():
+    assert f32(0.06) == 0.06
+    assert f32(0.1) == 0.1
+    assert f32(1 / 3) == float("0.33333334")
+    assert f32(f32(0.123456789)) == f32(0.123456789)
+
+
+@pytest.mark.parametrize("name", ["default", "thesis_sensor"])
+def test_builtin_preset_round_trip(registered, name):
+    cfg = C.load(presets.builtin_dir() / f"{name}.json")
+    config_to_props(cfg, registered)
+    back = props_to_config(registered)
+    a, b = cfg.to_dict(), back.to_dict()
+    if name == "default":      # math.radians(-8.5) is not a float32; everything else is exact
+        assert b["projector"]["rotation"] == pytest.approx(a["projector"]["rotation"], abs=1e-7)
+        b["projector"]["rotation"] = a["projector"]["rotation"]
+    assert a == b
+
+
+def test_thesis_sensor_preset():
+    cfg = C.load(presets.builtin_dir() / "thesis_sensor.json")
+    default = C.load(presets.builtin_dir() / "default.json")
+    assert cfg.problems() == []
+    assert (cfg.camera.focal_length, cfg.camera.sensor_width, cfg.camera.resolution) == (50.0, 36.0, [720, 480])
+    pr = cfg.projector
+    assert (pr.focal_length, pr.sensor_width, pr.resolution) == (50.0, 36.0, [720, 480])
+    assert pr.location == [-0.15, 0.0, 0.0]
+    assert pr.rotation == pytest.approx([0.0, math.radians(-8.5), 0.0], abs=1e-7)
+    sl = cfg.structured_light
+    assert sl.enabled and sl.periods == [8, 7] and sl.steps == 3 and sl.unwrap == "heterodyne"
+    assert cfg.objects == default.objects
+
+
+def test_config_to_props_refuses_values_the_sidebar_cannot_hold(registered):
+    before = dump(registered)
+    cfg = C.default_config()
+    cfg.scene.seed = 2**31                       # valid for the Config, beyond Blender's int property
+    cfg.objects[0].collision_shape = "BLOB"
+    with pytest.raises(ConfigError) as e:
+        config_to_props(cfg, registered)
+    assert set(e.value.paths()) == {"scene.seed", "objects[0].collision_shape"}
+    assert dump(registered) == before            # nothing changed
+
+
+def test_quaternion_projector_round_trip(registered):
+    cfg = C.default_config()
+    cfg.projector.rotation = [0.5, 0.5, 0.5, 0.5]
+    config_to_props(cfg, registered)
+    assert registered.projector.rotation_mode == "QUATERNION"
+    assert props_to_config(registered).projector.rotation == [0.5, 0.5, 0.5, 0.5]
+
+
+def test_save_then_load_into_fresh_scene_is_identical(registered, tmp_path):
+    bpy.ops.datapipe.initialize(preset="builtin:thesis_sensor")
+    d = bpy.context.scene.datapipe
+    # edit a bit of everything, as a user would
+    d.scene.seed = 1234
+    d.scene.drop_zone_scale = (0.2, 0.12, 0.08)
+    d.objects[1].scale = 0.001
+    d.objects[1].mass = 0.123
+    d.camera.focal_length = 35.5
+    d.projector.rotation_mode = "QUATERNION"
+    d.projector.rotation_quaternion = (0.99, 0.0, -0.1, 0.0)
+    d.structured_light.periods = "1, 4, 20"
+    d.structured_light.unwrap = "multi-frequency"
+    d.render.outputs = {"rgb", "depth"}
+    d.output.formats = {"native", "bop"}
+    d.render.outputs = {"rgb", "depth", "mask"}
+    d.preset_name = "round_trip"
+    state = dump(d)
+    cfg = props_to_config(d)
+    bpy.ops.datapipe.preset_save()
+    path = presets.user_dir() / "round_trip.json"
+    assert path.is_file()
+    # the file is exactly what the headless runner reads
+    assert C.load(path).to_dict() == cfg.to_dict()
+    assert json.loads(path.read_text()) == cfg.to_dict()
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    fresh = bpy.context.scene.datapipe
+    assert len(fresh.objects) == 0
+    bpy.ops.datapipe.preset_load(filepath=str(path))
+    assert dump(bpy.context.scene.datapipe) == state
+    assert props_to_config(bpy.context.scene.datapipe).to_dict() == cfg.to_dict()
+
+
+def test_builtin_presets_are_read_only(registered):
+    src = presets.builtin_dir() / "default.json"
+    text = src.read_text()
+    with pytest.raises(RuntimeError, match="read-only"):
+        bpy.ops.datapipe.preset_save(name="default")
+    with pytest.raises(RuntimeError, match="read-only"):
+        bpy.ops.datapipe.preset_save(filepath=str(src))
+    assert src.read_text() == text
+
+
+def test_bad_preset_name(registered):
+    with pytest.raises(RuntimeError, match="preset name"):
+        bpy.ops.datapipe.preset_save(name="../evil")
+
+
+def test_preset_enum_lists_builtin_and_user(registered):
+    bpy.ops.datapipe.preset_save(name="mine")
+    ids = [item[0] for item in presets.enum_items()]
+    assert "builtin:default" in ids and "builtin:thesis_sensor" in ids and "user:mine" in ids
+    assert registered.preset == "user:mine"
+    registered.preset = "builtin:thesis_sensor"
+    bpy.ops.datapipe.preset_load_selected()
+    assert registered.camera.focal_length == 50.0
+
+
+def test_initialize_sets_up_scene_and_fills_panels(registered):
+    bpy.ops.datapipe.initialize(preset="builtin:default")
+    sc = bpy.context.scene
+    assert sc.unit_settings.system == "METRIC" and sc.render.engine == "CYCLES"
+    assert len(registered.objects) == 3 and len(registered.camera.poses) == 6
+    with pytest.raises(RuntimeError, match="no preset named"):
+        bpy.ops.datapipe.initialize(preset="builtin:nope")
+
+
+def test_load_refuses_invalid_preset_naming_the_field(registered, tmp_path):
+    data = C.default_config().to_dict()
+    data["objects"][0]["min_instances"] = 5
+    data["objects"][0]["max_instances"] = 2
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    before = dump(registered)
+    with pytest.raises(RuntimeError, match=r"objects\[0\]\.min_instances"):
+        bpy.ops.datapipe.preset_load(filepath=str(path))
+    assert dump(registered) == before
+    path.write_text("{not json")
+    with pytest.raises(RuntimeError, match="not valid JSON"):
+        bpy.ops.datapipe.preset_load(filepath=str(path))
+
+
+def test_load_legacy_pickle(registered, tmp_path, assets_dir):
+    legacy = {
+        "camera": {"world2cam_pose_list": [{"rotation": [1, 0, 0, 0], "location": [0, 0, 0.8]}],
+                   "focal_length": 50, "sensor_width": 36, "resolution": [480, 720], "is_structured_light": True},
+        "projector": {"proj2cam_pose": {"rotation": [0, -0.148353, 0], "location": [-0.15, 0, 0]},
+                      "focal_length": 50, "sensor_width": 36, "resolution": [480, 720]},
+        "scene": {"num_renders": 2, "max_renders_per_scene": 1, "min_renders_per_scene": 1,
+                  "drop_zone_loc": [0, 0, 0.1], "drop_zone_scale": [0.1, 0.1, 0.1]},
+        "objects": {"objects_list": [{"filepath": str(assets_dir / "peg.obj"), "scale": 1.0, "mass": 0.5,
+                                      "collision_shape": "MESH", "max": 2, "min": 0}]},
+        "output": {"path": str(tmp_path / "out")},
+    }
+    path = tmp_path / "inputs.pickle"
+    path.write_bytes(pickle.dumps(legacy))
+    bpy.ops.datapipe.preset_load(filepath=str(path))
+    assert tuple(registered.camera.resolution) == (720, 480)
+    assert registered.structured_light.enabled
+    assert registered.objects[0].collision_shape == "MESH"
+    assert len(registered.camera.poses) == 1
+
+
+def test_user_dir_fallback_without_extension(monkeypatch):
+    monkeypatch.delenv("DATAPIPE_USER_PRESETS", raising=False)
+    path = presets.user_dir(create=False)       # plain `import datapipe`: not an extension
+    assert path.parts[-2:] == ("datapipe", "presets")
