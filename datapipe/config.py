@@ -356,6 +356,13 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
             add(f"{p}.friction", f"must be >= 0, got {o.friction}", "give a friction >= 0")
         if not 0 <= o.restitution <= 1:
             add(f"{p}.restitution", f"must be in 0..1, got {o.restitution}", "give a restitution in 0..1")
+    seen: dict[str, int] = {}
+    for i, o in enumerate(cfg.objects):
+        name = o.name or Path(o.filepath).stem
+        if name in seen:
+            add(f"objects[{i}].name", f"name {name!r} is already used by objects[{seen[name]}] (instance names "
+                "and annotations would collide)", "give this entry a unique name")
+        seen.setdefault(name, i)
     if cfg.objects and sum(o.max_instances for o in cfg.objects) < 1:
         add("objects", "every entry has max_instances = 0, so scenes would be empty",
             "give at least one entry max_instances >= 1")
@@ -404,6 +411,19 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
             add("structured_light.periods", f"{max(sl.periods)} periods across {pr.resolution[0]} px leave "
                 "fewer than 3 px per fringe", "lower the finest period count or raise the projector width")
         choice("structured_light.unwrap", sl.unwrap, UNWRAP_METHODS)
+        if sl.periods and sl.unwrap in UNWRAP_METHODS:
+            from .sl import plan_unwrap      # pure numpy; the decoder owns the rules for period sets
+            try:
+                plan_unwrap(sl.periods, sl.unwrap)
+            except ValueError as e:
+                add("structured_light.periods", f"cannot be unwrapped: {e}", "use a set the message suggests, "
+                    "e.g. [1, 8, 64] (hierarchical) or [70, 64, 59] (heterodyne chain)")
+        try:
+            from .sl import SensorModel
+            SensorModel.preset(sl.sensor)
+        except ValueError:
+            from .sl.sensor import PRESETS
+            add("structured_light.sensor", f"unknown sensor preset {sl.sensor!r}", f"use one of {sorted(PRESETS)}")
         if sl.samples < 1:
             add("structured_light.samples", f"must be >= 1, got {sl.samples}", "give at least 1 sample")
         positive("structured_light.exposure", sl.exposure)

@@ -125,6 +125,7 @@ CASES = [
     (lambda c: setattr(c.objects[0], "collision_shape", "BLOB"), "objects[0].collision_shape", "unknown value"),
     (lambda c: (setattr(c.objects[2], "min_instances", 5), setattr(c.objects[2], "max_instances", 1)),
      "objects[2].min_instances", "> max_instances"),
+    (lambda c: setattr(c.objects[1], "name", "peg"), "objects[1].name", "already used"),
     (lambda c: setattr(c.camera, "focal_length", 0), "camera.focal_length", "> 0"),
     (lambda c: setattr(c.camera, "resolution", [0, 240]), "camera.resolution", "width 0"),
     (lambda c: setattr(c.camera, "resolution", [320, 100000]), "camera.resolution", "height 100000"),

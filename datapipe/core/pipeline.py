@@ -139,12 +139,15 @@ class Pipeline:
         t_loop = time.perf_counter()
         try:
             for i in todo:
+                if self._cancel:
+                    yield from self._cancelled(done, i, t_start)
+                    return
                 sdir = self.out / native.scene_name(i)
                 if sdir.exists():                   # a scene killed mid-way is made again from scratch
                     shutil.rmtree(sdir)
                 sdir.mkdir(parents=True)
                 yield Progress("scene", done, self.total, scene=i, message="dropping parts")
-                scene, sim_seconds = world.start_scene(i, self.cfg.scene.seed)
+                scene, sim_seconds = world.start_scene(i, self.cfg.scene.seed, self.plan[i])
                 for k, v in sim_seconds.items():
                     self.stats["seconds"][k] += v
                 self.stats["frames"][scene["name"]] = scene["simulation"]["frames"]
@@ -168,20 +171,23 @@ class Pipeline:
                 complete = len(scene["renders"]) == self.plan[i]
                 world.finish_scene(scene, sdir, complete=complete)
                 self.stats["seconds"]["write"] += time.perf_counter() - t0
-                if not complete or self._cancel:
-                    self._write_run_file(status="cancelled")
-                    yield Progress("cancelled", done, self.total, scene=i,
-                                   elapsed=time.perf_counter() - t_start,
-                                   message="cancelled: everything written so far is kept; --resume continues")
+                if complete:
+                    self._mark_scene_done(i)
+                    yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - t_start,
+                                   message=f"{len(scene['objects'])} parts, {scene['simulation']['frames']} frames")
+                if self._cancel:
+                    yield from self._cancelled(done, i, t_start)
                     return
-                self._mark_scene_done(i)
-                yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - t_start,
-                               message=f"{len(scene['objects'])} parts, {scene['simulation']['frames']} frames")
         finally:
             world.close()
         self._write_run_file(status="complete")
         yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
                        message=f"finished {made} render(s) in {_fmt_s(time.perf_counter() - t_start)}")
+
+    def _cancelled(self, done: int, scene: int, t_start: float) -> Iterator[Progress]:
+        self._write_run_file(status="cancelled")
+        yield Progress("cancelled", done, self.total, scene=scene, elapsed=time.perf_counter() - t_start,
+                       message="cancelled: everything written so far is kept; --resume continues")
 
     # -- run.json ---------------------------------------------------------------------------------
     def _run_record(self) -> dict:
@@ -248,7 +254,7 @@ class _BlenderWorld:
         meshes = {i + 1: self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
         write_models(self.out / "models", meshes)
 
-    def start_scene(self, i: int, base: int):
+    def start_scene(self, i: int, base: int, n_renders: int):
         seed_python(base, i)
         rng = scene_rng(base, i)
         t0 = time.perf_counter()
@@ -256,8 +262,7 @@ class _BlenderWorld:
         t1 = time.perf_counter()
         sim = self.simulation.run(instances, rng)
         t2 = time.perf_counter()
-        n = self._plan_renders(i)
-        pose_indices = self.camera.draw_poses(rng, n)
+        pose_indices = self.camera.draw_poses(rng, n_renders)
         self.instances = sim.kept
         objects = [self._object_record(inst) for inst in sim.kept]
         scene = {
@@ -267,10 +272,6 @@ class _BlenderWorld:
             "objects": objects, "renders": [], "_pose_indices": pose_indices,
         }
         return scene, {"placement": t1 - t0, "simulation": t2 - t1}
-
-    def _plan_renders(self, i: int) -> int:
-        s = self.cfg.scene
-        return plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)[i]
 
     def _object_record(self, inst) -> dict:
         return {"name": inst.name, "filename": inst.filename, "obj_id": inst.entry_index + 1,

@@ -1,0 +1,201 @@
+"""Simulation: parts end in the bin, escapees are removed with a reason, settling stops early, the
+result is frozen for rendering, and the same seed gives the same poses whatever ran before."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from mathutils import Matrix  # noqa: E402
+
+from datapipe.config import ObjectEntry, assets_dir, default_config  # noqa: E402
+from datapipe.core.objects import ObjectManager  # noqa: E402
+from datapipe.core.scene import BlendScene  # noqa: E402
+from datapipe.core.simulation import Simulation  # noqa: E402
+from datapipe.seeds import scene_rng  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+ASSETS = assets_dir()
+FLOOR_TOL = 0.002     # m: Bullet contact margin (0.5 mm) and resting penetration under load
+
+
+def parse_obj_vertices(path):
+    return np.array([[float(x) for x in line.split()[1:4]] for line in Path(path).read_text().splitlines()
+                     if line.startswith("v ")])
+
+
+def world_vertices(inst, scale=1.0):
+    v = parse_obj_vertices(inst.filename) * scale
+    M = np.array(inst.obj.matrix_world)
+    return v @ M[:3, :3].T + M[:3, 3]
+
+
+def make(cfg):
+    bs = BlendScene(cfg).setup()
+    om = ObjectManager(cfg, bs).load_sources()
+    return bs, om, Simulation(cfg, bs)
+
+
+def one_part_cfg(name="nut", n=1):
+    cfg = default_config()
+    cfg.objects = [ObjectEntry(filepath=str(ASSETS / f"{name}.obj"), mass=0.02, min_instances=n,
+                               max_instances=n, name=name)]
+    return cfg
+
+
+def place(inst, location, R=np.eye(3)):
+    M = np.eye(4)
+    M[:3, :3], M[:3, 3] = R, location
+    inst.obj.matrix_world = Matrix(M.tolist())
+
+
+def test_default_preset_parts_end_in_the_bin():
+    cfg = default_config()
+    bs, om, sim = make(cfg)
+    insts = om.populate(scene_rng(cfg.scene.seed, 0))
+    res = sim.run(insts, scene_rng(cfg.scene.seed, 0))
+    assert res.kept and not res.removed
+    assert 0 < res.frames <= cfg.simulation.max_frames
+    c, h = np.array(cfg.scene.drop_zone_loc), np.array(cfg.scene.drop_zone_scale)
+    floor_z = c[2] - h[2]
+    for inst in res.kept:
+        v = world_vertices(inst)
+        assert v[:, 2].min() >= floor_z - FLOOR_TOL, inst.name
+        assert np.all(np.abs(v[:, :2] - c[:2]) <= h[:2] + FLOOR_TOL), inst.name      # within the walls
+        assert v[:, 2].max() < c[2] + h[2]                   # everything fell down below the rim
+        assert inst.obj.rigid_body is None                   # frozen
+    assert {i.name for i in res.kept} == set(res.poses)
+
+
+def test_escaped_parts_are_removed_with_a_reason():
+    cfg = one_part_cfg(n=3)
+    bs, om, sim = make(cfg)
+    insts = om.populate(np.random.default_rng(0))
+    c, h = bs.drop_zone_center, bs.drop_zone_half
+    place(insts[0], [c[0] + h[0] + 0.15, c[1], c[2]])                  # beside the bin: falls past it
+    place(insts[1], [c[0], c[1], bs.floor_z - 0.5])                    # under the occlusion box
+    place(insts[2], [c[0], c[1], bs.floor_z + 0.02])                   # in the bin
+    names = [i.name for i in insts]
+    res = sim.run(insts, np.random.default_rng(0))
+    reasons = {inst.name: why for inst, why in res.removed}
+    assert reasons == {names[0]: "left the bin", names[1]: "fell through the floor"}
+    assert [i.name for i in res.kept] == [names[2]]
+    assert names[0] not in bpy.data.objects and names[1] not in bpy.data.objects
+    assert res.settled and res.frames < cfg.simulation.max_frames      # escapees do not hold it up
+    om.clear()
+    assert not [n for n in names if n in bpy.data.objects]
+
+
+def test_resting_part_settles_within_a_few_frames():
+    cfg = one_part_cfg("nut")
+    bs, om, sim = make(cfg)
+    (inst,) = om.populate(np.random.default_rng(0))
+    rest = [0.02, -0.01, bs.floor_z + 0.006 + 0.0005]       # the nut is 12 mm thick (+ contact margin)
+    place(inst, rest)
+    res = sim.run([inst], np.random.default_rng(0))
+    assert res.settled and res.kept == [inst]
+    assert res.frames <= cfg.simulation.settle_frames + 5
+    assert np.allclose(np.array(inst.obj.matrix_world)[:3, 3], rest, atol=1e-3)
+
+
+def test_result_is_frozen_for_rendering():
+    cfg = default_config()
+    bs, om, sim = make(cfg)
+    res = sim.run(om.populate(scene_rng(0, 1)))
+    poses = {i.name: np.array(i.obj.matrix_world) for i in res.kept}
+    for f in (1, 7, 60, cfg.simulation.max_frames + 30):
+        bs.scene.frame_set(f)
+        for inst in res.kept:
+            assert np.allclose(np.array(inst.obj.matrix_world), poses[inst.name], atol=1e-7), (f, inst.name)
+    for inst in res.kept:
+        assert np.allclose(res.poses[inst.name], poses[inst.name], atol=1e-6)
+
+
+def _run_scene(om, sim, seed):
+    res = sim.run(om.populate(scene_rng(0, seed)), scene_rng(0, seed))
+    out = {i.name: np.array(i.obj.matrix_world, dtype=np.float64) for i in res.kept}
+    removed = sorted(i.name for i, _ in res.removed)
+    om.clear()
+    return out, removed, res.frames
+
+
+def test_same_seed_same_poses_whatever_ran_before():
+    cfg = default_config()
+    bs, om, sim = make(cfg)
+    a1, rem1, f1 = _run_scene(om, sim, 0)
+    b, _, _ = _run_scene(om, sim, 1)
+    a2, rem2, f2 = _run_scene(om, sim, 0)
+    assert a1.keys() == a2.keys() and rem1 == rem2 and f1 == f2
+    for k in a1:
+        assert np.abs(a1[k] - a2[k]).max() <= 1e-6, k
+    assert a1.keys() != b.keys() or any(np.abs(a1[k] - b[k]).max() > 1e-3 for k in a1)
+
+
+_FRESH = """
+import json, sys, numpy as np, bpy
+sys.path.insert(0, {root!r})
+from datapipe.config import default_config
+from datapipe.core.scene import BlendScene
+from datapipe.core.objects import ObjectManager
+from datapipe.core.simulation import Simulation
+from datapipe.seeds import scene_rng
+bpy.ops.wm.read_factory_settings(use_empty=True)
+cfg = default_config()
+bs = BlendScene(cfg).setup(); om = ObjectManager(cfg, bs).load_sources(); sim = Simulation(cfg, bs)
+res = sim.run(om.populate(scene_rng(0, 2)), scene_rng(0, 2))
+print("POSES" + json.dumps({{i.name: np.array(i.obj.matrix_world).tolist() for i in res.kept}}))
+"""
+
+
+def test_scene_in_fresh_process_equals_scene_after_others():
+    cfg = default_config()
+    bs, om, sim = make(cfg)
+    _run_scene(om, sim, 0)
+    _run_scene(om, sim, 1)
+    here, _, _ = _run_scene(om, sim, 2)
+    out = subprocess.run([sys.executable, "-c", _FRESH.format(root=str(ROOT))], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    line = next(x for x in out.stdout.splitlines() if x.startswith("POSES"))
+    fresh = {k: np.array(v) for k, v in json.loads(line[5:]).items()}
+    assert fresh.keys() == here.keys()
+    for k in here:
+        assert np.abs(fresh[k] - here[k]).max() <= 1e-6, k
+
+
+def test_no_growth_over_scenes():
+    cfg = default_config()
+    bs, om, sim = make(cfg)
+    counts = None
+    for seed in range(3):
+        _run_scene(om, sim, seed)
+        now = (len(bpy.data.objects), len(bpy.data.meshes), len(bpy.data.collections),
+               len(bs.scene.rigidbody_world.collection.objects))
+        counts = counts or now
+        assert now == counts
+
+
+def test_centre_of_mass_off_the_origin(tmp_path):
+    """A cube whose file origin is a corner must still come to rest on a face (Blender would
+    otherwise put its centre of mass at that corner), and its reported pose is in the file's frame."""
+    p = tmp_path / "cube.obj"
+    v = np.array([(x, y, z) for x in (0, 0.03) for y in (0, 0.03) for z in (0, 0.03)], dtype=float)
+    faces = [(1, 2, 4, 3), (5, 7, 8, 6), (1, 5, 6, 2), (3, 4, 8, 7), (1, 3, 7, 5), (2, 6, 8, 4)]
+    p.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v) +
+                 "".join("f " + " ".join(map(str, f)) + "\n" for f in faces))
+    cfg = default_config()
+    cfg.objects = [ObjectEntry(filepath=str(p), mass=0.05, min_instances=1, max_instances=1, name="cube")]
+    bs, om, sim = make(cfg)
+    (inst,) = om.populate(np.random.default_rng(5))
+    res = sim.run([inst])
+    assert res.kept == [inst] and res.settled
+    assert inst.obj.data == om.template(0).data               # back on the model-frame mesh
+    w = world_vertices(inst)
+    z = np.sort(w[:, 2])
+    assert z[0] >= bs.floor_z - FLOOR_TOL
+    assert z[3] - z[0] < 0.002                                 # four corners on the floor: lies on a face
+    assert z[4] - z[0] == pytest.approx(0.03, abs=0.002)
