@@ -30,6 +30,7 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                         help="fan the run out over Ray (no address: a local Ray instance)")
         sp.add_argument("--shards", type=int, default=None, help="with --ray: number of shards")
+        sp.add_argument("--retries", type=int, default=2, help="with --ray: retries of a failed shard")
         sp.add_argument("--quiet", action="store_true", help="no per-render progress lines")
 
     run_args(sub.add_parser("run", help="make a dataset from a preset"), preset=True)
@@ -42,9 +43,13 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("show", help="contact sheets for a run folder")
     s.add_argument("run_dir")
     s.add_argument("--out", help="sheet folder (default: RUN_DIR/sheets)")
+    s.add_argument("--max", type=int, default=None, help="at most this many per-render sheets")
+    s.add_argument("--no-overview", action="store_true", help="skip overview.png")
     b = sub.add_parser("bop", help="export a finished native run as a BOP dataset")
     b.add_argument("run_dir")
     b.add_argument("--out", help="BOP folder (default: RUN_DIR/bop)")
+    b.add_argument("--depth-scale", type=float, default=0.1, help="mm per depth PNG unit (default 0.1)")
+    b.add_argument("--chunk-size", type=int, default=1000, help="images per BOP scene folder (default 1000)")
     return p
 
 
@@ -65,12 +70,14 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "show":
             from . import show
-            argv2 = [args.run_dir] + (["--out", args.out] if args.out else [])
+            argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \
+                + (["--max", str(args.max)] if args.max is not None else []) \
+                + (["--no-overview"] if args.no_overview else [])
             return show.main(argv2)
         if args.command == "bop":
             from .core.writers.bop import export_bop
             out = Path(args.out) if args.out else Path(args.run_dir) / "bop"
-            export_bop(Path(args.run_dir), out)
+            export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size)
             print(f"BOP dataset written to {out}")
             return 0
         if args.command == "demo":
@@ -97,7 +104,8 @@ def _run(cfg, args, preset_path) -> int:
                                 f"{config_mod.presets_dir() / 'default.json'} --ray` runs the demo preset)")
         run_distributed(preset_path, args.out or cfg.output.path,
                         address=None if args.ray == "local" else args.ray,
-                        num_shards=args.shards, seed=args.seed)
+                        num_shards=args.shards, seed=args.seed, retries=args.retries,
+                        extra_args=["--quiet"] if args.quiet else [])
         return 0
     from .core.pipeline import Pipeline
     pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed)

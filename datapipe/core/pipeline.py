@@ -53,9 +53,7 @@ def _fmt_s(s: float) -> str:
 
 
 def _config_identity(cfg: Config) -> dict:
-    d = cfg.to_dict()
-    d["output"] = {k: v for k, v in d["output"].items() if k != "path"}   # same run, any folder
-    return d
+    return native.config_identity(cfg.to_dict())
 
 
 class Pipeline:
@@ -119,6 +117,11 @@ class Pipeline:
             sdir = self.out / native.scene_name(i)
             if self.resume and native.scene_complete(sdir):
                 done += self.plan[i]
+                if "bop" in self.cfg.output.formats:      # finished just before a crash: BOP may lack it
+                    from .writers.bop import BopWriter
+                    writer = BopWriter(self.out / "bop")
+                    if not writer.has_scene(sdir):
+                        writer.add_scene(sdir)
                 yield Progress("skip", done, self.total, scene=i, message="already complete")
             else:
                 todo.append(i)
@@ -181,6 +184,9 @@ class Pipeline:
         finally:
             world.close()
         self._write_run_file(status="complete")
+        if self.cfg.output.overview:
+            from ..show import make_overview
+            make_overview(self.out)
         yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
                        message=f"finished {made} render(s) in {_fmt_s(time.perf_counter() - t_start)}")
 

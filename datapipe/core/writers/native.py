@@ -18,6 +18,13 @@ SCENE_FILE = "scene.json"
 LEGACY_PICKLE = "output_dict.pickle"
 
 
+def config_identity(cfg_dict: dict) -> dict:
+    """What makes two runs the same dataset: the whole config except the output folder (JSON-normalised)."""
+    d = json.loads(json.dumps(cfg_dict))
+    d["output"] = {k: v for k, v in d.get("output", {}).items() if k != "path"}
+    return d
+
+
 def scene_name(scene_id: int) -> str:
     return f"scene.{scene_id + 1:04d}"
 

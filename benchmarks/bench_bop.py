@@ -1,0 +1,120 @@
+"""BOP export cost per image: 50 box instances at 640x480 (synthetic native run, no Blender).
+
+    .venv/bin/python benchmarks/bench_bop.py [--instances 50] [--renders 4] [--subdiv 4] [--repeat 3]
+                                             [--render-seconds S]
+
+Makes one synthetic native scene (tests/fixtures_native.py: exact ray-cast depth/mask of boxes on a
+floor, structured-light-like depth) and times BopWriter.add_scene on it, per image, with a breakdown:
+full-silhouette rasterisation, PNG writes (rgb copy, depth, depth_sl, masks), JSON. Compares with a
+reference render time per image (--render-seconds, or the 'render' stage of a run.json given with
+--run-json). Writes benchmarks/results/bop_<instances>inst_<W>x<H>.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+import numpy as np  # noqa: E402
+
+import fixtures_native as fx  # noqa: E402
+from datapipe.core.writers import bop  # noqa: E402
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--instances", type=int, default=50)
+    ap.add_argument("--renders", type=int, default=4)
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=480)
+    ap.add_argument("--subdiv", type=int, default=4, help="grid per box face (faces per box = 12 * subdiv^2)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--render-seconds", type=float, default=None, help="reference render time per image")
+    ap.add_argument("--run-json", default=None, help="take the reference from a real run's run.json stats")
+    ap.add_argument("--no-sl", action="store_true")
+    a = ap.parse_args(argv)
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_bop_"))
+    try:
+        cfg = fx.default_config(num_renders=a.renders, min_per_scene=a.renders, max_per_scene=a.renders,
+                                resolution=(a.width, a.height), structured_light=not a.no_sl)
+        t0 = time.perf_counter()
+        run = fx.make_native_run(tmp / "native", cfg=cfg, min_boxes=a.instances, max_boxes=a.instances,
+                                 spread=0.16, mesh_subdiv=a.subdiv)
+        t_fixture = time.perf_counter() - t0
+        scene_dir = run / "scene.0001"
+        scene = json.loads((scene_dir / "scene.json").read_text())
+        n_img = len(scene["renders"])
+        n_inst = [len(r["objects"]) for r in scene["renders"]]
+        models = bop.load_models(run / "models")
+
+        totals, rasters = [], []
+        for k in range(a.repeat):
+            root = tmp / f"bop{k}"
+            t0 = time.perf_counter()
+            w = bop.BopWriter(root)
+            w.add_scene(scene_dir)
+            totals.append((time.perf_counter() - t0) / n_img)
+            # the rasterisation share, alone
+            t0 = time.perf_counter()
+            for rd in scene["renders"]:
+                K = np.asarray(rd["K"])
+                for o in rd["objects"]:
+                    T = np.asarray(o["T_cam_obj"])
+                    m = models[o["obj_id"]]
+                    bop.rasterize_silhouette(m.verts_mm, m.faces, K, T[:3, :3], T[:3, 3] * 1000, a.width, a.height)
+            rasters.append((time.perf_counter() - t0) / n_img)
+            shutil.rmtree(root)
+        per_img = statistics.median(totals)
+        raster = statistics.median(rasters)
+        ref = a.render_seconds
+        ref_src = "--render-seconds" if ref is not None else None
+        if ref is None and a.run_json:
+            rj = json.loads(Path(a.run_json).read_text())
+            ref = rj["stats"]["seconds"]["render"] / max(1, sum(rj["plan"][i] for i in range(len(rj["plan"]))
+                                                                 if f"scene.{i + 1:04d}" in rj.get("scenes_done", [])))
+            cam, rnd = rj["config"]["camera"], rj["config"]["render"]
+            ref_src = (f"{a.run_json}: {cam['resolution'][0]}x{cam['resolution'][1]}, {rnd['samples']} samples, "
+                       f"structured light {'on' if rj['config']['structured_light']['enabled'] else 'off'}")
+        faces = 12 * a.subdiv ** 2
+        lines = [
+            f"# BOP export cost: {a.instances} instances at {a.width}x{a.height}",
+            "",
+            f"- machine: {platform.node()}, {os.cpu_count()} CPU(s) (shared), Python {platform.python_version()}",
+            f"- data: synthetic native scene ({n_img} renders, {min(n_inst)}-{max(n_inst)} annotated instances each, "
+            f"box models with {faces} triangles, structured light {'off' if a.no_sl else 'on'}); fixture made in "
+            f"{t_fixture:.1f} s",
+            f"- BopWriter.add_scene: **{per_img:.3f} s per image** (median of {a.repeat}; runs "
+            f"{', '.join(f'{t:.3f}' for t in totals)} s)",
+            f"  - full-silhouette rasterisation: {raster:.3f} s per image ({raster / per_img * 100:.0f}%)",
+            f"  - the rest (rgb copy, depth/depth_sl/mask/mask_visib PNG writes, EXR reads, JSON): "
+            f"{per_img - raster:.3f} s per image",
+        ]
+        if ref:
+            lines.append(f"- reference render time: {ref:.2f} s per image ({ref_src}); BOP export adds "
+                         f"{per_img / ref * 100:.1f}% to it")
+        else:
+            lines.append("- reference render time: not given (pass --render-seconds or --run-json)")
+        text = "\n".join(lines) + "\n"
+        print(text)
+        out = ROOT / "benchmarks" / "results" / f"bop_{a.instances}inst_{a.width}x{a.height}.md"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text)
+        print(f"written {out}")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

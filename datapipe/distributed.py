@@ -1,0 +1,459 @@
+"""Generation across many processes or machines on Ray (optional extra: `pip install datapipe[ray]`).
+
+    python -m datapipe run PRESET --out DIR --ray [ADDRESS] [--shards N]
+
+The run's scenes are split into N contiguous shards (datapipe.seeds.shard_scenes). Each shard is one
+Ray task that launches the headless runner in its own process (bpy is one per process):
+
+    <python> -m datapipe run SHARD_PRESET --out DIR/_shards/shard_I_of_N --shard I/N --seed S --resume
+
+A failed shard (non-zero exit, killed process, lost worker) is retried up to `retries` times; with
+--resume the retry continues where the shard stopped, making only the scenes that are not complete.
+When every shard is done the shard folders are merged into DIR: scene folders are moved (their
+names and image ids are global already), output_dict.pickle is rebuilt from the scenes' scene.json,
+run.json says the whole run is complete, models/ is copied; then the BOP export and the overview
+sheet run on the merged dataset if the preset asks for them. Re-running the same command after a
+failure resumes: finished shards are kept.
+
+Shards run with output.formats = ["native"] (BOP is exported once, after the merge) and no overview.
+On a cluster DIR must be on a filesystem every node mounts at the same path, and datapipe (with bpy)
+must be installed in the Python that Ray workers run.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+from . import config as config_mod
+from .errors import DataPipeError
+from .seeds import plan_scenes, shard_scenes
+from .core.writers.native import config_identity
+
+SHARDS_DIR = "_shards"
+SHARD_PRESET = "preset.json"
+ATTEMPTS_FILE = ".datapipe_attempts"
+# tests: "I:K[,I:K...]" kills shard I's runner on its first attempt once K of its scenes are complete
+KILL_ENV = "DATAPIPE_TEST_KILL_SHARD"
+
+
+def scene_name(i: int) -> str:
+    return f"scene.{i + 1:04d}"
+
+
+def shard_dir_name(i: int, n: int) -> str:
+    return f"shard_{i:04d}_of_{n:04d}"
+
+
+
+
+def _read_json(p: Path):
+    with open(p) as f:
+        return json.load(f)
+
+
+def _write_json_atomic(p: Path, data) -> None:
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1) + "\n")
+    os.replace(tmp, p)
+
+
+def _scene_complete(sdir: Path) -> bool:
+    try:
+        return bool(_read_json(sdir / "scene.json").get("complete", False))
+    except (OSError, json.JSONDecodeError):
+        return False
+
+
+# ------------------------------------------------------------------------------------------------
+# one shard, inside a Ray worker
+
+def _load_prctl():
+    try:
+        import ctypes
+        return ctypes.CDLL("libc.so.6", use_errno=True).prctl
+    except Exception:
+        return None
+
+
+_PRCTL = _load_prctl() if sys.platform.startswith("linux") else None
+
+
+def _die_with_parent():            # in the child before exec: die when the Ray worker running us dies
+    if _PRCTL is not None:
+        _PRCTL(1, 9)               # PR_SET_PDEATHSIG, SIGKILL (resolved before the fork)
+
+
+def _stop_previous_runner(pid_file: Path, shard_dir: Path) -> None:
+    """A retry on the same host first ends a runner an earlier attempt left behind (its worker was
+    killed before it could): only a live process whose command line names this shard's folder."""
+    try:
+        host, pid = pid_file.read_text().split()
+        pid = int(pid)
+    except (OSError, ValueError):
+        return
+    if host != socket.gethostname() or pid <= 0:
+        return
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return                                   # gone (or no /proc): nothing to stop
+    if str(shard_dir).encode() not in cmdline:
+        return                                   # the pid now belongs to another process
+    try:
+        os.kill(pid, signal.SIGKILL)
+        for _ in range(50):                      # until it is gone (or a zombie)
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            if stat.rsplit(")", 1)[1].split()[0] == "Z":
+                break
+            time.sleep(0.1)
+    except (ProcessLookupError, PermissionError, OSError, IndexError):
+        pass
+
+
+def _kill_after(shard: int, spec: str | None) -> int | None:
+    spec = spec or ""
+    for part in filter(None, spec.split(",")):
+        i, _, k = part.partition(":")
+        if i.strip().isdigit() and int(i) == shard:
+            return int(k or 1)
+    return None
+
+
+def run_shard(spec: dict) -> dict:
+    """Run one shard to completion in a child process; raise on failure (Ray retries the task).
+
+    spec: preset, shard_dir, shard (i, n), seed, scenes (names it must make), extra_args, runner,
+    env (extra environment variables), kill (the test hook's value, read on the driver)."""
+    i, n = spec["shard"]
+    shard_dir = Path(spec["shard_dir"])
+    shard_dir.mkdir(parents=True, exist_ok=True)
+    attempts_file = shard_dir.parent / f"{shard_dir.name}{ATTEMPTS_FILE}"
+    attempt = (int(attempts_file.read_text()) if attempts_file.is_file() else 0) + 1
+    attempts_file.write_text(str(attempt))
+    runner = list(spec.get("runner") or [sys.executable, "-m", "datapipe", "run"])
+    cmd = runner + [spec["preset"], "--out", str(shard_dir), "--shard", f"{i}/{n}", "--seed", str(spec["seed"]),
+                    "--resume", *spec.get("extra_args", ())]
+    log_path = shard_dir.parent / f"{shard_dir.name}.log"
+    kill_after = _kill_after(i, spec.get("kill")) if attempt == 1 else None
+    env = dict(os.environ)
+    env.update({str(k): str(v) for k, v in (spec.get("env") or {}).items()})
+    t0 = time.time()
+    with open(log_path, "a") as log:
+        log.write(f"\n=== attempt {attempt} on {socket.gethostname()}: {' '.join(cmd)}\n")
+        log.flush()
+        pid_file = shard_dir.parent / f"{shard_dir.name}.pid"
+        _stop_previous_runner(pid_file, shard_dir)
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=str(shard_dir.parent), env=env,
+                                preexec_fn=_die_with_parent if _PRCTL is not None else None)
+        pid_file.write_text(f"{socket.gethostname()} {proc.pid}\n")
+        killed = False
+        try:
+            while proc.poll() is None:
+                if kill_after is not None and not killed:
+                    done = sum(_scene_complete(shard_dir / s) for s in spec["scenes"])
+                    if done >= kill_after:
+                        proc.kill()
+                        killed = True
+                        log.write(f"=== test hook {KILL_ENV}: killed after {done} scene(s)\n")
+                time.sleep(0.05)
+        except BaseException:        # the task was cancelled: take the runner down with it
+            proc.kill()
+            proc.wait()
+            raise
+        finally:
+            if proc.poll() is not None:
+                pid_file.unlink(missing_ok=True)
+    rc = proc.returncode
+    missing = [s for s in spec["scenes"] if not _scene_complete(shard_dir / s)]
+    if rc != 0 or missing:
+        tail = log_path.read_text()[-1500:] if log_path.is_file() else ""
+        raise RuntimeError(f"shard {i}/{n} failed on attempt {attempt} (exit code {rc}"
+                           f"{', killed' if killed else ''}; {len(missing)} scene(s) not complete); "
+                           f"log: {log_path}\n{tail}")
+    return {"shard": [i, n], "dir": str(shard_dir), "host": socket.gethostname(), "attempts": attempt,
+            "seconds": round(time.time() - t0, 3), "scenes": list(spec["scenes"])}
+
+
+# ------------------------------------------------------------------------------------------------
+# merging
+
+def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *, move: bool = True,
+                 config: dict | None = None, shard_reports: Iterable[dict] = ()) -> dict:
+    """Merge shard output folders into one native run folder `out_dir`.
+
+    Checks everything before touching anything: each shard is a DataPipe run of the same plan, seed
+    and preset; every scene of the plan is complete in exactly one shard (duplicates and missing
+    scenes are refused, naming them and the shard to re-run); image ids are the global ones. Then
+    moves (or copies, move=False) the scene folders, copies models/, rebuilds output_dict.pickle
+    from the scenes' scene.json, and writes run.json for the whole run. `config`: the preset dict
+    to record in run.json (default: the shards' own)."""
+    shard_dirs = [Path(d) for d in shard_dirs]
+    out = Path(out_dir)
+    if not shard_dirs:
+        raise DataPipeError("merge: no shard folders given")
+    runs = []
+    for d in shard_dirs:
+        rj = d / "run.json"
+        if not rj.is_file():
+            raise DataPipeError(f"merge: {d} is not a DataPipe run folder (no run.json); "
+                                "fix: give the --out folders of `datapipe run --shard i/n` runs")
+        runs.append(_read_json(rj))
+    ref = runs[0]
+    for d, r in zip(shard_dirs[1:], runs[1:]):
+        for key in ("plan", "seed"):
+            if r.get(key) != ref.get(key):
+                raise DataPipeError(f"merge: {d} has a different {key} than {shard_dirs[0]} "
+                                    f"({r.get(key)!r} vs {ref.get(key)!r}): shards of different runs cannot be merged")
+        a = r.get("config_identity") or config_identity(r.get("config", {}))
+        b = ref.get("config_identity") or config_identity(ref.get("config", {}))
+        if a != b:
+            raise DataPipeError(f"merge: {d} was made from a different preset than {shard_dirs[0]}; "
+                                "fix: merge only shards of one run (same preset and --seed)")
+    plan = [int(x) for x in ref["plan"]]
+    expected = [scene_name(i) for i in range(len(plan))]
+    first_image = [sum(plan[:i]) for i in range(len(plan))]
+
+    owner: dict[str, Path] = {}
+    duplicates: dict[str, list[str]] = {}
+    unknown = []
+    for d in shard_dirs:
+        for sdir in sorted(p for p in d.glob("scene.*") if p.is_dir()):
+            if not _scene_complete(sdir):
+                continue                     # a scene killed mid-way: not merged (reported as missing)
+            if sdir.name not in expected:
+                unknown.append(str(sdir))
+                continue
+            if sdir.name in owner:
+                duplicates.setdefault(sdir.name, [str(owner[sdir.name])]).append(str(d))
+            else:
+                owner[sdir.name] = d
+    existing = [s for s in expected if (out / s).exists() and out.resolve() not in [d.resolve() for d in shard_dirs]]
+    problems = []
+    if duplicates:
+        problems.append("duplicate scenes (complete in more than one shard): " + "; ".join(
+            f"{s} in {', '.join(ds)}" for s, ds in sorted(duplicates.items())))
+    if existing:
+        problems.append(f"{out} already holds {', '.join(existing[:5])}{' ...' if len(existing) > 5 else ''}: "
+                        "merge into an empty folder")
+    if unknown:
+        problems.append("scenes beyond the run's plan of "
+                        f"{len(plan)} scenes: {', '.join(unknown[:5])}")
+    missing = [s for s in expected if s not in owner]
+    if missing:
+        by_shard = []
+        counts = {tuple(r.get("shard") or (0, 1))[1] for r in runs}
+        given = {tuple(r.get("shard") or (0, 1)): d for r, d in zip(runs, shard_dirs)}
+        for s in missing:
+            i = expected.index(s)
+            hint = ""
+            if len(counts) == 1:
+                n = next(iter(counts))
+                j = next(j for j in range(n) if i in shard_scenes(len(plan), (j, n)))
+                if (j, n) in given:
+                    hint = f" (shard {j}/{n} in {given[(j, n)]}: re-run it with --resume)"
+                else:
+                    hint = f" (shard {j}/{n}, not among the folders given: run it with --shard {j}/{n} --resume)"
+            by_shard.append(s + hint)
+        problems.append(f"{len(missing)} of {len(plan)} scenes missing: " + "; ".join(by_shard[:10])
+                        + (" ..." if len(by_shard) > 10 else ""))
+    scene_docs = {}
+    for s, d in owner.items():
+        doc = _read_json(d / s / "scene.json")
+        i = expected.index(s)
+        ids = [int(r["image_id"]) for r in doc.get("renders", [])]
+        if ids != list(range(first_image[i], first_image[i] + plan[i])):
+            problems.append(f"{d / s}: image ids {ids} are not the run's ({first_image[i]}..{first_image[i] + plan[i] - 1})")
+        scene_docs[s] = doc
+    # models: the same meshes in every shard that has them
+    model_src = None
+    for d in shard_dirs:
+        info = d / "models" / "models_info.json"
+        if info.is_file():
+            if model_src is None:
+                model_src = d / "models"
+            elif _read_json(info) != _read_json(model_src / "models_info.json"):
+                problems.append(f"{d / 'models'} differs from {model_src}: the shards used different meshes")
+    if problems:
+        raise DataPipeError("merge refused, nothing was moved:\n  - " + "\n  - ".join(problems))
+
+    # -- act ------------------------------------------------------------------------------------
+    out.mkdir(parents=True, exist_ok=True)
+    if model_src is not None and model_src.resolve() != (out / "models").resolve():
+        (out / "models").mkdir(exist_ok=True)
+        for p in sorted(model_src.iterdir()):
+            if p.is_file() and not p.name.endswith(".tmp"):
+                shutil.copyfile(p, out / "models" / (p.name + ".tmp"))
+                os.replace(out / "models" / (p.name + ".tmp"), out / "models" / p.name)
+    for s in expected:
+        src, dst = owner[s] / s, out / s
+        if src.resolve() == dst.resolve():
+            continue
+        if move:
+            os.replace(src, dst) if _same_fs(src, out) else shutil.move(str(src), str(dst))
+        else:
+            shutil.copytree(src, dst)
+
+    cfg_dict = config if config is not None else ref.get("config", {})
+    legacy = cfg_dict.get("output", {}).get("legacy_pickle", True)
+    if legacy:
+        from .core.writers import native
+        import pickle
+        data = {s: native.legacy_scene_entry(scene_docs[s]) for s in expected}
+        native.write_bytes_atomic(out / native.LEGACY_PICKLE, pickle.dumps(data, protocol=4))
+    cfg_dict = json.loads(json.dumps(cfg_dict))
+    cfg_dict.setdefault("output", {})["path"] = str(out.resolve())
+    record = {k: v for k, v in ref.items() if k not in ("stats",)}
+    record.update({
+        "config": cfg_dict, "config_identity": config_identity(cfg_dict), "plan": plan, "seed": ref.get("seed"),
+        "shard": [0, 1], "scenes": expected, "scenes_done": expected, "status": "complete",
+        "merged_from": [{"dir": str(d), "shard": r.get("shard"), "stats": r.get("stats")}
+                        for d, r in zip(shard_dirs, runs)],
+    })
+    reports = list(shard_reports)
+    if reports:
+        record["shard_reports"] = reports
+    _write_json_atomic(out / "run.json", record)
+    return {"out": str(out), "scenes": len(expected), "images": sum(plan), "shards": len(shard_dirs)}
+
+
+def _same_fs(a: Path, b: Path) -> bool:
+    try:
+        return os.stat(a).st_dev == os.stat(b).st_dev
+    except OSError:
+        return False
+
+
+# ------------------------------------------------------------------------------------------------
+# the driver
+
+def _ray():
+    try:
+        import ray
+    except ImportError:
+        raise DataPipeError("--ray needs the Ray package (fix: pip install 'datapipe[ray]' or "
+                            "pip install 'ray[default]')") from None
+    return ray
+
+
+def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, *, address: str | None = None,
+                    num_shards: int | None = None, seed: int | None = None, retries: int = 2,
+                    extra_args: Sequence[str] = (), cpus_per_shard: float = 1.0, gpus_per_shard: float = 0.0,
+                    runner: Sequence[str] | None = None, keep_shards: bool = False,
+                    env: dict[str, str] | None = None, log: Callable[[str], None] | None = None) -> dict:
+    """Make the preset's dataset in `out_dir` with shards running as Ray tasks; returns a summary.
+
+    address: a Ray cluster ("auto", "ray://host:10001", ...); None starts a local Ray instance with
+    os.cpu_count() CPUs (an already initialised Ray is used as it is). num_shards: default one
+    shard per scene, at most 4 per parallel slot. retries: re-runs of a failed shard (each resumes).
+    cpus_per_shard/gpus_per_shard: Ray resources a shard reserves (Cycles itself uses every core
+    of its machine unless render.threads is set). runner: the command that takes
+    `PRESET --out DIR --shard i/n --seed S --resume` (default `<worker python> -m datapipe run`).
+    env: extra environment variables for the runner processes."""
+    say = log or (lambda m: print(m, file=sys.stderr, flush=True))
+    cfg = config_mod.load(preset_path)
+    if seed is not None:
+        cfg.scene.seed = int(seed)
+    cfg.validate()
+    out = Path(out_dir).resolve()
+    if out.exists() and not out.is_dir():
+        raise DataPipeError(f"output: {out} exists and is not a folder (fix: choose a folder path)")
+    if out.is_dir() and any(p.name.startswith("scene.") for p in out.iterdir()):
+        raise DataPipeError(f"output: {out} already holds scenes (fix: choose an empty folder; a distributed "
+                            f"run resumes from {out / SHARDS_DIR} when re-run into the same folder)")
+    s = cfg.scene
+    plan = plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
+    shards_root = out / SHARDS_DIR
+    shards_root.mkdir(parents=True, exist_ok=True)
+
+    shard_cfg = cfg.copy()
+    shard_cfg.output.formats = ["native"]
+    shard_cfg.output.overview = False
+    shard_cfg.output.path = str(shards_root)
+    preset = shards_root / SHARD_PRESET
+    config_mod.save(shard_cfg, preset)
+
+    ray = _ray()
+    started = False
+    if not ray.is_initialized():
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=os.cpu_count() or 1, include_dashboard=False, log_to_driver=False)
+        started = True
+    try:
+        slots = max(1, int(ray.cluster_resources().get("CPU", 1) // max(cpus_per_shard, 1e-6)))
+        n = num_shards or min(len(plan), 4 * slots)
+        n = max(1, min(int(n), len(plan)))
+        # an earlier interrupted run with another shard count cannot be resumed shard by shard
+        old = [p for p in shards_root.glob("shard_*") if p.is_dir() and not p.name.endswith(f"_of_{n:04d}")]
+        if old:
+            raise DataPipeError(f"{shards_root} holds shards of a split into a different number of shards "
+                                f"({old[0].name}); fix: re-run with the same --shards, or delete {shards_root}")
+        say(f"ray: {len(plan)} scenes ({sum(plan)} renders) in {n} shard(s) on {slots} slot(s), "
+            f"seed {cfg.scene.seed}, retries {retries}")
+        task = ray.remote(run_shard).options(max_retries=int(retries), retry_exceptions=True,
+                                             num_cpus=cpus_per_shard, num_gpus=gpus_per_shard)
+        refs, dirs = {}, []
+        for i in range(n):
+            d = shards_root / shard_dir_name(i, n)
+            dirs.append(d)
+            scenes = [scene_name(k) for k in shard_scenes(len(plan), (i, n))]
+            spec = {"preset": str(preset), "shard_dir": str(d), "shard": (i, n), "seed": cfg.scene.seed,
+                    "scenes": scenes, "extra_args": list(extra_args), "runner": list(runner) if runner else None,
+                    "env": dict(env or {}), "kill": os.environ.get(KILL_ENV)}
+            refs[task.remote(spec)] = i
+        reports, failures = [], []
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            i = refs[ready[0]]
+            try:
+                rep = ray.get(ready[0])
+                reports.append(rep)
+                say(f"ray: shard {i}/{n} done on {rep['host']} ({len(rep['scenes'])} scenes, "
+                    f"{rep['seconds']:.1f} s, attempt {rep['attempts']})")
+            except Exception as e:  # RayTaskError wrapping the last attempt's error, or a lost worker
+                msg = str(e).strip().splitlines()
+                failures.append((i, msg[-1] if msg else repr(e)))
+                say(f"ray: shard {i}/{n} FAILED after {retries + 1} attempt(s): {msg[-1] if msg else e}")
+        if failures:
+            raise DataPipeError(f"{len(failures)} of {n} shard(s) failed after {retries + 1} attempt(s) each: "
+                                + "; ".join(f"shard {i}/{n} (log {shards_root / (shard_dir_name(i, n) + '.log')})"
+                                            for i, _ in failures)
+                                + ". Finished shards are kept: run the same command again to resume.")
+    finally:
+        if started:
+            ray.shutdown()
+
+    for d in dirs:
+        missing_local = not d.is_dir()
+        if missing_local:
+            raise DataPipeError(f"{d} is not visible on this machine: the output folder must be on a filesystem "
+                                "that every Ray node mounts at the same path")
+    reports.sort(key=lambda r: r["shard"][0])
+    summary = merge_shards(dirs, out, move=True, config=cfg.to_dict(), shard_reports=reports)
+    # keep the logs, drop the emptied shard folders
+    logs = out / "logs"
+    logs.mkdir(exist_ok=True)
+    for p in sorted(shards_root.glob("*.log")):
+        os.replace(p, logs / p.name)
+    if not keep_shards:
+        shutil.rmtree(shards_root, ignore_errors=True)
+    summary["attempts"] = {r["shard"][0]: r["attempts"] for r in reports}
+    say(f"ray: merged {summary['scenes']} scenes ({summary['images']} renders) from {n} shard(s) into {out}")
+    if "bop" in cfg.output.formats:
+        from .core.writers.bop import export_bop
+        summary["bop"] = export_bop(out, out / "bop")
+        say(f"ray: BOP dataset written to {out / 'bop'}")
+    if cfg.output.overview:
+        from .show import make_overview
+        summary["overview"] = str(make_overview(out))
+    return summary

@@ -1,0 +1,530 @@
+"""Quick-look contact sheets of a native run (no bpy; cv2 only).
+
+`python -m datapipe show RUN_DIR [--out SHEETS_DIR] [--max N]` writes, per render, one PNG
+
+    +------------------+------------------+------------------+
+    | RGB              | depth (z-buffer) | depth (struct.   |
+    |                  |  colour bar, mm  |  light) same bar |
+    +------------------+------------------+------------------+
+    | SL - z-buffer    | instance mask    | poses: axes +    |
+    |  +-R mm bar      |  (colour/index)  |  3D boxes on RGB |
+    +------------------+------------------+------------------+
+
+and one `overview.png` per run: histograms of the structured-light depth error (SL - z-buffer over
+pixels where both are valid), of visib_fract over every instance (full silhouettes rasterised from
+OUT/models, as the BOP writer does), and of instances per render.
+
+Panel rectangles are public (`panel_rects`) so tests and tools can crop a panel.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .errors import DataPipeError
+
+PANELS = ("rgb", "depth", "sl_depth", "diff", "mask", "poses")
+PAD = 8
+HEADER = 34
+LABEL = 22
+LEGEND = 36
+MAX_TILE_W = 480
+BG = (38, 38, 38)
+FG = (235, 235, 235)
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+# ------------------------------------------------------------------------------------------------
+# layout
+
+def tile_size(width: int, height: int) -> tuple[int, int]:
+    s = min(1.0, MAX_TILE_W / width)
+    return max(1, int(round(width * s))), max(1, int(round(height * s)))
+
+
+def panel_rects(width: int, height: int) -> dict[str, tuple[int, int, int, int]]:
+    """Image area (x, y, w, h) of each panel of a sheet for a render of `width` x `height`."""
+    tw, th = tile_size(width, height)
+    rects = {}
+    for k, name in enumerate(PANELS):
+        row, col = divmod(k, 3)
+        x = PAD + col * (tw + PAD)
+        y = HEADER + row * (LABEL + th + LEGEND + PAD) + LABEL
+        rects[name] = (x, y, tw, th)
+    return rects
+
+
+def sheet_size(width: int, height: int) -> tuple[int, int]:
+    """(sheet width, sheet height) in pixels."""
+    tw, th = tile_size(width, height)
+    return 3 * tw + 4 * PAD, HEADER + 2 * (LABEL + th + LEGEND + PAD)
+
+
+# ------------------------------------------------------------------------------------------------
+# drawing helpers
+
+def _text(img, text, org, scale=0.45, color=FG, thickness=1):
+    cv2.putText(img, str(text), (int(org[0]), int(org[1])), FONT, scale, color, thickness, cv2.LINE_AA)
+
+
+def _text_w(text, scale=0.45, thickness=1) -> int:
+    return cv2.getTextSize(str(text), FONT, scale, thickness)[0][0]
+
+
+def instance_color(index: int) -> tuple[int, int, int]:
+    """A bright, stable BGR colour per instance index (never black)."""
+    h = int((index * 0.61803398875 % 1.0) * 180)
+    hsv = np.uint8([[[h, 200, 255]]])
+    b, g, r = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
+    return int(b), int(g), int(r)
+
+
+def _diverging_lut() -> np.ndarray:
+    """256 x 3 BGR: blue (negative) -> white (0) -> red (positive)."""
+    t = np.linspace(-1, 1, 256)
+    r = np.where(t < 0, 1 + t, 1.0)
+    b = np.where(t > 0, 1 - t, 1.0)
+    g = 1 - np.abs(t)
+    rgb = np.stack([b, g, r], 1)
+    rgb = np.where(t[:, None] < 0, rgb * [1, 1, 1], rgb)
+    # keep the ends saturated but not black
+    rgb = 0.15 + 0.85 * rgb
+    return (rgb * 255).astype(np.uint8)
+
+
+DIVERGING = _diverging_lut()
+
+
+def colorize(values: np.ndarray, lo: float, hi: float, *, diverging: bool = False) -> np.ndarray:
+    """float (H,W) -> BGR; NaN -> black. TURBO for depth, blue-white-red for signed errors."""
+    v = np.asarray(values, dtype=np.float64)
+    valid = np.isfinite(v)
+    t = np.zeros(v.shape)
+    if hi > lo:
+        t[valid] = np.clip((v[valid] - lo) / (hi - lo), 0, 1)
+    idx = (t * 255).astype(np.uint8)
+    if diverging:
+        img = DIVERGING[idx]
+    else:
+        img = cv2.applyColorMap(idx, cv2.COLORMAP_TURBO)
+    img[~valid] = 0
+    return img
+
+
+def _colorbar(width: int, lo: float, hi: float, unit: str, *, diverging=False, ticks=3) -> np.ndarray:
+    bar = np.full((LEGEND, width, 3), BG, np.uint8)
+    x0, x1 = 6, width - 6
+    grad = np.linspace(lo, hi, x1 - x0)[None, :].repeat(10, 0)
+    bar[4:14, x0:x1] = colorize(grad, lo, hi, diverging=diverging)
+    for k in range(ticks):
+        f = k / (ticks - 1)
+        val = lo + f * (hi - lo)
+        x = int(x0 + f * (x1 - x0 - 1))
+        cv2.line(bar, (x, 14), (x, 18), FG, 1)
+        label = f"{val:+.1f}" if diverging else f"{val:.0f}"
+        if k == ticks - 1:
+            label += f" {unit}"
+        w = _text_w(label, 0.4)
+        _text(bar, label, (min(max(x - w // 2, 0), width - w), 31), 0.4)
+    return bar
+
+
+def _fit(img: np.ndarray, tw: int, th: int, *, nearest=False) -> np.ndarray:
+    if img.shape[1] == tw and img.shape[0] == th:
+        return img
+    return cv2.resize(img, (tw, th), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
+
+
+def _message_tile(tw, th, lines) -> np.ndarray:
+    tile = np.full((th, tw, 3), 70, np.uint8)
+    for k, line in enumerate(lines):
+        w = _text_w(line, 0.55)
+        _text(tile, line, ((tw - w) // 2, th // 2 - 10 * (len(lines) - 1) + 22 * k), 0.55, (200, 200, 200))
+    return tile
+
+
+# ------------------------------------------------------------------------------------------------
+# reading a run
+
+def _read_json(p: Path) -> dict:
+    with open(p) as f:
+        return json.load(f)
+
+
+def scenes_of(run_dir: Path) -> list[tuple[Path, dict]]:
+    out = []
+    for sj in sorted(Path(run_dir).glob("scene.*/scene.json")):
+        try:
+            scene = _read_json(sj)
+        except (OSError, json.JSONDecodeError):
+            continue
+        if scene.get("complete", True):
+            out.append((sj.parent, scene))
+    return out
+
+
+def _render_file(scene_dir: Path, rd: dict, kind: str, default: str) -> Path:
+    rel = rd.get("files", {}).get(kind)
+    return scene_dir / rel if rel else scene_dir / rd["name"] / default
+
+
+def _load_render(scene_dir: Path, rd: dict) -> dict:
+    from .exr import read_depth, read_mask
+    W, H = (int(x) for x in rd["resolution"])
+    out = {"W": W, "H": H}
+    p = _render_file(scene_dir, rd, "rgb", "rgb.png")
+    rgb = cv2.imread(str(p), cv2.IMREAD_COLOR) if p.is_file() else None
+    out["rgb"] = rgb if rgb is not None else np.zeros((H, W, 3), np.uint8)
+    p = _render_file(scene_dir, rd, "depth", "depth.exr")
+    out["depth"] = read_depth(p).astype(np.float64) * 1000.0 if p.is_file() else None
+    p = _render_file(scene_dir, rd, "sl_depth", "sl_depth.exr")
+    out["sl_depth"] = read_depth(p).astype(np.float64) * 1000.0 if p.is_file() else None
+    p = _render_file(scene_dir, rd, "mask", "mask.exr")
+    out["mask"] = read_mask(p) if p.is_file() else None
+    return out
+
+
+def _load_models_info(run_dir: Path) -> dict[int, dict]:
+    p = Path(run_dir) / "models" / "models_info.json"
+    if not p.is_file():
+        return {}
+    return {int(k): v for k, v in _read_json(p).items()}
+
+
+def _valid(d):
+    return np.isfinite(d) & (d > 0)
+
+
+def depth_range(depth_mm: np.ndarray | None) -> tuple[float, float]:
+    if depth_mm is None or not _valid(depth_mm).any():
+        return 0.0, 1.0
+    v = depth_mm[_valid(depth_mm)]
+    lo, hi = np.percentile(v, [1, 99])
+    if hi - lo < 1:
+        lo, hi = lo - 0.5, hi + 0.5
+    return float(lo), float(hi)
+
+
+def error_range(err: np.ndarray) -> float:
+    """Half-width R (mm) of the difference colour scale: the smallest of 1, 2, 5, 10, ... >= p95 |err|."""
+    if err.size == 0:
+        return 1.0
+    p = float(np.percentile(np.abs(err), 95))
+    for r in (0.5, 1, 2, 3, 5, 10, 20, 50, 100, 200, 500):
+        if r >= p:
+            return float(r)
+    return float(math.ceil(p))
+
+
+# ------------------------------------------------------------------------------------------------
+# one sheet
+
+BOX_EDGES = [(0, 1), (1, 3), (3, 2), (2, 0), (4, 5), (5, 7), (7, 6), (6, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+
+
+def _draw_poses(rgb: np.ndarray, rd: dict, info: dict[int, dict], scale: float) -> np.ndarray:
+    img = (rgb.astype(np.float32) * 0.6).astype(np.uint8)
+    K = np.asarray(rd["K"], dtype=np.float64)
+    for o in rd.get("objects", []):
+        T = np.asarray(o["T_cam_obj"], dtype=np.float64)
+        mi = info.get(int(o["obj_id"]))
+        if mi is not None:
+            lo = np.array([mi["min_x"], mi["min_y"], mi["min_z"]]) / 1000.0
+            size = np.array([mi["size_x"], mi["size_y"], mi["size_z"]]) / 1000.0
+            axis_len = 0.5 * float(size.max())
+        else:
+            lo, size, axis_len = None, None, 0.02
+        pts = [np.zeros(3), [axis_len, 0, 0], [0, axis_len, 0], [0, 0, axis_len]]
+        if lo is not None:
+            pts += [lo + size * [i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+        P = np.asarray(pts, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
+        if (P[:, 2] <= 1e-3).any():
+            continue
+        uv = P @ K.T
+        uv = uv[:, :2] / uv[:, 2:] * scale
+        q = [tuple(int(round(c)) for c in p) for p in uv]
+        color = instance_color(int(o["mask_index"]))
+        visible = o.get("px_count_visib", 1) not in (0, None) or o.get("px_count_visib") is None
+        thick = 1
+        if lo is not None:
+            for a, b in BOX_EDGES:
+                cv2.line(img, q[4 + a], q[4 + b], color if visible else (110, 110, 110), thick, cv2.LINE_AA)
+        for k, c in ((1, (60, 60, 255)), (2, (60, 230, 60)), (3, (255, 120, 40))):   # x red, y green, z blue
+            cv2.line(img, q[0], q[k], c, 2, cv2.LINE_AA)
+        _text(img, str(o["obj_id"]), (q[0][0] + 3, q[0][1] - 3), 0.35, color)
+    return img
+
+
+def render_sheet(run_dir: Path, scene_dir: Path, scene: dict, rd: dict, info: dict[int, dict] | None = None,
+                 data: dict | None = None) -> np.ndarray:
+    """The contact sheet of one render as a BGR image."""
+    info = _load_models_info(run_dir) if info is None else info
+    data = _load_render(scene_dir, rd) if data is None else data
+    W, H = data["W"], data["H"]
+    tw, th = tile_size(W, H)
+    scale = tw / W
+    SW, SH = sheet_size(W, H)
+    sheet = np.full((SH, SW, 3), BG, np.uint8)
+    rects = panel_rects(W, H)
+    tiles, labels, legends = {}, {}, {}
+
+    tiles["rgb"] = _fit(data["rgb"], tw, th)
+    labels["rgb"] = "RGB"
+    z = data["depth"]
+    lo, hi = depth_range(z)
+    if z is not None:
+        tiles["depth"] = _fit(colorize(z, lo, hi), tw, th, nearest=True)
+        labels["depth"] = f"depth, z-buffer ({_valid(z).mean() * 100:.0f}% valid)"
+        legends["depth"] = _colorbar(tw, lo, hi, "mm")
+    else:
+        tiles["depth"] = _message_tile(tw, th, ["no depth output"])
+        labels["depth"] = "depth, z-buffer"
+    sl = data["sl_depth"]
+    if sl is not None:
+        tiles["sl_depth"] = _fit(colorize(sl, lo, hi), tw, th, nearest=True)
+        labels["sl_depth"] = f"depth, structured light ({_valid(sl).mean() * 100:.0f}% valid)"
+        legends["sl_depth"] = _colorbar(tw, lo, hi, "mm")
+    else:
+        tiles["sl_depth"] = _message_tile(tw, th, ["structured light off"])
+        labels["sl_depth"] = "depth, structured light"
+    if sl is not None and z is not None:
+        both = _valid(sl) & _valid(z)
+        err = np.full(z.shape, np.nan)
+        err[both] = sl[both] - z[both]
+        R = error_range(err[both])
+        tiles["diff"] = _fit(colorize(err, -R, R, diverging=True), tw, th, nearest=True)
+        e = err[both]
+        stats = f"mean {e.mean():+.2f}, std {e.std():.2f} mm" if e.size else "no overlap"
+        labels["diff"] = f"SL - z-buffer: {stats}"
+        legends["diff"] = _colorbar(tw, -R, R, "mm", diverging=True, ticks=3)
+    else:
+        tiles["diff"] = _message_tile(tw, th, ["structured light off"] if sl is None else ["no depth output"])
+        labels["diff"] = "SL - z-buffer"
+    m = data["mask"]
+    if m is not None:
+        cm = np.zeros((H, W, 3), np.uint8)
+        for idx in np.unique(m):
+            if idx > 0:
+                cm[m == idx] = instance_color(int(idx))
+        tiles["mask"] = _fit(cm, tw, th, nearest=True)
+        labels["mask"] = f"instance mask ({len([i for i in np.unique(m) if i > 0])} visible)"
+    else:
+        tiles["mask"] = _message_tile(tw, th, ["no mask output"])
+        labels["mask"] = "instance mask"
+    tiles["poses"] = _draw_poses(tiles["rgb"], rd, info, scale)
+    labels["poses"] = f"poses: {len(rd.get('objects', []))} objects (axes x r, y g, z b)"
+
+    for name in PANELS:
+        x, y, w, h = rects[name]
+        sheet[y:y + h, x:x + w] = tiles[name]
+        _text(sheet, labels[name], (x + 2, y - 7), 0.42)
+        if name in legends:
+            sheet[y + h:y + h + LEGEND, x:x + w] = legends[name]
+    title = (f"{scene_dir.name} / {rd['name']}   image_id {rd.get('image_id')}   "
+             f"{W}x{H}   {len(rd.get('objects', []))} objects   {Path(run_dir).name}")
+    _text(sheet, title, (PAD, 22), 0.55)
+    return sheet
+
+
+# ------------------------------------------------------------------------------------------------
+# the overview
+
+def _hist_panel(values, bins: np.ndarray, title: str, xlabel: str, *, w=440, h=300, color=(90, 170, 250),
+                note: str | None = None, fmt="{:g}", integer=False) -> np.ndarray:
+    """A histogram drawn with cv2: bars, count axis, x ticks (integer=True: one label per bar)."""
+    img = np.full((h, w, 3), BG, np.uint8)
+    _text(img, title, (8, 18), 0.5)
+    if note:
+        _text(img, note, (8, 38), 0.38, (220, 220, 160))
+    x0, x1, y0, y1 = 46, w - 12, 50, h - 44          # plot area (y0 top, y1 bottom)
+    cv2.rectangle(img, (x0, y0), (x1, y1), (90, 90, 90), 1)
+    values = np.asarray(values, dtype=np.float64)
+    if values.size == 0:
+        return img
+    counts, edges = np.histogram(values, bins=bins)
+    top = max(1, int(counts.max()))
+    n = len(counts)
+    for k, c in enumerate(counts):
+        bx0 = x0 + 1 + int(k * (x1 - x0 - 1) / n)
+        bx1 = x0 + 1 + int((k + 1) * (x1 - x0 - 1) / n) - (2 if integer else 1)
+        by = y1 - int(round(c / top * (y1 - y0 - 4)))
+        if c > 0:
+            cv2.rectangle(img, (bx0, by), (max(bx0, bx1), y1 - 1), color, -1)
+    if integer:
+        every = max(1, int(math.ceil(n / 15)))
+        ticks = [((k + 0.5) / n, f"{(edges[k] + edges[k + 1]) / 2:.0f}") for k in range(0, n, every)]
+    else:
+        ticks = [(f, fmt.format(edges[0] + f * (edges[-1] - edges[0]))) for f in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    for f, s in ticks:
+        x = int(x0 + f * (x1 - x0))
+        cv2.line(img, (x, y1), (x, y1 + 4), FG, 1)
+        tw_ = _text_w(s, 0.4)
+        _text(img, s, (min(max(x - tw_ // 2, 0), w - tw_), y1 + 18), 0.4)
+    _text(img, str(top), (max(2, x0 - 6 - _text_w(str(top), 0.4)), y0 + 10), 0.4)
+    _text(img, "0", (x0 - 14, y1), 0.4)
+    _text(img, xlabel, (x0, h - 8), 0.42)
+    return img
+
+
+def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray:
+    """The run's overview as a BGR image (samples at most `max_renders` renders, evenly)."""
+    from .core.writers.bop import load_models, rasterize_silhouette
+    run_dir = Path(run_dir)
+    scenes = scenes_of(run_dir)
+    if not scenes:
+        raise DataPipeError(f"{run_dir}: no complete scene (scene.*/scene.json) to show")
+    renders = [(sd, sc, rd) for sd, sc in scenes for rd in sc.get("renders", [])]
+    step = max(1, math.ceil(len(renders) / max_renders))
+    sample = renders[::step]
+    models = {}
+    if (run_dir / "models").is_dir():
+        try:
+            models = load_models(run_dir / "models")
+        except Exception:
+            models = {}
+    errs, fracs, n_all, n_vis, sl_valid = [], [], [], [], []
+    any_sl = False
+    for sd, sc, rd in sample:
+        data = _load_render(sd, rd)
+        z, sl, m = data["depth"], data["sl_depth"], data["mask"]
+        if sl is not None and z is not None:
+            any_sl = True
+            both = _valid(sl) & _valid(z)
+            e = (sl[both] - z[both]).astype(np.float32)
+            if e.size > 20000:
+                e = e[:: e.size // 20000 + 1]
+            errs.append(e)
+            sl_valid.append(float(_valid(sl).mean()))
+        objs = rd.get("objects", [])
+        n_all.append(len(objs))
+        K = np.asarray(rd["K"], dtype=np.float64)
+        nv = 0
+        for o in objs:
+            visib = int(np.count_nonzero(m == int(o["mask_index"]))) if m is not None else int(o.get("px_count_visib") or 0)
+            nv += visib > 0
+            mdl = models.get(int(o["obj_id"]))
+            if mdl is not None:
+                T = np.asarray(o["T_cam_obj"], dtype=np.float64)
+                sil, count, _ = rasterize_silhouette(mdl.verts_mm, mdl.faces, K, T[:3, :3], T[:3, 3] * 1000.0,
+                                                     data["W"], data["H"])
+                if m is not None:
+                    count += int(np.count_nonzero((m == int(o["mask_index"])) & ~sil))
+                fracs.append(visib / count if count else 0.0)
+        n_vis.append(nv)
+    err = np.concatenate(errs) if errs else np.zeros(0)
+    panels = []
+    if any_sl and err.size:
+        R = error_range(err)
+        e_in = err[np.abs(err) <= R]
+        note = (f"mean {err.mean():+.2f} std {err.std():.2f} med|e| {np.median(np.abs(err)):.2f} "
+                f"p95|e| {np.percentile(np.abs(err), 95):.2f} mm, {np.mean(sl_valid) * 100:.0f}% valid")
+        panels.append(_hist_panel(e_in, np.linspace(-R, R, 61), "structured light - z-buffer depth",
+                                  f"error [mm] ({len(err)} px, {(np.abs(err) > R).mean() * 100:.1f}% beyond +-{R:g})",
+                                  note=note, fmt="{:+.1f}"))
+    else:
+        panels.append(_hist_panel([], np.linspace(-1, 1, 3), "structured light - z-buffer depth", "error [mm]",
+                                  note="structured light off"))
+    if fracs:
+        f = np.asarray(fracs)
+        panels.append(_hist_panel(f, np.linspace(0, 1, 11), "visible fraction per instance",
+                                  f"visib_fract ({len(f)} instances, {np.mean(f < 0.1) * 100:.0f}% < 0.1)",
+                                  color=(120, 210, 120), fmt="{:.2f}"))
+    else:
+        panels.append(_hist_panel([], np.linspace(0, 1, 11), "visible fraction per instance", "visib_fract",
+                                  note="no models/ folder: cannot compute full silhouettes"))
+    top = max(n_all) if n_all else 1
+    bins = np.arange(-0.5, top + 1.5, 1.0)
+    panels.append(_hist_panel(n_vis, bins, "instances per render (visible)",
+                              f"instances (mean {np.mean(n_all):.1f} annotated, {np.mean(n_vis):.1f} visible)",
+                              color=(230, 160, 90), integer=True))
+    ph, pw = panels[0].shape[:2]
+    W = 3 * pw + 4 * PAD
+    Hs = HEADER + ph + PAD + 24
+    img = np.full((Hs, W, 3), BG, np.uint8)
+    for k, p in enumerate(panels):
+        x = PAD + k * (pw + PAD)
+        img[HEADER:HEADER + ph, x:x + pw] = p
+    n_inst = sum(n_all)
+    title = (f"{run_dir.name}: {len(scenes)} scenes, {len(renders)} renders, {n_inst if step == 1 else '~'} "
+             f"instances" + (f" (statistics over {len(sample)} sampled renders)" if step > 1 else ""))
+    _text(img, title, (PAD, 22), 0.55)
+    run_json = run_dir / "run.json"
+    if run_json.is_file():
+        try:
+            rj = _read_json(run_json)
+            _text(img, f"seed {rj.get('seed')}   plan {len(rj.get('plan', []))} scenes   status "
+                       f"{rj.get('status', '?')}", (PAD, Hs - 8), 0.42, (200, 200, 200))
+        except (OSError, json.JSONDecodeError):
+            pass
+    return img
+
+
+def _imwrite(path: Path, img: np.ndarray) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    if not cv2.imwrite(str(tmp), img):
+        raise DataPipeError(f"could not write {path}")
+    tmp.replace(path)
+    return path
+
+
+def make_overview(run_dir: str | Path, out_path: str | Path | None = None, *, max_renders: int = 400) -> Path:
+    """Write the run's overview sheet (default RUN_DIR/sheets/overview.png) and return its path."""
+    run_dir = Path(run_dir)
+    out_path = Path(out_path) if out_path else run_dir / "sheets" / "overview.png"
+    return _imwrite(out_path, overview_image(run_dir, max_renders=max_renders))
+
+
+def sheet_name(scene_dir: Path, rd: dict) -> str:
+    return f"{scene_dir.name}_{rd['name']}.png"
+
+
+def make_sheets(run_dir: str | Path, out_dir: str | Path | None = None, *, max_renders: int | None = None,
+                overview: bool = True) -> list[Path]:
+    """One contact sheet per render (`scene.0001_render.0001.png`) plus `overview.png`.
+
+    Returns the written paths (per-render sheets first, then the overview)."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise DataPipeError(f"{run_dir}: no such run folder (fix: give the --out folder of a run)")
+    out_dir = Path(out_dir) if out_dir else run_dir / "sheets"
+    scenes = scenes_of(run_dir)
+    if not scenes:
+        raise DataPipeError(f"{run_dir}: no complete scene (scene.*/scene.json) to show "
+                            "(fix: give the --out folder of a run that finished at least one scene)")
+    info = _load_models_info(run_dir)
+    written = []
+    for sd, sc in scenes:
+        for rd in sc.get("renders", []):
+            if max_renders is not None and len(written) >= max_renders:
+                break
+            written.append(_imwrite(out_dir / sheet_name(sd, rd), render_sheet(run_dir, sd, sc, rd, info)))
+    if overview:
+        written.append(make_overview(run_dir, out_dir / "overview.png"))
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m datapipe show", description="contact sheets for a run folder")
+    ap.add_argument("run_dir")
+    ap.add_argument("--out", help="sheet folder (default: RUN_DIR/sheets)")
+    ap.add_argument("--max", type=int, default=None, help="at most this many per-render sheets")
+    ap.add_argument("--no-overview", action="store_true", help="skip overview.png")
+    a = ap.parse_args(argv)
+    try:
+        paths = make_sheets(a.run_dir, a.out, max_renders=a.max, overview=not a.no_overview)
+    except DataPipeError as e:
+        print(f"datapipe: error: {e}", file=sys.stderr)
+        return 2
+    print(f"{len(paths)} sheet(s) written to {paths[0].parent if paths else a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

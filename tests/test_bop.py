@@ -1,0 +1,469 @@
+"""BOP export read back by an independent reader written to the BOP format document
+(bop_toolkit docs/bop_datasets_format.md), checked against the fixture's analytic ground truth.
+
+Nothing here imports the writer's helpers for reading: PLY, PNG and JSON are parsed here."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from datapipe.core.writers.bop import BopWriter, export_bop, write_models
+from datapipe.errors import DataPipeError
+from datapipe.exr import read_exr, write_exr
+
+import fixtures_native as fx
+
+TESTS = Path(__file__).resolve().parent
+
+
+# ------------------------------------------------------------------------------------------------
+# the independent reader
+
+def ref_read_ply(path):
+    """Vertices (V,3) of an ascii or binary_little_endian PLY; faces (F,3) for triangle meshes."""
+    raw = Path(path).read_bytes()
+    end = raw.index(b"end_header")
+    body = raw.index(b"\n", end) + 1
+    header = raw[:end].decode().splitlines()
+    assert header[0] == "ply"
+    fmt = next(l.split()[1] for l in header if l.startswith("format"))
+    elems, cur = [], None
+    for l in header:
+        t = l.split()
+        if t and t[0] == "element":
+            cur = [t[1], int(t[2]), []]
+            elems.append(cur)
+        elif t and t[0] == "property":
+            cur[2].append(t[1:])
+    vert = elems[0]
+    assert vert[0] == "vertex"
+    names = [p[-1] for p in vert[2]]
+    assert names[:6] == ["x", "y", "z", "nx", "ny", "nz"], names
+    nv = vert[1]
+    face = next(e for e in elems if e[0] == "face")
+    if fmt == "ascii":
+        lines = raw[body:].decode().split("\n")
+        V = np.array([[float(x) for x in lines[i].split()] for i in range(nv)])
+        F = np.array([[int(x) for x in lines[nv + i].split()] for i in range(face[1])])
+        assert (F[:, 0] == 3).all()
+        return V, F[:, 1:]
+    assert fmt == "binary_little_endian"
+    tmap = {"float": "<f4", "double": "<f8", "uchar": "u1", "int": "<i4", "uint": "<u4"}
+    vdt = np.dtype([(p[-1], tmap[p[0]]) for p in vert[2]])
+    V = np.frombuffer(raw, vdt, nv, body)
+    pos = body + vdt.itemsize * nv
+    lst = face[2][0]
+    fdt = np.dtype([("n", tmap[lst[1]]), ("i", tmap[lst[2]], (3,))])
+    F = np.frombuffer(raw, fdt, face[1], pos)
+    assert (F["n"] == 3).all()
+    return np.stack([V[n] for n in names], 1).astype(np.float64), F["i"].astype(np.int64)
+
+
+def ref_load_json(path):
+    with open(path) as f:
+        data = json.load(f)
+    return {int(k) if k.isdigit() else k: v for k, v in data.items()}
+
+
+def ref_png(path, flags=cv2.IMREAD_UNCHANGED):
+    im = cv2.imread(str(path), flags)
+    assert im is not None, path
+    return im
+
+
+# ------------------------------------------------------------------------------------------------
+# fixtures
+
+@pytest.fixture(scope="module")
+def native_run(tmp_path_factory):
+    return fx.make_native_run(tmp_path_factory.mktemp("native"), structured_light=True, truncate=True)
+
+
+@pytest.fixture(scope="module")
+def bop(native_run, tmp_path_factory):
+    root = tmp_path_factory.mktemp("bop") / "ds"
+    summary = export_bop(native_run, root)
+    assert summary["images"] == 4 and summary["scenes"] == 2
+    return root
+
+
+def iter_gt(bop_root, chunk_size=1000):
+    """(image_id, chunk_dir, im_id, camera, [gt], [gt_info]) for every image of the export."""
+    for cdir in sorted((bop_root / "train_pbr").iterdir()):
+        cams = ref_load_json(cdir / "scene_camera.json")
+        gts = ref_load_json(cdir / "scene_gt.json")
+        infos = ref_load_json(cdir / "scene_gt_info.json")
+        assert set(cams) == set(gts) == set(infos)
+        for im_id in sorted(cams):
+            yield int(cdir.name) * chunk_size + im_id, cdir, im_id, cams[im_id], gts[im_id], infos[im_id]
+
+
+def analytic_truth(native_run, image_id):
+    """(K, T_world_cam, [(obj_id, T_world_obj)], W, H) of an image from the fixture's own geometry."""
+    for sj in sorted(native_run.glob("scene.*/scene.json")):
+        scene = json.loads(sj.read_text())
+        for rd in scene["renders"]:
+            if rd["image_id"] == image_id:
+                objs = fx.scene_objects(0, scene["scene_id"], truncate=True)
+                pos, tgt = fx.DEFAULT_POSES[rd["pose_index"]]
+                return np.array(rd["K"]), fx.look_at(pos, tgt), objs, *rd["resolution"], sj.parent / rd["name"]
+    raise KeyError(image_id)
+
+
+# ------------------------------------------------------------------------------------------------
+# tests
+
+def test_every_file_and_field(bop, native_run):
+    cam = ref_load_json(bop / "camera.json")
+    assert set(cam) == {"cx", "cy", "fx", "fy", "width", "height", "depth_scale"}
+    assert cam["width"] == 320 and cam["height"] == 240 and isinstance(cam["width"], int)
+    assert cam["depth_scale"] == pytest.approx(0.1)
+    assert cam["cx"] == pytest.approx(159.5) and cam["cy"] == pytest.approx(119.5)
+
+    info = ref_load_json(bop / "models" / "models_info.json")
+    assert set(info) == {1, 2, 3}
+    for obj_id, half in enumerate(fx.BOX_HALF, start=1):
+        e = info[obj_id]
+        assert set(e) == {"diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z"}
+        size_mm = 2000 * np.array(half)
+        assert [e["size_x"], e["size_y"], e["size_z"]] == pytest.approx(size_mm)
+        assert [e["min_x"], e["min_y"], e["min_z"]] == pytest.approx(-size_mm / 2)
+        assert e["diameter"] == pytest.approx(np.linalg.norm(size_mm))          # the box diagonal
+        V, F = ref_read_ply(bop / "models" / f"obj_{obj_id:06d}.ply")
+        V0, F0, N0 = fx.box_mesh(half)
+        np.testing.assert_allclose(V[:, :3], V0 * 1000, atol=1e-3)              # millimetres
+        np.testing.assert_allclose(V[:, 3:6], N0, atol=1e-6)
+        np.testing.assert_array_equal(F, F0)
+
+    n_images = 0
+    for image_id, cdir, im_id, cam_e, gts, infos in iter_gt(bop):
+        n_images += 1
+        assert set(cam_e) >= {"cam_K", "depth_scale", "cam_R_w2c", "cam_t_w2c"}
+        assert len(cam_e["cam_K"]) == 9 and len(cam_e["cam_R_w2c"]) == 9 and len(cam_e["cam_t_w2c"]) == 3
+        assert all(isinstance(x, float) for x in cam_e["cam_K"] + cam_e["cam_R_w2c"] + cam_e["cam_t_w2c"])
+        stem = f"{im_id:06d}"
+        rgb = ref_png(cdir / "rgb" / f"{stem}.png")
+        assert rgb.shape == (240, 320, 3) and rgb.dtype == np.uint8
+        for sub in ("depth", "depth_sl"):
+            d = ref_png(cdir / sub / f"{stem}.png")
+            assert d.shape == (240, 320) and d.dtype == np.uint16
+        assert len(gts) == len(infos) >= 2
+        for gt_id, (g, inf) in enumerate(zip(gts, infos)):
+            assert set(g) == {"obj_id", "cam_R_m2c", "cam_t_m2c"}
+            assert isinstance(g["obj_id"], int) and g["obj_id"] in (1, 2, 3)
+            R = np.array(g["cam_R_m2c"]).reshape(3, 3)
+            np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+            assert np.linalg.det(R) == pytest.approx(1.0)
+            assert len(g["cam_t_m2c"]) == 3
+            assert set(inf) == {"bbox_obj", "bbox_visib", "px_count_all", "px_count_valid", "px_count_visib",
+                                "visib_fract"}
+            assert all(isinstance(inf[k], int) for k in ("px_count_all", "px_count_valid", "px_count_visib"))
+            assert len(inf["bbox_obj"]) == 4 and len(inf["bbox_visib"]) == 4
+            for sub in ("mask", "mask_visib"):
+                m = ref_png(cdir / sub / f"{stem}_{gt_id:06d}.png")
+                assert m.shape == (240, 320) and m.dtype == np.uint8
+                assert set(np.unique(m)) <= {0, 255}
+    assert n_images == 4
+    # no temporary files left behind
+    assert not [p for p in bop.rglob("*") if ".tmp" in p.name]
+
+
+def test_poses_match_analytic_truth_and_land_on_masks(bop, native_run):
+    checked = 0
+    for image_id, cdir, im_id, cam_e, gts, infos in iter_gt(bop):
+        K_true, T_wc, objs, W, H, _ = analytic_truth(native_run, image_id)
+        K = np.array(cam_e["cam_K"]).reshape(3, 3)
+        np.testing.assert_allclose(K, K_true)
+        # camera pose: P_w2i = K [R_w2c | t_w2c]
+        T_cw = np.linalg.inv(T_wc)
+        np.testing.assert_allclose(np.array(cam_e["cam_R_w2c"]).reshape(3, 3), T_cw[:3, :3], atol=1e-9)
+        np.testing.assert_allclose(cam_e["cam_t_w2c"], T_cw[:3, 3] * 1000, atol=1e-6)
+        depth_mm = ref_png(cdir / "depth" / f"{im_id:06d}.png").astype(np.float64) * cam_e["depth_scale"]
+        for gt_id, (g, (obj_id, T_wo)) in enumerate(zip(gts, objs)):
+            assert g["obj_id"] == obj_id
+            T_co = T_cw @ T_wo
+            R = np.array(g["cam_R_m2c"]).reshape(3, 3)
+            t = np.array(g["cam_t_m2c"])
+            np.testing.assert_allclose(R, T_co[:3, :3], atol=1e-9)
+            np.testing.assert_allclose(t, T_co[:3, 3] * 1000, atol=1e-6)
+            V, _ = ref_read_ply(cdir.parents[1] / "models" / f"obj_{obj_id:06d}.ply")
+            pc = V[:, :3] @ R.T + t
+            uv = pc @ K.T
+            uv = uv[:, :2] / uv[:, 2:]
+            px = np.rint(uv).astype(int)
+            inside = (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
+            # vertices facing the camera and off the floor (a vertex touching the floor has the floor's depth)
+            n_cam = V[:, 3:6] @ R.T
+            facing = (n_cam * -pc).sum(1) > 0
+            height = (V[:, :3] / 1000.0 @ T_wo[:3, :3].T + T_wo[:3, 3])[:, 2]
+            cand = facing & (height > 0.002)
+            px, z, cand = px[inside], pc[inside, 2], cand[inside]
+            mv = ref_png(cdir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+            mfull = ref_png(cdir / "mask" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+            # visible vertices: the depth image sees them (within 1 mm) -> they must land on mask_visib
+            dz = depth_mm[px[:, 1], px[:, 0]]
+            vis = cand & (np.abs(dz - z) < 1.0)
+            if vis.sum() >= 10:
+                frac = mv[px[vis, 1], px[vis, 0]].mean()
+                assert frac > 0.9, (image_id, gt_id, frac)
+                checked += 1
+            # every vertex in the image lands on (or within a pixel of) the full silhouette
+            near = cv2.dilate(mfull.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+            assert near[px[:, 1], px[:, 0]].all()
+            assert not (mv & ~mfull).any()                        # visible part within the silhouette
+    assert checked >= 6
+
+
+def test_depth_matches_exr_to_the_quantisation(bop, native_run):
+    for image_id, cdir, im_id, cam_e, gts, infos in iter_gt(bop):
+        *_, rdir = analytic_truth(native_run, image_id)
+        s = cam_e["depth_scale"]
+        for sub, exr in (("depth", "depth.exr"), ("depth_sl", "sl_depth.exr")):
+            png = ref_png(cdir / sub / f"{im_id:06d}.png").astype(np.float64)
+            ref = read_exr(rdir / exr)["Z"].astype(np.float64) * 1000.0
+            nodata = ~np.isfinite(ref)
+            np.testing.assert_array_equal(png == 0, nodata)
+            err = np.abs(png[~nodata] * s - ref[~nodata])
+            assert err.max() <= s / 2 + 1e-3, (sub, err.max())
+        if (rdir / "sl_depth.exr").is_file():
+            assert (ref_png(cdir / "depth_sl" / f"{im_id:06d}.png") == 0).any()   # holes stay holes
+
+
+def test_gt_info_recounted_from_masks_and_analytic_silhouettes(bop, native_run):
+    for image_id, cdir, im_id, cam_e, gts, infos in iter_gt(bop):
+        K, T_wc, objs, W, H, rdir = analytic_truth(native_run, image_id)
+        inst = np.rint(read_exr(rdir / "mask.exr")["Y"]).astype(int)
+        # an extended canvas (one image size beyond each border) for truncated silhouettes
+        K_big = K.copy()
+        K_big[0, 2] += W
+        K_big[1, 2] += H
+        for gt_id, (inf, obj) in enumerate(zip(infos, objs)):
+            mv = ref_png(cdir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+            np.testing.assert_array_equal(mv, inst == gt_id + 1)
+            _, alone, _ = fx.raycast(K_big, T_wc, [obj], 3 * W, 3 * H)
+            sil_big = alone == 1
+            sil = sil_big[H:2 * H, W:2 * W]
+            mfull = ref_png(cdir / "mask" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+            assert (mfull ^ sil).sum() <= 2, (image_id, gt_id, (mfull ^ sil).sum())
+            assert inf["px_count_visib"] == mv.sum()
+            assert abs(inf["px_count_all"] - sil_big.sum()) <= 2
+            assert inf["visib_fract"] == pytest.approx(inf["px_count_visib"] / inf["px_count_all"])
+            ys, xs = np.nonzero(mv)
+            assert inf["bbox_visib"] == [xs.min(), ys.min(), xs.max() - xs.min(), ys.max() - ys.min()]
+            ys, xs = np.nonzero(sil_big)
+            xs, ys = xs - W, ys - H
+            np.testing.assert_allclose(inf["bbox_obj"], [xs.min(), ys.min(), xs.max() - xs.min(),
+                                                         ys.max() - ys.min()], atol=1)
+            assert inf["px_count_valid"] == sil.sum()             # the floor gives depth everywhere
+    # the truncated part really is counted: some object is cut by the border
+    fracs = [i["visib_fract"] for *_, infos in iter_gt(bop) for i in infos]
+    assert min(fracs) < 0.6 and max(fracs) == 1.0
+
+
+def ref_rle_decode(rle):
+    """COCO uncompressed RLE -> bool (H, W): runs alternate 0/1 starting with 0, column-major."""
+    h, w = rle["size"]
+    flat = np.zeros(h * w, bool)
+    pos, val = 0, False
+    for c in rle["counts"]:
+        flat[pos:pos + c] = val
+        pos += c
+        val = not val
+    assert pos == h * w
+    return flat.reshape((h, w), order="F")
+
+
+def test_coco_annotations_decode_to_the_visible_masks(bop):
+    n = 0
+    for cdir in sorted((bop / "train_pbr").iterdir()):
+        coco = json.loads((cdir / "scene_gt_coco.json").read_text())
+        assert set(coco) >= {"images", "annotations", "categories"}
+        assert [c["id"] for c in coco["categories"]] == [1, 2, 3]
+        gts = ref_load_json(cdir / "scene_gt.json")
+        infos = ref_load_json(cdir / "scene_gt_info.json")
+        images = {im["id"]: im for im in coco["images"]}
+        assert sorted(images) == sorted(gts)
+        assert len({a["id"] for a in coco["annotations"]}) == len(coco["annotations"])
+        by_image = {}
+        for a in coco["annotations"]:
+            by_image.setdefault(a["image_id"], []).append(a)
+        for im_id, anns in by_image.items():
+            assert (cdir / images[im_id]["file_name"]).is_file()
+            visible = [(g, i, k) for k, (g, i) in enumerate(zip(gts[im_id], infos[im_id])) if i["px_count_visib"] > 0]
+            assert len(anns) == len(visible)
+            for a, (g, i, gt_id) in zip(anns, visible):
+                mv = ref_png(cdir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+                np.testing.assert_array_equal(ref_rle_decode(a["segmentation"]), mv)
+                assert a["category_id"] == g["obj_id"] and a["area"] == mv.sum() and a["iscrowd"] == 0
+                assert a["ignore"] == (i["visib_fract"] < 0.1)
+                full = ref_png(cdir / "mask" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+                ys, xs = np.nonzero(full)
+                assert a["bbox"] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+                n += 1
+    assert n >= 8
+
+
+def test_chunking(native_run, tmp_path):
+    root = tmp_path / "bop"
+    export_bop(native_run, root, chunk_size=2)
+    chunks = sorted(p.name for p in (root / "train_pbr").iterdir())
+    assert chunks == ["000000", "000001"]
+    seen = {}
+    for c in chunks:
+        gt = ref_load_json(root / "train_pbr" / c / "scene_gt.json")
+        assert sorted(gt) == [0, 1]
+        assert sorted(p.name for p in (root / "train_pbr" / c / "rgb").iterdir()) == ["000000.png", "000001.png"]
+        meta = ref_load_json(root / "train_pbr" / c / "datapipe.json")
+        for im_id, m in meta.items():
+            seen[m["image_id"]] = (int(c), im_id)
+    assert seen == {0: (0, 0), 1: (0, 1), 2: (1, 0), 3: (1, 1)}
+
+
+def test_incremental_scenes_survive_a_restart(native_run, tmp_path):
+    root = tmp_path / "bop"
+    w = BopWriter(root, chunk_size=1000)
+    assert w.add_scene(native_run / "scene.0001") == [0, 1]
+    first = (root / "train_pbr/000000/scene_gt.json").read_text()
+    assert sorted(ref_load_json(root / "train_pbr/000000/scene_gt.json")) == [0, 1]
+    # a new writer (a resumed run) appends to what is on disk, and re-adding a scene is idempotent
+    w2 = BopWriter(root, chunk_size=1000)
+    w2.add_scene(native_run / "scene.0002")
+    w2.add_scene(native_run / "scene.0001")
+    w2.finish()
+    gt = ref_load_json(root / "train_pbr/000000/scene_gt.json")
+    assert sorted(gt) == [0, 1, 2, 3]
+    assert json.loads(first)["0"] == gt[0]
+    ref = tmp_path / "ref"
+    export_bop(native_run, ref)
+    for name in ("scene_camera", "scene_gt", "scene_gt_info", "scene_gt_coco"):
+        assert ref_load_json(root / f"train_pbr/000000/{name}.json") == ref_load_json(ref / f"train_pbr/000000/{name}.json")
+
+
+def test_incomplete_scene_and_missing_model_are_clear_errors(native_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(native_run, run)
+    (run / "scene.0002" / "scene.json").unlink()
+    summary = export_bop(run, tmp_path / "bop")                    # incomplete scenes are left out
+    assert summary["scenes"] == 1 and summary["images"] == 2
+    with pytest.raises(DataPipeError, match="not complete"):
+        BopWriter(tmp_path / "bop2").add_scene(run / "scene.0002")
+    (run / "models" / "obj_000001.ply").unlink()
+    (run / "models" / "obj_000002.ply").unlink()
+    (run / "models" / "obj_000003.ply").unlink()
+    with pytest.raises(DataPipeError, match="no model"):
+        export_bop(run, tmp_path / "bop3")
+
+
+def test_depth_out_of_range_is_refused_with_the_fix(tmp_path):
+    cfg = fx.default_config(num_renders=1, min_per_scene=1, max_per_scene=1)
+    run = fx.make_native_run(tmp_path / "run", cfg=cfg)
+    rdir = run / "scene.0001" / "render.0001"
+    d = read_exr(rdir / "depth.exr")["Z"]
+    d[0, 0] = 7.0                                                  # beyond 65535 * 0.1 mm
+    write_exr(rdir / "depth.exr", {"Z": d})
+    with pytest.raises(DataPipeError, match=r"depth_scale=0\.2"):
+        export_bop(run, tmp_path / "bop")
+    export_bop(run, tmp_path / "bop_ok", depth_scale=0.2)
+    png = ref_png(tmp_path / "bop_ok/train_pbr/000000/depth/000000.png")
+    assert png[0, 0] == 35000
+    assert ref_load_json(tmp_path / "bop_ok/train_pbr/000000/scene_camera.json")[0]["depth_scale"] == 0.2
+
+
+def test_write_models_ascii_binary_and_exact_diameter(tmp_path):
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(300, 3)) * [0.03, 0.01, 0.02]
+    faces = rng.integers(0, 300, size=(100, 3))
+    normals = rng.normal(size=(300, 3))
+    for binary in (True, False):
+        d = tmp_path / ("bin" if binary else "ascii")
+        from datapipe.core.writers import bop as bopmod
+        bopmod.write_models(d, {7: (pts, faces, normals)}, binary=binary)
+        V, F = ref_read_ply(d / "obj_000007.ply")
+        np.testing.assert_allclose(V[:, :3], pts * 1000, atol=2e-3)
+        np.testing.assert_array_equal(F, faces)
+        info = ref_load_json(d / "models_info.json")[7]
+        mm = pts * 1000
+        brute = np.sqrt(((mm[:, None] - mm[None]) ** 2).sum(-1)).max()
+        assert info["diameter"] == pytest.approx(brute, rel=1e-9)
+        assert info["min_x"] == pytest.approx(mm[:, 0].min())
+        assert info["size_z"] == pytest.approx(np.ptp(mm[:, 2]))
+    with pytest.raises(DataPipeError, match="start at 1"):
+        write_models(tmp_path / "bad", {0: (pts, faces, normals)})
+
+
+def _real_pipeline_available():
+    try:
+        import bpy  # noqa: F401
+        import datapipe.core.pipeline  # noqa: F401
+        import datapipe.cli  # noqa: F401
+    except Exception:
+        return False
+    return True
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+@pytest.mark.skipif(not _real_pipeline_available(), reason="needs bpy and datapipe.core.pipeline")
+def test_real_tiny_run_exports_to_bop(tmp_path):
+    """End to end on a tiny real run: `python -m datapipe demo`, then BOP export read back."""
+    import subprocess
+    import sys
+    out = tmp_path / "demo"
+    r = subprocess.run([sys.executable, "-m", "datapipe", "demo", "--out", str(out), "--force"],
+                       capture_output=True, text=True, timeout=1800)
+    assert r.returncode == 0, r.stderr[-3000:]
+    root = tmp_path / "bop"
+    summary = export_bop(out, root)
+    assert summary["images"] >= 1
+    checked = 0
+    rng = np.random.default_rng(0)
+    bary = np.vstack([[1 / 3, 1 / 3, 1 / 3], rng.dirichlet([2, 2, 2], size=12)])
+    for image_id, cdir, im_id, cam_e, gts, infos in iter_gt(root):
+        K = np.array(cam_e["cam_K"]).reshape(3, 3)
+        depth_mm = ref_png(cdir / "depth" / f"{im_id:06d}.png").astype(np.float64) * cam_e["depth_scale"]
+        H, W = depth_mm.shape
+        for gt_id, (g, inf) in enumerate(zip(gts, infos)):
+            mv = ref_png(cdir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+            mfull = ref_png(cdir / "mask" / f"{im_id:06d}_{gt_id:06d}.png") > 0
+            assert inf["px_count_visib"] == mv.sum()
+            assert 0.0 <= inf["visib_fract"] <= 1.0
+            assert not (mv & ~mfull).any()
+            V, F = ref_read_ply(root / "models" / f"obj_{g['obj_id']:06d}.ply")
+            R = np.array(g["cam_R_m2c"]).reshape(3, 3)
+            pc = V[:, :3] @ R.T + np.array(g["cam_t_m2c"])
+            uv = pc @ K.T
+            uv = uv[:, :2] / uv[:, 2:]
+            # an independent silhouette: cv2.fillConvexPoly per triangle (1/16 px precision)
+            sil = np.zeros((H, W), np.uint8)
+            for tri in F:
+                cv2.fillConvexPoly(sil, np.rint((uv[tri] - 0.0) * 16).astype(np.int32), 1, lineType=cv2.LINE_8,
+                                   shift=4)
+            sil = sil > 0
+            # fillConvexPoly also fills pixels an edge only touches: compare with a 1-px tolerance
+            if inf["px_count_visib"] > 100:
+                assert (mv & sil).sum() / mv.sum() > 0.97, (image_id, gt_id)   # visible part inside the posed model
+            core = cv2.erode(sil.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+            if core.sum() > 100:
+                assert (core & ~mfull).sum() / core.sum() < 0.03, (image_id, gt_id)
+            # points on the model's faces that the depth image sees (3x3 window within 2 mm) land on mask_visib
+            tri = V[:, :3][F]                                             # (F,3,3)
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) @ R.T
+            pts = np.einsum("sk,fkd->fsd", bary, tri).reshape(-1, 3) @ R.T + np.array(g["cam_t_m2c"])
+            n = np.repeat(n, len(bary), axis=0)
+            grazing = np.abs((n * pts).sum(1)) < 0.3 * np.linalg.norm(n, axis=1) * np.linalg.norm(pts, axis=1)
+            uvp = pts @ K.T
+            px = np.rint(uvp[:, :2] / uvp[:, 2:]).astype(int)
+            ok = ~grazing & (px[:, 0] >= 1) & (px[:, 0] < W - 1) & (px[:, 1] >= 1) & (px[:, 1] < H - 1)
+            px, z = px[ok], pts[ok, 2]
+            win = np.stack([depth_mm[px[:, 1] + dy, px[:, 0] + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+            vis = np.abs(win - z).max(0) < 2.0
+            if vis.sum() >= 10:
+                checked += 1
+                assert mv[px[vis, 1], px[vis, 0]].mean() > 0.9, (image_id, gt_id)
+    assert checked >= 1
