@@ -9,6 +9,9 @@ import math
 
 import numpy as np
 
+from .sl.triangulate import intrinsics_from_blender as _sl_intrinsics
+from .sl.triangulate import projection_matrix  # noqa: F401  (one source of truth, re-exported)
+
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])   # T_blcam_cvcam (its own inverse)
 
 
@@ -90,19 +93,11 @@ def intrinsics_from_blender(focal_mm: float, sensor_mm: float, width: int, heigh
                             sensor_fit: str = "AUTO") -> np.ndarray:
     """Pinhole K of an unshifted Blender camera with square pixels; pixel centres at integers.
 
-    With sensor_fit VERTICAL, `sensor_mm` is the sensor height (Blender's sensor_height);
-    pass it in that case. cx = W/2 - 0.5, cy = H/2 - 0.5.
+    DataPipe's configs carry one sensor size: it is the sensor width, or with sensor_fit VERTICAL
+    the sensor height (BlendCamera sets Blender's sensor_height from it then). One implementation:
+    `datapipe.sl.triangulate.intrinsics_from_blender`.
     """
-    if sensor_fit_is_horizontal(sensor_fit, width, height):
-        f = focal_mm * width / sensor_mm
-    else:
-        f = focal_mm * height / sensor_mm
-    return np.array([[f, 0.0, width / 2 - 0.5], [0.0, f, height / 2 - 0.5], [0.0, 0.0, 1.0]])
-
-
-def projection_matrix(K, T_world_cam) -> np.ndarray:
-    """3x4 P mapping homogeneous world points to pixels: K @ [R|t] with [R|t] = inv(T_world_cam)[:3]."""
-    return np.asarray(K, dtype=np.float64) @ np.linalg.inv(np.asarray(T_world_cam, dtype=np.float64))[:3]
+    return _sl_intrinsics(focal_mm, sensor_mm, int(width), int(height), sensor_fit, sensor_height_mm=sensor_mm)
 
 
 def project_points(K, T_cam_X, pts) -> np.ndarray:

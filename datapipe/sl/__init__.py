@@ -1,0 +1,19 @@
+"""Structured light (fringe projection), pure numpy: patterns, phase, unwrapping, triangulation,
+a camera noise model, the decoder and its metrics. No Blender here, ever (design.md)."""
+from .decode import DecodeResult, Reason, decode, estimate_noise_sigma, modulation_floor_factor
+from .metrics import depth_error_stats, effective_period, theoretical_depth_sigma, theoretical_phase_sigma
+from .patterns import fringe_patterns, phase_shifts
+from .phase import PhaseResult, phase_shift
+from .sensor import PRESETS, SensorModel
+from .triangulate import Triangulator, TriangulationResult, intrinsics_from_blender, projection_matrix
+from .unwrap import UnwrapResult, plan_unwrap, unwrap_phase
+
+__all__ = [
+    "fringe_patterns", "phase_shifts",
+    "phase_shift", "PhaseResult",
+    "unwrap_phase", "plan_unwrap", "UnwrapResult",
+    "Triangulator", "TriangulationResult", "intrinsics_from_blender", "projection_matrix",
+    "SensorModel", "PRESETS",
+    "decode", "DecodeResult", "Reason", "estimate_noise_sigma", "modulation_floor_factor",
+    "depth_error_stats", "theoretical_phase_sigma", "theoretical_depth_sigma", "effective_period",
+]

@@ -1,0 +1,334 @@
+"""Camera-projector triangulation in closed form, plus the camera-model helpers shared with Blender.
+
+Geometry. ``P_cam = K [R|t]`` and ``P_proj`` are 3x4 world -> pixel matrices (OpenCV convention,
+pixel centres at integers). ``P_cam`` is normalised (sign and scale) so that for a world point X,
+``P_cam X = Z (u, v, 1)`` with ``Z`` the planar depth in the camera frame. Eliminating X::
+
+    X = M^-1 (Z m - p4),  m = (u, v, 1),  [M | p4] = P_cam
+    P_proj X = Z alpha(u, v) + beta,   alpha = H m,  H = M_p M^-1,  beta = p_p4 - H p4
+
+so the projector column ``x = (Z a0 + b0) / (Z a2 + b2)`` and, inverted, depth is a rational
+function of x with per-pixel coefficients (computed once in float64, stored in float32)::
+
+    Z = (b0 - b2 x) / (a2 x - a0)  =  (b0 - b2 x) / (x - xinf) / a2,   xinf = a0/a2
+
+``a0, a2`` are per pixel, ``b0, b2`` constants; the second form (see
+:attr:`Triangulator.coefficients`) is the one evaluated, in float32. Conditioning: with ``Zp = Z a2 + b2`` (the
+point's depth in the projector frame) and ``q = b0 a2 - b2 a0``,
+``dZ/dx = Zp^2 / q`` (magnitude), metres of depth per projector pixel. ``q = 0`` means the
+camera ray lies in one projector column plane (no depth information at all); pixels whose
+``|dZ/dx|`` exceeds a cap are flagged ill-conditioned, and ``|dZ/dx| * sigma_x`` is the depth
+uncertainty of a pixel (see :meth:`Triangulator.depth_slope`).
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from ._errors import bad_type, bad_value
+
+__all__ = ["Triangulator", "TriangulationResult", "intrinsics_from_blender", "projection_matrix"]
+
+
+# --------------------------------------------------------------------------------------------
+# camera model helpers (one source of truth for the Blender side too)
+# --------------------------------------------------------------------------------------------
+
+def intrinsics_from_blender(focal_mm: float, sensor_width_mm: float, width: int, height: int,
+                            sensor_fit: str = "AUTO", *, sensor_height_mm: float = 24.0,
+                            shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
+    """OpenCV intrinsics ``K`` (3x3 float64) of a Blender perspective camera, square pixels.
+
+    ``sensor_fit``: 'AUTO' (Blender's default: the sensor width applies to the larger image
+    dimension), 'HORIZONTAL' (sensor width <-> image width) or 'VERTICAL' (``sensor_height_mm``
+    <-> image height). Principal point ``cx = W/2 - 0.5``, ``cy = H/2 - 0.5`` (pixel centres at
+    integers), moved by Blender's lens shift (in units of the fitted dimension; +shift_y moves the
+    view up, i.e. the principal point down in the image).
+    """
+    for name, v in (("focal_mm", focal_mm), ("sensor_width_mm", sensor_width_mm),
+                    ("sensor_height_mm", sensor_height_mm)):
+        if not np.isfinite(v) or v <= 0:
+            raise bad_value(name, f"must be a finite number > 0, got {v!r}", "give the length in millimetres")
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise bad_value(name, f"must be a positive int, got {v!r}", "give the resolution in pixels")
+    fit = str(sensor_fit).upper()
+    if fit == "AUTO":
+        size_px, sensor = max(width, height), sensor_width_mm
+    elif fit == "HORIZONTAL":
+        size_px, sensor = width, sensor_width_mm
+    elif fit == "VERTICAL":
+        size_px, sensor = height, sensor_height_mm
+    else:
+        raise bad_value("sensor_fit", f"must be 'AUTO', 'HORIZONTAL' or 'VERTICAL', got {sensor_fit!r}",
+                        "use Blender's camera.data.sensor_fit value")
+    f = focal_mm * size_px / sensor
+    cx = width / 2.0 - 0.5 - shift_x * size_px
+    cy = height / 2.0 - 0.5 + shift_y * size_px
+    return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+
+
+def projection_matrix(K, T_world_cam) -> np.ndarray:
+    """``P = K @ inv(T_world_cam)[:3]`` (3x4, float64): world -> pixel for a camera whose pose in
+    the world is ``T_world_cam`` (4x4, OpenCV camera frame: x right, y down, z forward)."""
+    K = _finite_matrix(K, (3, 3), "K")
+    T = _finite_matrix(T_world_cam, (4, 4), "T_world_cam")
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+        raise bad_value("T_world_cam", f"last row is {T[3].tolist()}, not [0, 0, 0, 1]",
+                        "pass a rigid 4x4 pose matrix")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+        raise bad_value("T_world_cam", "rotation part is not a proper rotation",
+                        "pass a rigid pose (orthonormal rotation, det +1, no scale)")
+    inv = np.eye(4)
+    inv[:3, :3] = R.T
+    inv[:3, 3] = -R.T @ T[:3, 3]
+    return K @ inv[:3]
+
+
+def _finite_matrix(m, shape, name) -> np.ndarray:
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise bad_type(name, f"must be a numeric {shape[0]}x{shape[1]} matrix, got {type(m).__name__}",
+                       f"pass a {shape[0]}x{shape[1]} numpy array") from None
+    if a.shape != shape:
+        raise bad_value(name, f"has shape {a.shape}, expected {shape}", f"pass a {shape[0]}x{shape[1]} matrix")
+    if not np.all(np.isfinite(a)):
+        raise bad_value(name, "contains NaN or inf", "check the calibration / pose that produced it")
+    return a
+
+
+def _size(s, name):
+    try:
+        w, h = (int(v) for v in s)
+    except (TypeError, ValueError):
+        raise bad_type(name, f"must be (width, height), got {s!r}", "pass a pair of ints") from None
+    if w < 1 or h < 1:
+        raise bad_value(name, f"must be positive, got {s!r}", "pass (width, height) in pixels")
+    return w, h
+
+
+def _normalise_camera(P, name):
+    """Scale P so that its third row's rotation part has unit norm and det(M) > 0."""
+    M = P[:, :3]
+    det = np.linalg.det(M)
+    n3 = np.linalg.norm(M[2])
+    if abs(det) < 1e-12 * max(1.0, np.linalg.norm(M)) ** 3 or n3 == 0:
+        raise bad_value(name, "is singular (its left 3x3 block has no inverse)",
+                        "build it as K @ [R | t] with a proper rotation and focal length > 0")
+    return P * (np.sign(det) / n3)
+
+
+# --------------------------------------------------------------------------------------------
+# triangulation
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class TriangulationResult:
+    depth: np.ndarray        # (H, W) float32, NaN where not ok
+    points: np.ndarray       # (H, W, 3) float32 camera frame, NaN where not ok
+    ill_conditioned: np.ndarray   # bool
+    outside: np.ndarray      # bool: behind the projector or outside its other image axis
+
+
+class Triangulator:
+    """Closed-form depth from a projector coordinate per camera pixel.
+
+    ``Triangulator(P_cam, P_proj, cam_size, proj_size, axis='x')``; ``axis='y'`` when the fringes
+    code projector rows. Per-pixel coefficients are computed lazily once (float64 -> float32) and
+    kept; :meth:`cached` returns a shared instance for a repeated geometry.
+    """
+
+    _cache: "OrderedDict[bytes, Triangulator]" = OrderedDict()
+    _cache_size = 4
+
+    def __init__(self, P_cam, P_proj, cam_size, proj_size, *, axis: str = "x"):
+        P_cam = _finite_matrix(P_cam, (3, 4), "P_cam")
+        P_proj = _finite_matrix(P_proj, (3, 4), "P_proj")
+        self.cam_size = _size(cam_size, "cam_size")
+        self.proj_size = _size(proj_size, "proj_size")
+        if axis not in ("x", "y"):
+            raise bad_value("axis", f"must be 'x' or 'y', got {axis!r}", "'x' when fringes code projector columns")
+        self.axis = axis
+        Pc = _normalise_camera(P_cam, "P_cam")
+        Pp = _normalise_camera(P_proj, "P_proj")
+        if axis == "y":
+            Pp = Pp[[1, 0, 2]]
+        self.P_cam, self.P_proj = Pc, Pp
+        M, p4 = Pc[:, :3], Pc[:, 3]
+        Kc, _ = scipy.linalg.rq(M)
+        Kc = Kc @ np.diag(np.sign(np.diag(Kc)))
+        self.K_cam = Kc / Kc[2, 2]
+        H = Pp[:, :3] @ np.linalg.inv(M)
+        self._H = H
+        self._beta = Pp[:, 3] - H @ p4
+        self._coef = None
+
+    # -- construction helpers --------------------------------------------------------------
+    @classmethod
+    def cached(cls, P_cam, P_proj, cam_size, proj_size, *, axis: str = "x") -> "Triangulator":
+        """A shared instance for this geometry (LRU of the last few), coefficients kept."""
+        key = b"".join([np.ascontiguousarray(P_cam, dtype=np.float64).tobytes(),
+                        np.ascontiguousarray(P_proj, dtype=np.float64).tobytes(),
+                        repr((tuple(int(v) for v in cam_size), tuple(int(v) for v in proj_size), axis)).encode()])
+        tri = cls._cache.get(key)
+        if tri is None:
+            tri = cls(P_cam, P_proj, cam_size, proj_size, axis=axis)
+            cls._cache[key] = tri
+            while len(cls._cache) > cls._cache_size:
+                cls._cache.popitem(last=False)
+        else:
+            cls._cache.move_to_end(key)
+        return tri
+
+    @classmethod
+    def clear_cache(cls):
+        cls._cache.clear()
+
+    @property
+    def coefficients(self) -> dict:
+        """Per-pixel float32 array ``xinf`` (computed in float64 once, then kept; 4 bytes per pixel):
+
+        the projector coordinate of the pixel's ray at infinite depth, ``a0/a2``, so that
+        ``Z = (b0 - b2 x) / (x - xinf) / a2``. Forming the disparity
+        ``x - xinf`` by one float32 subtraction avoids the cancellation of ``a2 x - a0``: float32
+        evaluation adds about one ulp of x (the rounding of xinf plus that of the subtraction)
+        times ``|dZ/dx|``, plus a few ulps of Z. Rays parallel to the projector's image plane
+        (``a2 = 0``, far outside practical fields of view) get ``xinf = inf`` and are flagged.
+
+        Quantities that are linear in the pixel coordinates (``a1``, ``a2``, ``q = b0 a2 - b2 a0``
+        and the rays ``K^-1 (u, v, 1)``) are kept as a row vector plus a column vector
+        (``lin``) and summed per slab.
+        """
+        if self._coef is None:
+            self._coef = self._compute_coefficients()
+        return self._coef
+
+    def _linear_rows(self):
+        """3-vectors (coefficients of u, v, 1) of the quantities linear in the pixel coordinates."""
+        H, b = self._H, self._beta
+        Kinv = np.linalg.inv(self.K_cam)
+        return {"a1": H[1], "a2": H[2], "q": b[0] * H[2] - b[2] * H[0], "rx": Kinv[0], "ry": Kinv[1]}
+
+    def _compute_coefficients(self):
+        w, h = self.cam_size
+        u = np.arange(w, dtype=np.float64)
+        H = self._H
+        out = {"xinf": np.empty((h, w), np.float32)}
+        step = max(1, (1 << 16) // w)
+        with np.errstate(all="ignore"):
+            for r0 in range(0, h, step):
+                r1 = min(h, r0 + step)
+                v = np.arange(r0, r1, dtype=np.float64)[:, None]
+                a0, a2 = (H[i, 0] * u + H[i, 1] * v + H[i, 2] for i in (0, 2))
+                out["xinf"][r0:r1] = np.where(a2 != 0, a0 / a2, np.inf)
+        lin = {}
+        vv = np.arange(h, dtype=np.float64)
+        for k, c in self._linear_rows().items():
+            lin[k] = ((c[0] * u)[None, :].astype(np.float32), (c[1] * vv + c[2])[:, None].astype(np.float32))
+        out["lin"] = lin
+        return out
+
+    def _lin(self, name, r0, r1, out=None):
+        row, col = self.coefficients["lin"][name]
+        return np.add(row, col[r0:r1], out=out)
+
+    # -- evaluation ------------------------------------------------------------------------
+    def slab(self, x, r0, r1, *, max_depth_slope=None, check_other_axis=True, out_depth=None):
+        """Evaluate rows ``r0:r1`` for projector coordinates ``x`` (float32 (r1-r0, W)).
+
+        Returns ``(depth, ill, outside)``: depth float32 (not NaN-filled), bool masks.
+        """
+        xinf = self.coefficients["xinf"][r0:r1]
+        b0, b1, b2 = (np.float32(v) for v in self._beta)
+        f32 = np.float32
+        num = np.multiply(x, -b2)
+        num += b0
+        d = np.subtract(x, xinf)                          # disparity w.r.t. infinity
+        num /= d                                          # inf/nan where d == 0: flagged below
+        a2 = self._lin("a2", r0, r1)
+        z = np.divide(num, a2, out=out_depth)
+        zp = np.multiply(a2, z, out=a2)
+        zp += b2                                          # depth in the projector frame
+        # ill-conditioned: |dZ/dx| = Zp^2/|q| > cap  <=>  not (Zp^2 <= cap*|q|); NaN -> ill
+        lhs = np.multiply(zp, zp, out=num)
+        rhs = self._lin("q", r0, r1)
+        np.abs(rhs, out=rhs)
+        if max_depth_slope is None:              # default: relative cap |dZ/dx| <= Z per pixel
+            rhs *= z
+        else:
+            rhs *= f32(max_depth_slope)
+        ok = lhs <= rhs
+        ok &= z > 0
+        ok &= np.isfinite(z)
+        outside = ~(zp > 0)
+        if check_other_axis:
+            y = self._lin("a1", r0, r1, out=lhs)
+            y *= z
+            y += b1
+            y /= zp
+            hp = f32(self.proj_size[1] if self.axis == "x" else self.proj_size[0])
+            inside = (y >= f32(-0.5)) & (y <= hp - f32(0.5))
+            outside |= ~inside
+        return z, ~ok, outside
+
+    def points_into(self, depth, r0, r1, out):
+        """Camera-frame points ``Z * K^-1 (u, v, 1)`` for rows r0:r1 into ``out`` (.., 3)."""
+        np.multiply(depth, self._lin("rx", r0, r1), out=out[..., 0])
+        np.multiply(depth, self._lin("ry", r0, r1), out=out[..., 1])
+        out[..., 2] = depth
+        return out
+
+    def points(self, depth) -> np.ndarray:
+        """(H, W, 3) float32 camera-frame points of a depth map (NaN depth -> NaN points)."""
+        depth = np.asarray(depth, dtype=np.float32)
+        h = depth.shape[0]
+        out = np.empty(depth.shape + (3,), np.float32)
+        step = max(1, (1 << 16) // depth.shape[1])
+        for r0 in range(0, h, step):
+            r1 = min(h, r0 + step)
+            self.points_into(depth[r0:r1], r0, r1, out[r0:r1])
+        return out
+
+    def __call__(self, proj_x, *, max_depth_slope=None, check_other_axis=True) -> TriangulationResult:
+        """Depth and camera-frame points for a full ``(H, W)`` map of projector coordinates."""
+        w, h = self.cam_size
+        x = np.asarray(proj_x, dtype=np.float32)
+        if x.shape != (h, w):
+            raise bad_value("proj_x", f"has shape {x.shape}, expected {(h, w)} (cam_size is {(w, h)})",
+                            "pass one projector coordinate per camera pixel")
+        depth = np.empty((h, w), np.float32)
+        pts = np.empty((h, w, 3), np.float32)
+        with np.errstate(all="ignore"):
+            z, ill, out = self.slab(x, 0, h, max_depth_slope=max_depth_slope,
+                                    check_other_axis=check_other_axis, out_depth=depth)
+            bad = ill | out | ~np.isfinite(x)
+        depth[bad] = np.nan
+        self.points_into(depth, 0, h, pts)
+        return TriangulationResult(depth=depth, points=pts, ill_conditioned=ill, outside=out)
+
+    def depth_slope(self, depth) -> np.ndarray:
+        """``|dZ/dx|`` (metres per projector pixel) at the given depth map: the depth uncertainty
+        per pixel of projector-coordinate error (multiply by sigma_x). inf where ill-conditioned."""
+        w, h = self.cam_size
+        z = np.asarray(depth, dtype=np.float64)
+        u = np.arange(w, dtype=np.float64)[None, :]
+        v = np.arange(h, dtype=np.float64)[:, None]
+        lr = self._linear_rows()
+        a2 = lr["a2"][0] * u + lr["a2"][1] * v + lr["a2"][2]
+        q = lr["q"][0] * u + lr["q"][1] * v + lr["q"][2]
+        zp = z * a2 + self._beta[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (zp * zp / np.abs(q)).astype(np.float32)
+
+    def project(self, points_cam) -> np.ndarray:
+        """Projector pixel coordinates ``(..., 2)`` of camera-frame points (float64), for checks."""
+        X = np.asarray(points_cam, dtype=np.float64)
+        m = X @ self.K_cam.T          # = Z (u, v, 1)
+        p = m @ self._H.T + self._beta
+        xy = p[..., :2] / p[..., 2:3]
+        return xy[..., ::-1] if self.axis == "y" else xy

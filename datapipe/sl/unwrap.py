@@ -1,0 +1,305 @@
+"""Temporal phase unwrapping (several fringe frequencies of the same projector coordinate).
+
+Notation: frequency ``K`` (periods across the projector width W), wrapped phase
+``phi_K = 2*pi*K*u mod 2*pi`` with ``u = x / W`` the projector coordinate as a fraction of the
+width (pixel centres at ``x = 0..W-1``, so the lit range is ``u in [-0.5/W, 1 - 0.5/W)``).
+
+Methods
+-------
+``'multi-frequency'`` (hierarchical): the coarsest frequency has ``K <= 1`` (one period or less
+    across the projector), so its phase is absolute; each finer frequency is unwrapped from the
+    estimate of the previous one: ``k = round((K_i * u_prev - phi_i/2pi))``. Ratios need not be
+    integers. An order error needs ``|r*noise| > 1/2`` with ``r = K_i/K_{i-1}`` (sl-notes).
+``'heterodyne'``: two frequencies with ``|K1 - K2| <= 1`` (the original DataPipe's method): the
+    beat ``phi_1 - phi_2`` has ``K1 - K2`` periods and is absolute. With 3+ frequencies the beats
+    of neighbouring frequencies are beaten again (``(K1-K2) - (K2-K3)`` ...) until one beat of at
+    most one period remains; then every level is unwrapped top-down from the level above.
+``'auto'``: hierarchical when the coarsest frequency is ``<= 1`` period, else heterodyne when the
+    (chained) beat reaches one period, else ``ValueError`` with a valid suggestion.
+
+Result: the projector coordinate combines all original frequencies weighted by ``K^2`` (inverse
+variance for equal phase noise), which lowers the noise below that of the finest frequency alone
+by ``K_max / sqrt(sum K^2)``. ``order_error`` is, per pixel, the largest distance of any rounded
+order estimate from its integer (0 = certain, 0.5 = a coin toss); threshold it (decode uses 0.25)
+to flag unreliable orders.
+
+Edges: the coarse estimate is wrapped into the projector's lit range centred on the projector
+(``[-0.5, W-0.5)`` in pixels, when ``proj_width`` is given) and, for integer frequencies, the final
+coordinate is wrapped into the same range: a coarse estimate that noise pushed across the left or
+right edge is consistent with every finer frequency shifted by exactly one width, so the fine
+phase brings it back. Only pixels within the fine-phase noise of ``x = -0.5`` stay ambiguous.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ._errors import bad_value
+from .patterns import _check_periods
+
+__all__ = ["UnwrapResult", "UnwrapPlan", "unwrap_phase", "unwrap_cycles", "plan_unwrap"]
+
+TWO_PI = 2.0 * np.pi
+_TOL = 1e-9
+METHODS = ("auto", "heterodyne", "multi-frequency")
+
+
+@dataclass
+class UnwrapResult:
+    """``phase``: absolute phase of the finest frequency ``2*pi*K_max*x/W`` (combined estimate);
+    ``x``: projector coordinate (pixels with ``proj_width``, else the fraction ``x/W``);
+    ``order_error``: see the module doc."""
+    phase: np.ndarray
+    x: np.ndarray
+    order_error: np.ndarray
+    method: str
+    periods: tuple
+
+
+def _is_int(k: float) -> bool:
+    return abs(k - round(k)) < 1e-9
+
+
+def _suggest(per: Sequence[float]) -> str:
+    kmax = max(per)
+    hier = (1,) + tuple(sorted(int(k) if _is_int(k) else k for k in per if k > 1))
+    k = int(round(kmax)) if kmax >= 2 else 8
+    return (f"add a one-period pattern for hierarchical unwrapping, e.g. periods={hier}, "
+            f"or use a heterodyne pair such as periods=({k}, {k - 1}); (1, 8, 64) is a robust default")
+
+
+def _chain(per_desc: list[float]):
+    """Heterodyne levels: list of levels, each a list of (K, coeff-vector over originals)."""
+    m = len(per_desc)
+    level = [(k, np.eye(m, dtype=np.int64)[i]) for i, k in enumerate(per_desc)]
+    levels = [level]
+    while len(level) > 1:
+        nxt = []
+        for j in range(len(level) - 1):
+            k = level[j][0] - level[j + 1][0]
+            c = level[j][1] - level[j + 1][1]
+            if k < 0:
+                k, c = -k, -c
+            nxt.append((k, c))
+        level = nxt
+        levels.append(level)
+    return levels
+
+
+@dataclass(frozen=True)
+class UnwrapPlan:
+    method: str                 # 'heterodyne' or 'multi-frequency'
+    periods: tuple              # as given (stack order)
+    order: tuple                # indices into periods: coarse -> fine (hierarchical) / desc (heterodyne)
+    levels: tuple = ()          # heterodyne chain (see _chain), top level last
+    integer: bool = True
+
+    @property
+    def finest(self) -> int:
+        return int(np.argmax(self.periods))
+
+    def noise_gain(self) -> float:
+        """Largest noise gain of a rounding stage (see :meth:`stage_gains`)."""
+        g = self.stage_gains()
+        return max(g) if g else 0.0
+
+    def stage_gains(self) -> list:
+        """Noise gain of every rounding stage, in units of one frequency's phase noise.
+
+        A stage rounds ``r = (k/k_above) * c_above - c``; with independent phase noise sigma_phi
+        per frequency its noise is ``gain * sigma_phi`` (radians of the rounded phase), gain being
+        the norm of the stage's coefficient vector over the original phases (so a beat shared by
+        both terms counts once): ``sqrt(r^2 + 1)`` for a hierarchical stage of ratio r,
+        ``sqrt(K1^2 + K2^2)`` for a heterodyne pair with K1 - K2 = 1 (sl-notes: 27.6 for 20/19).
+        The order is then wrong with probability ``erfc(pi / (sqrt(2) * gain * sigma_phi))``.
+        (For chains the estimate from the level above is taken as its best node: conservative.)
+        """
+        if self.method == "multi-frequency":
+            ks = [self.periods[i] for i in self.order]
+            return [float(np.sqrt((ks[i] / ks[i - 1]) ** 2 + 1.0)) for i in range(1, len(ks))]
+        g2 = []
+        above_k, above_c = self.levels[-1][0][0], np.asarray(self.levels[-1][0][1], float)
+        for li in range(len(self.levels) - 2, -1, -1):
+            best = None
+            for k, c in self.levels[li]:
+                c = np.asarray(c, float)
+                g2.append(float(np.sum(((k / above_k) * above_c - c) ** 2)))
+                w = k * k / float(np.sum(c * c))
+                if best is None or w > best[0]:
+                    best = (w, k, c)
+            above_k, above_c = best[1], best[2]
+        return [float(np.sqrt(g)) for g in g2]
+
+
+def plan_unwrap(periods, method: str = "auto") -> UnwrapPlan:
+    """Validate ``periods`` for ``method`` and choose the scheme; ValueError says why and what works."""
+    per = _check_periods(periods)
+    if method not in METHODS:
+        raise bad_value("unwrap", f"unknown method {method!r}", f"use one of {METHODS}")
+    integer = all(_is_int(k) for k in per)
+    kmin = min(per)
+    asc = tuple(int(i) for i in np.argsort(per))
+    if method in ("auto", "multi-frequency") and kmin <= 1 + _TOL:
+        return UnwrapPlan("multi-frequency", per, asc, (), integer)
+    if method == "multi-frequency":
+        raise bad_value("periods", f"{per} has no coarse pattern: hierarchical unwrapping needs the "
+                        f"coarsest frequency to have at most 1 period across the projector (it has {kmin:g}), "
+                        "otherwise its phase repeats and the fringe order is ambiguous", _suggest(per))
+    if len(per) == 1:
+        raise bad_value("periods", f"a single frequency of {per[0]:g} periods repeats {per[0]:g} times "
+                        "across the projector, so the fringe order cannot be found", _suggest(per))
+    desc = tuple(int(i) for i in np.argsort(per)[::-1])
+    levels = _chain([per[i] for i in desc])
+    top_k = levels[-1][0][0]
+    bad_level = any(k <= _TOL for lvl in levels[1:] for k, _ in lvl)
+    if bad_level or top_k > 1 + _TOL:
+        why = ("two beat frequencies coincide" if bad_level else
+               f"their (chained) beat has {top_k:g} periods across the projector, not <= 1, so it repeats")
+        if len(per) == 2:
+            why = (f"the heterodyne beat of {per[0]:g} and {per[1]:g} has {abs(per[0] - per[1]):g} periods "
+                   "across the projector; it must be <= 1 (|K1-K2| <= 1) to be unambiguous")
+        raise bad_value("periods", f"{per} cannot be unwrapped unambiguously: {why}", _suggest(per))
+    return UnwrapPlan("heterodyne", per, desc, tuple(tuple(l) for l in levels), integer)
+
+
+def unwrap_phase(wrapped_list, periods, method: str = "auto", *, proj_width=None,
+                 plan: UnwrapPlan | None = None) -> UnwrapResult:
+    """Unwrap the wrapped phases (radians; one array per entry of ``periods``, same order).
+
+    Works on arrays of any (common) shape; float32 in -> float32 out. With ``proj_width``
+    (pixels; recommended) the result ``x`` is the projector coordinate in pixels and the
+    unambiguous range is centred on the projector's pixel-centre range ``[-0.5, W-0.5)``;
+    without it ``x`` is the fraction ``u = x/W`` in ``[0, 1)``.
+    Raises ``ValueError`` for a set of periods that cannot be unwrapped unambiguously.
+
+    Precision: each frequency's coordinate is formed as ``k*T + c*T`` (order k, fractional phase
+    c in cycles, period T in pixels) and the K^2-weighted mean as the finest estimate plus the
+    weighted (small) differences, so float32 loses no more than about one ulp of x. Frequencies
+    whose K^2 weight is below 1% of the total are left out of the mean (their effect on the
+    noise is below 0.5%).
+    """
+    if plan is None:
+        plan = plan_unwrap(periods, method)
+    if len(wrapped_list) != len(plan.periods):
+        raise bad_value("wrapped_list", f"has {len(wrapped_list)} phase maps for {len(plan.periods)} periods",
+                        "pass one wrapped phase map per fringe frequency, in the order of periods")
+    if proj_width is not None and not (np.isfinite(proj_width) and proj_width > 0):
+        raise bad_value("proj_width", f"must be a positive number of pixels, got {proj_width!r}",
+                        "pass the projector width (or height for axis='y')")
+    phis = [np.asarray(p) for p in wrapped_list]
+    dt = np.result_type(*[p.dtype for p in phis], np.float32)
+    cyc = []
+    for p in phis:
+        c = np.multiply(p, dt.type(1.0 / TWO_PI), dtype=dt)
+        c -= np.floor(c)                     # any representative -> [0, 1]
+        cyc.append(c)
+    return unwrap_cycles(cyc, plan, proj_width)
+
+
+def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
+    """:func:`unwrap_phase` on phases given in cycles (``phi / 2pi``) in ``[0, 1]``."""
+    per = plan.periods
+    L = float(proj_width) if proj_width is not None else 1.0
+    centre = (L / 2.0 - 0.5) if proj_width is not None else 0.5
+    dt = cyc[0].dtype
+    T = dt.type
+    shape = cyc[0].shape
+    err = None
+    tmp = np.empty(shape, dt)
+    kk = np.empty(shape, dt)
+
+    def stage(x_prev, k, c, out):
+        """Round the order of phase ``c`` (cycles, k periods) from estimate x_prev -> out (pixels)."""
+        nonlocal err
+        per_px = L / k
+        np.multiply(x_prev, T(k / L), out=tmp)
+        np.subtract(tmp, c, out=tmp)
+        np.rint(tmp, out=kk)
+        np.subtract(tmp, kk, out=tmp)
+        if err is None:
+            err = np.abs(tmp)
+        else:
+            np.abs(tmp, out=tmp)
+            np.maximum(err, tmp, out=err)
+        np.multiply(kk, T(per_px), out=out)
+        np.multiply(c, T(per_px), out=tmp)
+        np.add(out, tmp, out=out)
+        return out
+
+    def fold(x, length):
+        """Bring x (within one length of it) into [centre - length/2, centre + length/2)."""
+        lo, hi = T(centre - 0.5 * length), T(centre + 0.5 * length)
+        np.subtract(x, T(length), out=x, where=np.greater_equal(x, hi))
+        np.add(x, T(length), out=x, where=np.less(x, lo))
+        return x
+
+    def wrap_into(x, length):
+        """Bring any x into the range (floor based)."""
+        np.subtract(x, T(centre - 0.5 * length), out=tmp)
+        np.multiply(tmp, T(1.0 / length), out=tmp)
+        np.floor(tmp, out=tmp)
+        np.multiply(tmp, T(length), out=tmp)
+        np.subtract(x, tmp, out=x)
+        return x
+
+    xs: dict[int, np.ndarray] = {}
+    if plan.method == "multi-frequency":
+        i0 = plan.order[0]
+        k0 = per[i0]
+        x = np.multiply(cyc[i0], T(L / k0))
+        fold(x, L / k0)          # cycles are in [0, 1], so one fold suffices
+        xs[i0] = x
+        prev = x
+        for i in plan.order[1:]:
+            prev = stage(prev, per[i], cyc[i], np.empty(shape, dt))
+            xs[i] = prev
+    else:
+        levels = plan.levels
+
+        def node_cycles(coeff):
+            out = np.zeros(shape, dt)
+            for j, cj in enumerate(coeff):
+                if cj:
+                    out += T(cj) * cyc[plan.order[j]]
+            return out
+
+        ktop, ctop = levels[-1][0]
+        est = node_cycles(ctop) * T(L / ktop)
+        wrap_into(est, L / ktop)
+        for li in range(len(levels) - 2, -1, -1):
+            nodes = levels[li]
+            ests = []
+            for j, (k, coeff) in enumerate(nodes):
+                c = cyc[plan.order[j]] if li == 0 else node_cycles(coeff)
+                xj = stage(est, k, c, np.empty(shape, dt))
+                if li == 0:
+                    xs[plan.order[j]] = xj
+                ests.append((k * k / float(np.sum(np.asarray(coeff) ** 2)), xj))
+            est = _combine(ests, tmp)
+    if err is None:
+        err = np.zeros(shape, dt)
+    # K^2-weighted combination of the original frequencies
+    coord = _combine([(k * k, xs[i]) for i, k in enumerate(per)], tmp, min_fraction=0.01)
+    if plan.integer:
+        fold(coord, L)
+    phase = np.multiply(coord, T(TWO_PI * max(per) / L))
+    return UnwrapResult(phase=phase, x=coord, order_error=err, method=plan.method, periods=per)
+
+
+def _combine(weighted, tmp, min_fraction=0.0):
+    """Weighted mean as the best (highest weight) estimate plus weighted differences (precise)."""
+    wsum = float(sum(w for w, _ in weighted))
+    weighted = [(w, x) for w, x in weighted if w >= min_fraction * wsum]
+    wsum = float(sum(w for w, _ in weighted))
+    best = max(range(len(weighted)), key=lambda j: weighted[j][0])
+    base = weighted[best][1]
+    out = base.copy()
+    for j, (w, xj) in enumerate(weighted):
+        if j == best:
+            continue
+        np.subtract(xj, base, out=tmp)
+        tmp *= tmp.dtype.type(w / wsum)
+        out += tmp
+    return out

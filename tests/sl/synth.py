@@ -1,0 +1,320 @@
+"""Analytic ray casting of synthetic structured-light scenes: the tests' ground truth.
+
+Independent of the decoder: everything here is float64 ray/primitive intersection; fringe images
+are the pattern formula of design.md evaluated at the exact (continuous) projector coordinate of
+each camera pixel's surface point, times an albedo, so no pattern image is sampled. Only
+``projection_matrix``/``intrinsics`` conventions are shared (pixel centres at integers, OpenCV
+frames) and those are tested on their own.
+
+World: z up. The standard rig has the camera at height ``distance`` looking straight down, the
+projector ``baseline`` to the camera's right (camera +x), converging on the origin.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+TWO_PI = 2 * np.pi
+
+
+# ------------------------------------------------------------------ devices
+def look_at(eye, target, down=(0.0, -1.0, 0.0)) -> np.ndarray:
+    """4x4 pose (OpenCV frame: z forward, y down) of a device at ``eye`` looking at ``target``."""
+    eye = np.asarray(eye, float)
+    z = np.asarray(target, float) - eye
+    z /= np.linalg.norm(z)
+    y_hint = np.asarray(down, float)
+    x = np.cross(y_hint, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
+    return T
+
+
+@dataclass
+class Device:
+    K: np.ndarray
+    T: np.ndarray            # pose in world (OpenCV frame)
+    size: tuple              # (width, height)
+
+    @property
+    def P(self) -> np.ndarray:
+        Tinv = np.linalg.inv(self.T)
+        return self.K @ Tinv[:3]
+
+    @property
+    def centre(self) -> np.ndarray:
+        return self.T[:3, 3].copy()
+
+    def rays(self, ss: int = 1, offset=(0.0, 0.0)):
+        """World ray directions (H, W, 3) with camera-frame z = 1 (t = planar depth)."""
+        w, h = self.size
+        u = np.arange(w, dtype=float) + offset[0]
+        v = np.arange(h, dtype=float) + offset[1]
+        uu, vv = np.meshgrid(u, v)
+        pix = np.stack([uu, vv, np.ones_like(uu)], -1)
+        d_cam = pix @ np.linalg.inv(self.K).T
+        return d_cam @ self.T[:3, :3].T
+
+    def project(self, X):
+        """World points (..., 3) -> pixel (..., 2) and device-frame depth (...)."""
+        Tinv = np.linalg.inv(self.T)
+        Xc = X @ Tinv[:3, :3].T + Tinv[:3, 3]
+        p = Xc @ self.K.T
+        return p[..., :2] / p[..., 2:3], Xc[..., 2]
+
+
+def intrinsics(f, size):
+    w, h = size
+    return np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1.0]])
+
+
+def make_rig(cam_size=(160, 120), proj_size=(512, 384), f_cam=None, f_proj=None, baseline=0.15,
+             distance=1.0, converge=True, proj_offset=None, target=(0.0, 0.0, 0.0)):
+    """Camera looking down from ``distance``; projector displaced by ``baseline`` along camera +x
+    (or by the camera-frame vector ``proj_offset``), aimed at ``target`` when ``converge``."""
+    f_cam = f_cam if f_cam is not None else 1.25 * cam_size[0]
+    f_proj = f_proj if f_proj is not None else 1.2 * proj_size[0]
+    Tc = look_at((0.0, 0.0, distance), target)
+    cam = Device(intrinsics(f_cam, cam_size), Tc, tuple(cam_size))
+    off = np.array([baseline, 0.0, 0.0]) if proj_offset is None else np.asarray(proj_offset, float)
+    eye = Tc[:3, :3] @ off + Tc[:3, 3]
+    if converge:
+        Tp = look_at(eye, target, down=Tc[:3, 1])
+    else:
+        Tp = Tc.copy()
+        Tp[:3, 3] = eye
+    proj = Device(intrinsics(f_proj, proj_size), Tp, tuple(proj_size))
+    return cam, proj
+
+
+# ------------------------------------------------------------------ primitives
+@dataclass
+class Plane:
+    point: tuple
+    normal: tuple
+    albedo: float = 1.0
+
+    def intersect(self, o, d):
+        n = np.asarray(self.normal, float)
+        n = n / np.linalg.norm(n)
+        denom = d @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((np.asarray(self.point, float) - o) @ n) / denom
+        t = np.where(np.abs(denom) > 1e-15, t, np.inf)
+        nn = np.broadcast_to(n, d.shape)
+        return t, nn
+
+
+@dataclass
+class Sphere:
+    centre: tuple
+    radius: float
+    albedo: float = 1.0
+
+    def intersect(self, o, d):
+        c = np.asarray(self.centre, float)
+        oc = o - c
+        a = np.sum(d * d, -1)
+        b = 2 * np.sum(oc * d, -1)
+        cc = np.sum(oc * oc, -1) - self.radius ** 2
+        disc = b * b - 4 * a * cc
+        sq = np.sqrt(np.maximum(disc, 0))
+        t1 = (-b - sq) / (2 * a)
+        t2 = (-b + sq) / (2 * a)
+        t = np.where(t1 > 1e-9, t1, t2)
+        t = np.where((disc >= 0) & (t > 1e-9), t, np.inf)
+        X = o + t[..., None] * d
+        n = (X - c) / self.radius
+        return t, n
+
+
+@dataclass
+class Box:
+    lo: tuple
+    hi: tuple
+    albedo: float = 1.0
+
+    def intersect(self, o, d):
+        lo, hi = np.asarray(self.lo, float), np.asarray(self.hi, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / d
+            t0 = (lo - o) * inv
+            t1 = (hi - o) * inv
+        tmin = np.minimum(t0, t1)
+        tmax = np.maximum(t0, t1)
+        tmin = np.where(np.isnan(tmin), -np.inf, tmin)
+        tmax = np.where(np.isnan(tmax), np.inf, tmax)
+        tn = np.max(tmin, -1)
+        tf = np.min(tmax, -1)
+        hit = (tn <= tf) & (tf > 1e-9)
+        t = np.where(hit, np.where(tn > 1e-9, tn, tf), np.inf)
+        axis = np.argmax(tmin, -1)
+        n = np.zeros(d.shape)
+        sgn = -np.sign(np.take_along_axis(d, axis[..., None], -1))[..., 0]
+        np.put_along_axis(n, axis[..., None], sgn[..., None], -1)
+        return t, n
+
+    def segment_hits(self, o, d, smax):
+        """True where the segment o + s d, s in (eps, smax*(1-1e-9)), passes through the box."""
+        lo, hi = np.asarray(self.lo, float), np.asarray(self.hi, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / d
+            t0 = (lo - o) * inv
+            t1 = (hi - o) * inv
+        tmin = np.nan_to_num(np.minimum(t0, t1), nan=-np.inf)
+        tmax = np.nan_to_num(np.maximum(t0, t1), nan=np.inf)
+        tn = np.max(tmin, -1)
+        tf = np.min(tmax, -1)
+        return (tn < tf) & (tn < smax * (1 - 1e-7)) & (tf > 1e-9)
+
+
+@dataclass
+class Scene:
+    prims: list = field(default_factory=list)
+
+    def cast(self, o, d):
+        """Nearest hit: t (inf = none), primitive index, normal."""
+        best = np.full(d.shape[:-1], np.inf)
+        idx = np.full(d.shape[:-1], -1)
+        nrm = np.zeros(d.shape)
+        for i, p in enumerate(self.prims):
+            t, n = p.intersect(o, d)
+            closer = t < best
+            best = np.where(closer, t, best)
+            idx = np.where(closer, i, idx)
+            nrm = np.where(closer[..., None], n, nrm)
+        return best, idx, nrm
+
+    def occluded(self, o, X):
+        """Is the segment from point o to points X blocked by any primitive (before X)?"""
+        d = X - o
+        blocked = np.zeros(X.shape[:-1], bool)
+        for p in self.prims:
+            if isinstance(p, Box):
+                blocked |= p.segment_hits(o, d, 1.0)
+            else:
+                t, _ = p.intersect(o, d)
+                blocked |= t < 1.0 - 1e-7
+        return blocked
+
+
+# ------------------------------------------------------------------ scenes
+def plane_scene(height=0.0, albedo=1.0):
+    return Scene([Plane((0, 0, height), (0, 0, 1), albedo)])
+
+
+def tilted_plane_scene(angle_deg, axis="y", albedo=1.0):
+    a = np.radians(angle_deg)
+    n = (np.sin(a), 0.0, np.cos(a)) if axis == "y" else (0.0, np.sin(a), np.cos(a))
+    return Scene([Plane((0, 0, 0), n, albedo)])
+
+
+def sphere_scene(radius=0.15, albedo=1.0):
+    return Scene([Plane((0, 0, 0), (0, 0, 1), albedo), Sphere((0, 0, radius), radius, albedo)])
+
+
+def box_scene(size=0.2, height=0.15, albedo=1.0, centre=(0.0, 0.0)):
+    cx, cy = centre
+    return Scene([Plane((0, 0, 0), (0, 0, 1), albedo),
+                  Box((cx - size / 2, cy - size / 2, 0.0), (cx + size / 2, cy + size / 2, height), albedo)])
+
+
+# ------------------------------------------------------------------ rendering
+@dataclass
+class Render:
+    images: np.ndarray      # (F*N, H, W) float64
+    depth: np.ndarray       # planar depth, NaN where no surface
+    proj_x: np.ndarray      # projector coordinate along the coded axis, NaN where unlit
+    lit: np.ndarray         # surface lit by the projector (inside its image, not shadowed, facing)
+    shadow: np.ndarray      # surface inside the projector frustum but occluded (projector shadow)
+    points: np.ndarray      # camera-frame points (H, W, 3)
+    albedo: np.ndarray
+
+
+def _surface(scene, cam, proj, offset=(0.0, 0.0)):
+    o = cam.centre
+    d = cam.rays(offset=offset)
+    t, idx, n = scene.cast(np.broadcast_to(o, d.shape), d)
+    hit = np.isfinite(t)
+    X = o + np.where(hit, t, 0.0)[..., None] * d
+    alb = np.zeros(t.shape)
+    for i, p in enumerate(scene.prims):
+        alb[idx == i] = p.albedo
+    pxy, zp = proj.project(X)
+    w, h = proj.size
+    inside = hit & (zp > 0) & (pxy[..., 0] >= -0.5) & (pxy[..., 0] <= w - 0.5) \
+        & (pxy[..., 1] >= -0.5) & (pxy[..., 1] <= h - 0.5)
+    to_proj = proj.centre - X
+    to_cam = o - X
+    facing = (np.sum(n * to_proj, -1) > 0) & (np.sum(n * to_cam, -1) > 0)
+    occl = scene.occluded(np.broadcast_to(proj.centre, X.shape), X) & hit
+    lit = inside & facing & ~occl
+    shadow = hit & inside & ~lit
+    return t, hit, X, pxy, lit, shadow, alb
+
+
+def render(scene, cam, proj, periods, steps, *, a=0.5, b=0.5, ambient=0.0, axis="x",
+           supersample=1, shifts=None, gamma=None):
+    """Fringe images and ground truth. ``supersample`` s averages s x s point samples per pixel
+    (pixel area integration); ground truth is at the pixel centre."""
+    w, h = proj.size
+    length = w if axis == "x" else h
+    shifts = TWO_PI * np.arange(steps) / steps if shifts is None else np.asarray(shifts, float)
+    t, hit, X, pxy, lit, shadow, alb = _surface(scene, cam, proj)
+    if supersample == 1:
+        samples = [(pxy, lit, alb, hit)]
+    else:
+        samples = []
+        offs = (np.arange(supersample) + 0.5) / supersample - 0.5
+        for oy in offs:
+            for ox in offs:
+                _, hs, _, pxs, ls, _, als = _surface(scene, cam, proj, offset=(ox, oy))
+                samples.append((pxs, ls, als, hs))
+    imgs = np.zeros((len(periods) * steps,) + t.shape)
+    for pxs, ls, als, hs in samples:
+        c = pxs[..., 0] if axis == "x" else pxs[..., 1]
+        for i, k in enumerate(periods):
+            for n in range(steps):
+                val = a + b * np.cos(TWO_PI * k * c / length + shifts[n])
+                imgs[i * steps + n] += als * (np.where(ls, val, 0.0) + ambient * hs)
+    imgs /= len(samples)
+    if gamma is not None:
+        imgs = np.clip(imgs, 0, None) ** (1.0 / gamma)
+    Tinv = np.linalg.inv(cam.T)
+    pts = X @ Tinv[:3, :3].T + Tinv[:3, 3]
+    depth = np.where(hit, pts[..., 2], np.nan)
+    coord = pxy[..., 0] if axis == "x" else pxy[..., 1]
+    return Render(images=imgs, depth=depth, proj_x=np.where(lit, coord, np.nan), lit=lit, shadow=shadow,
+                  points=np.where(hit[..., None], pts, np.nan), albedo=alb)
+
+
+def depth_slope(cam, proj, depth, axis="x", dz=1e-6):
+    """|dZ/dx| (metres per projector pixel) along each camera ray at ``depth``, by central
+    differences of the analytic projection (float64) -- independent of the decoder's formula."""
+    o = cam.centre
+    d = cam.rays()
+    z = np.where(np.isfinite(depth), depth, 1.0)
+    j = 0 if axis == "x" else 1
+    x1 = proj.project(o + (z + dz)[..., None] * d)[0][..., j]
+    x0 = proj.project(o + (z - dz)[..., None] * d)[0][..., j]
+    with np.errstate(divide="ignore"):
+        return np.abs(2 * dz / (x1 - x0))
+
+
+def fringes(render, periods, steps, proj_length, *, a=0.5, b=0.5, ambient=0.0, dtype=np.float64):
+    """Re-evaluate the pattern formula on a render's ground-truth coordinates (point sampling,
+    pixel centres) for another set of periods/steps: cheap for benchmarks sweeping configurations."""
+    c = np.where(render.lit, render.proj_x, 0.0)
+    alb = render.albedo
+    lit = render.lit
+    hit = np.isfinite(render.depth)
+    shifts = TWO_PI * np.arange(steps) / steps
+    out = np.empty((len(periods) * steps,) + c.shape, dtype)
+    for i, k in enumerate(periods):
+        base = TWO_PI * k * c / proj_length
+        for n in range(steps):
+            out[i * steps + n] = alb * (np.where(lit, a + b * np.cos(base + shifts[n]), 0.0) + ambient * hit)
+    return out
