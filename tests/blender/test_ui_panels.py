@@ -101,14 +101,8 @@ class Layout:
 
 
 @pytest.fixture(autouse=True)
-def d(tmp_path, monkeypatch):
-    monkeypatch.setenv("DATAPIPE_USER_PRESETS", str(tmp_path / "user_presets"))
-    was = hasattr(bpy.types.Scene, "datapipe")
-    if not was:
-        ui.register()
-    yield bpy.context.scene.datapipe
-    if not was:
-        ui.unregister()
+def d(ui_props):
+    return ui_props
 
 
 PANELS = [c for c in panels.CLASSES if issubclass(c, bpy.types.Panel)]

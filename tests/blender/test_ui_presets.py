@@ -14,14 +14,8 @@ from datapipe.ui.convert import config_to_props, f32, props_to_config
 
 
 @pytest.fixture(autouse=True)
-def registered(tmp_path, monkeypatch):
-    monkeypatch.setenv("DATAPIPE_USER_PRESETS", str(tmp_path / "user_presets"))
-    was = hasattr(bpy.types.Scene, "datapipe")
-    if not was:
-        ui.register()
-    yield bpy.context.scene.datapipe
-    if not was:
-        ui.unregister()
+def registered(ui_props):
+    return ui_props
 
 
 def dump(pg, skip=("preset", "status", "progress")):

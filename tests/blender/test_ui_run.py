@@ -20,15 +20,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(autouse=True)
-def d(tmp_path, monkeypatch):
-    monkeypatch.setenv("DATAPIPE_USER_PRESETS", str(tmp_path / "user_presets"))
-    was = hasattr(bpy.types.Scene, "datapipe")
-    if not was:
-        ui.register()
-    yield bpy.context.scene.datapipe
-    runner.stop_for_unregister()
-    if not was:
-        ui.unregister()
+def d(ui_props):
+    return ui_props
 
 
 def tiny_preset(d, tmp_path, num_renders=2):
