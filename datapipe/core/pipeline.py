@@ -308,7 +308,8 @@ class _BlenderWorld:
             o["cam2obj_pose"] = T_blcam_world @ T_world_obj
             o["px_count_visib"] = int(np.count_nonzero(out.mask == inst.mask_index)) if out.mask is not None else None
             rec["objects"].append(o)
-        secs = {"render": t1 - t0}
+        cycles_s = float(getattr(out, "seconds", t1 - t0) or 0.0)
+        secs = {"render": cycles_s, "write": max(0.0, (t1 - t0) - cycles_s)}   # EXR read-back + file writes
         if self.sl is not None:
             t2 = time.perf_counter()
             rec["structured_light"] = self.sl.process(out, rdir, seed, T_world_cam, sdir)
