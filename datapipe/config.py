@@ -93,18 +93,22 @@ class ProjectorConfig:
     resolution: list[int] = _vec(912, 570)   # [width, height] px (DLP 0.23" class)
     location: list[float] = _vec(-0.15, 0.0, 0.0)        # m, relative to the camera object
     rotation: list[float] = _vec(0.0, math.radians(-8.5), 0.0)  # XYZ Euler rad, or quaternion wxyz
-    power: float = 5.0                 # emission strength of the light's node tree
+    power: float = 5.0                 # emission strength of the light's node tree (a grey 0.5
+                                       # floor at 0.8 m gets fringe peaks of ~1.0 linear radiance)
 
 
 @dataclass
 class StructuredLightConfig:
+    """Defaults chosen in benchmarks/results/sl_render.md (README: "Structured light defaults")."""
     enabled: bool = False
-    periods: list[int] = _vec(1, 8, 64)   # fringe periods across the projector width, coarse -> fine
-    steps: int = 4                     # phase steps per period
+    periods: list[int] = _vec(1, 8, 64)   # fringe periods across the projector width, coarse -> fine;
+                                          # finest ~5 camera px per period at 320 px wide (keep >= 4)
+    steps: int = 4                     # phase steps per period (4: one clipped sample tolerated)
     unwrap: str = "auto"
-    samples: int = 16                  # Cycles samples for the fringe view layers
+    samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples)
     sensor: str = "industrial"         # datapipe.sl.sensor preset
-    exposure: float = 1.0              # scales linear radiance before the sensor model
+    exposure: float = 0.5              # scales linear radiance before the sensor model (0.5: no
+                                       # saturation on 0.8-albedo parts from ~0.65 m)
     debug: bool = False                # also write wrapped/absolute phase, modulation, reasons
 
 

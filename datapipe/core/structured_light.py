@@ -1,0 +1,439 @@
+"""The structured-light camera inside the pipeline: projector + fringe view layers at setup, then per
+render: fringe render -> sensor model -> decode -> validity filters -> sl_depth.exr / sl_valid.png
+(+ sl_debug.exr). Defaults and their measurements: benchmarks/results/sl_render.md.
+
+Only built when `cfg.structured_light.enabled`; with it off, none of this exists in the scene.
+
+Fringe render (its own Cycles call)
+-----------------------------------
+The fringe view layers (`sl_00` ...) are rendered in a second `render.render` call right after the
+Renderer's native one, with the native layer switched off and the Renderer's File Output node muted;
+a File Output node of our own writes the fringe layers into `_sl_fringes.exr` (read back, deleted).
+What differs from the native call (all restored afterwards):
+
+- Pixel sampling: the fringes are rendered at FRINGE_SUPERSAMPLE (2) x the camera resolution with
+  a point-like pixel filter (FRINGE_FILTER_WIDTH = 0.01 px) and averaged over 2x2 blocks, i.e. the
+  exact pixel-area average at four points symmetric about the pixel centre. With Cycles' default
+  1.5 px Blackman-Harris filter every pixel is the mean of a few jittered sub-pixel samples whose
+  positions are the same in all fringe layers (one seed), so the decoded phase is that of their
+  centroid, not of the pixel centre: 9x the sensor-noise limit at 4 samples, 2-3x at 16 (plane,
+  320x240). `samples` counts paths per camera pixel (samples / 4 per sub-pixel, at least 1). The
+  native RGB keeps its own filter because it is rendered in its own call.
+- Seed: the render seed (as for the native layer): the shifted frames see the same Monte-Carlo
+  paths, so render noise common to all steps cancels in the phase.
+
+Inter-reflected light (projector node tree, `regularize_indirect`)
+-------------------------------------------------------------------
+Light that reaches a surface after a bounce (Light Path "Ray Depth" > 1 in the light's shader)
+sees the pattern blurred by INDIRECT_BLUR_PX projector pixels. With a few paths per pixel the
+inter-reflected part of a fine fringe is otherwise Monte-Carlo noise (each path picks up the
+pattern at one random point of another surface): 3x the noise limit on the bin floor at 4 samples.
+Physically a bounce averages the fine pattern over a footprint of many periods (why fine fringes
+resist inter-reflections), so the blur is the expected value, computed analytically (a blurred
+sinusoid is the sinusoid with less modulation): the 64-period fringe keeps ~0 of its modulation
+after a bounce (its light still raises the offset and lowers the contrast), the 8-period 21%, the
+1-period 98%, so the coarse patterns keep their real inter-reflection bias. Direct light is
+unchanged (tested byte-for-byte). Not modelled: fine fringes mirrored by near-specular parts.
+
+Validity (what "valid" means)
+-----------------------------
+1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated, and
+   fringe contrast B/A >= MIN_CONTRAST (0.5; the decoder's default is 0.05). Direct light has
+   B/A ~0.9; a pixel lit mostly by light reflected from another surface (e.g. the projector's
+   shadow next to a bin wall, seen through the glossy floor) has ~0.2-0.4 and the phase of the
+   other surface.
+2. projector border: pixels within BORDER_PX camera pixel of the projector image's left/right
+   edge (their sub-samples straddle the edge of the lit area).
+3. edge / speckle filter: a camera pixel that straddles a depth edge mixes the fringes of both
+   surfaces and, where the mixture unwraps consistently, decodes to a depth between them (a
+   "flying pixel"); multi-path light can shift a few pixels by whole fringes. Each valid pixel is
+   compared with the valid pixels of its 3x3 neighbourhood:
+
+    support(p) = #{ q in N8(p) valid : |Z_q - Z_p| <= tol_pq },
+    tol_pq     = EDGE_SIGMAS * sqrt(sigma_p^2 + sigma_q^2) + EDGE_SLOPE * Z_p * pixel_angle * |q - p|
+
+   (`sigma` the per-pixel theoretical depth noise, `depth_sigma`; `pixel_angle` = 1/f_camera
+   [rad per px]; the second term admits surfaces up to about atan(EDGE_SLOPE) = 75 deg from
+   fronto-parallel). Fewer than EDGE_MIN_SUPPORT agreeing neighbours: removed. Flying pixels agree
+   with neither side, a speckle with nobody; pixels on the straight border of a surface keep 4-5
+   agreeing neighbours; the tips of sharp corners erode by about one pixel, as with real edge
+   filters.
+Pixels removed by 2. and 3. get reason FILTERED (7) in sl_debug.exr and the annotations.
+
+Timing: `last_seconds` holds the fringe call's and the decode's wall time of the last render (the
+pipeline reports both as its "structured_light" stage); they are kept out of the annotations so
+two runs of one seed write identical scene.json files.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .. import sl
+from ..exr import read_exr, write_exr
+from ..geometry import projection_matrix
+from . import projector as _pj
+from .projector import LIGHTS_COLLECTION, Projector, T_cam_proj, projector_intrinsics, projector_matrix
+
+FRINGE_FILTER_WIDTH = 0.01      # px, Blackman-Harris pixel filter of the fringe render (point samples)
+FRINGE_SUPERSAMPLE = 2           # fringe render at this factor x the camera resolution, block-averaged
+FRINGE_BASENAME = "_sl_fringes"  # the fringe call's multilayer EXR in the render folder (deleted)
+OUTPUT_NODE = "datapipe_sl_file_output"
+MIN_CONTRAST = 0.5               # decode(min_contrast=): fringe contrast B/A below this = global light
+BORDER_PX = 1.0                  # camera px kept free at the projector image's left/right border
+INDIRECT_BLUR_PX = 32.0          # projector px: Gaussian blur of the pattern as seen by inter-reflected light
+EDGE_SIGMAS = 5.0                # noise part of the neighbour tolerance (in combined sigmas)
+EDGE_SLOPE = 3.7                 # tan(75 deg): steepest surface whose neighbours still agree
+EDGE_MIN_SUPPORT = 3             # agreeing 8-neighbours a valid pixel needs
+INDIRECT_NODE = "datapipe_sl_indirect_blur"
+FILTERED = 7                     # reason code of pixels removed by the edge/speckle filter
+REASON_NAMES = {**{r.value: r.name for r in sl.Reason}, FILTERED: "FILTERED"}
+
+
+class StructuredLightCamera:
+    """Projector + fringe layers (setup), and per render: fringes -> depth (process).
+
+    >>> slc = StructuredLightCamera(cfg, bpy_scene, camera, renderer); slc.setup()
+    >>> info = slc.process(out, render_dir, seed, T_world_cam, scene_dir)   # after renderer.render
+    >>> stack, seconds = slc.render_fringes(render_dir, seed)               # the pieces, for benchmarks
+    >>> res, extra = slc.decode(stack, seed, T_world_cam)
+    """
+
+    def __init__(self, cfg, bpy_scene, camera, renderer):
+        self.cfg, self.scene, self.camera, self.renderer = cfg, bpy_scene, camera, renderer
+        s = cfg.structured_light
+        self.periods, self.steps = list(s.periods), int(s.steps)
+        self.proj_size = tuple(int(v) for v in cfg.projector.resolution)
+        self.sensor = sl.SensorModel.preset(s.sensor)
+        self.filter_width = FRINGE_FILTER_WIDTH
+        self.supersample = FRINGE_SUPERSAMPLE
+        self.indirect_blur_px = INDIRECT_BLUR_PX
+        self.samples = int(s.samples)
+        self.min_contrast = MIN_CONTRAST
+        self.edge_filter = True
+        self.layers: list = []
+        self.layer_names: list[str] = []
+        self.file_output = None
+        self._rl_nodes: list = []
+        self.last_seconds: dict = {}     # {"render": s, "decode": s} of the last process() (not annotated:
+                                         # annotations stay identical between runs of one seed)
+        sl.plan_unwrap(self.periods, s.unwrap)     # refuse an ambiguous period set before any render
+
+    # -- once per run -----------------------------------------------------------------------------
+    def setup(self) -> None:
+        import bpy
+        from . import compat
+
+        remove_leftovers(self.scene, self.renderer.tree)
+        Wp, Hp = self.proj_size
+        patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps)
+        self.projector = Projector(self.cfg, self.scene, self.camera.obj)
+        self.projector.build(patterns)
+        for i, ob in enumerate(self.projector.lights):
+            K = self.periods[i // self.steps]
+            regularize_indirect(ob.data.node_tree, indirect_gain(K, Wp, self.indirect_blur_px))
+        self.layers = self.projector.make_view_layers(exclude=[LIGHTS_COLLECTION])
+        self.layer_names = [vl.name for vl in self.layers]
+        tree = self.renderer.tree
+        self.file_output = compat.new_file_output(tree, bpy.app.tempdir or "/tmp", FRINGE_BASENAME,
+                                                  name=OUTPUT_NODE)
+        for i, vl in enumerate(self.layers):
+            vl.use = False                   # rendered only by render_fringes(), not by the native call
+            rl = compat.render_layers_node(tree, self.scene, vl.name, name=f"{OUTPUT_NODE}_rl_{i:02d}")
+            rl.location = (-700, -300 * i)
+            tree.links.new(compat.rl_socket(rl, "image"),
+                           compat.file_output_add_input(self.file_output, vl.name, "FLOAT"))
+            self._rl_nodes.append(rl)
+        self.file_output.format.exr_codec = "NONE"     # a scratch file: no time spent compressing
+        self.file_output.mute = True
+        self.set_samples(self.samples)
+
+    def set_indirect_blur(self, blur_px: float) -> None:
+        """Blur (projector px) of the pattern seen by inter-reflected light; 0 = none (benchmarks)."""
+        self.indirect_blur_px = float(blur_px)
+        for i, ob in enumerate(self.projector.lights):
+            K = self.periods[i // self.steps]
+            _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE],
+                      indirect_gain(K, self.proj_size[0], self.indirect_blur_px))
+
+    @property
+    def layer_samples(self) -> int:
+        """Cycles samples per (supersampled) pixel of the fringe layers: `samples` is per camera pixel."""
+        return max(1, int(np.ceil(self.samples / self.supersample ** 2)))
+
+    def set_samples(self, samples: int) -> None:
+        """Paths per camera pixel of every fringe layer (benchmarks vary it without rebuilding)."""
+        self.samples = int(samples)
+        for vl in self.layers:
+            vl.samples = self.layer_samples
+
+    # -- once per render --------------------------------------------------------------------------
+    def render_fringes(self, render_dir, seed: int) -> tuple[np.ndarray, float]:
+        """Render the fringe layers (own Cycles call, see the module doc) -> ((F*N, H, W) float32
+        linear radiance, frequency-major; wall seconds of the call)."""
+        import bpy
+        from . import compat
+
+        render_dir = Path(render_dir)
+        render_dir.mkdir(parents=True, exist_ok=True)
+        for stale in compat.written_files(render_dir, FRINGE_BASENAME):
+            stale.unlink()
+        compat.set_file_output_path(self.file_output, render_dir, FRINGE_BASENAME)
+        sc = self.scene
+        fringe = set(self.layer_names)
+        saved_use = {vl.name: vl.use for vl in sc.view_layers}
+        others = [n for n in self.renderer.tree.nodes
+                  if n.bl_idname == "CompositorNodeOutputFile" and n != self.file_output]
+        saved_mute = {n.name: n.mute for n in others}
+        saved_filter, saved_seed = sc.cycles.filter_width, sc.cycles.seed
+        saved_pct = sc.render.resolution_percentage
+        ss = int(self.supersample)
+        try:
+            for vl in sc.view_layers:
+                vl.use = vl.name in fringe
+            for n in others:
+                n.mute = True
+            self.file_output.mute = False
+            sc.cycles.filter_width = float(self.filter_width)
+            sc.cycles.seed = int(seed) & 0x7FFFFFFF
+            sc.render.resolution_percentage = 100 * ss
+            t0 = time.perf_counter()
+            bpy.ops.render.render(write_still=False, scene=sc.name)
+            seconds = time.perf_counter() - t0
+        finally:
+            self.file_output.mute = True
+            for n in others:
+                n.mute = saved_mute[n.name]
+            for vl in sc.view_layers:
+                if vl.name in saved_use:
+                    vl.use = saved_use[vl.name]
+            sc.cycles.filter_width, sc.cycles.seed = saved_filter, saved_seed
+            sc.render.resolution_percentage = saved_pct
+        written = compat.written_files(render_dir, FRINGE_BASENAME)
+        if not written:
+            from ..errors import DataPipeError
+            raise DataPipeError(f"Blender wrote no fringe file {FRINGE_BASENAME}*.exr into {render_dir} "
+                                "(check free disk space and write permission of the output folder)")
+        tmp = max(written, key=lambda p: p.stat().st_mtime)
+        try:
+            ch = read_exr(tmp)
+        finally:
+            for p in written:
+                p.unlink(missing_ok=True)
+        stack = np.stack([ch[f"{name}.V"] for name in self.layer_names]).astype(np.float32)
+        if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
+            F, h, w = stack.shape
+            stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
+        return stack, seconds
+
+    def decode(self, radiance, seed: int, T_world_cam, *, sensor: str | None = None,
+               exposure: float | None = None, edge_filter: bool | None = None):
+        """Linear radiance stack -> (DecodeResult, extra). Applies exposure, the sensor model
+        (seeded), the decoder and the edge/speckle filter (filtered pixels: reason FILTERED, NaN).
+        `sensor` (preset name) and `exposure` override the config's for this call (benchmarks).
+
+        extra: {"sigma_z": per-pixel theoretical depth sigma (m, NaN where invalid), "filtered":
+        bool mask, "P_proj", "P_cam", "sensor": SensorModel, "decode_seconds"}."""
+        t0 = time.perf_counter()
+        s = self.cfg.structured_light
+        model = self.sensor if sensor is None else sl.SensorModel.preset(sensor)
+        gain = float(s.exposure if exposure is None else exposure)
+        radiance = np.clip(np.asarray(radiance, dtype=np.float32), 0.0, None) * gain
+        dn, saturation = model.apply(radiance, seed)
+        P_cam = projection_matrix(self.camera.K, T_world_cam)
+        P_proj = projector_matrix(self.cfg, T_world_cam)
+        res = sl.decode(dn, periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
+                        proj_size=self.proj_size, unwrap=s.unwrap, noise_sigma=model.noise_sigma,
+                        saturation=saturation, min_contrast=self.min_contrast)
+        sigma_z = depth_sigma(res, model, self.proj_size[0], self.steps)
+        filtered = np.zeros(res.valid.shape, bool)
+        if self.edge_filter if edge_filter is None else edge_filter:
+            fx = float(self.camera.K[0, 0])
+            margin = BORDER_PX * float(projector_intrinsics(self.cfg)[0, 0]) / fx + 0.5
+            with np.errstate(invalid="ignore"):
+                filtered = res.valid & ((res.proj_x < margin - 0.5)
+                                        | (res.proj_x > self.proj_size[0] - 0.5 - margin))
+            filtered |= edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
+            res.valid &= ~filtered
+            res.depth[filtered] = np.nan
+            res.proj_x[filtered] = np.nan
+            res.phase[filtered] = np.nan
+            res.reason[filtered] = FILTERED
+        sigma_z[~res.valid] = np.nan
+        decode_s = time.perf_counter() - t0
+        return res, {"sigma_z": sigma_z, "filtered": filtered, "P_proj": P_proj, "P_cam": P_cam,
+                     "sensor": model, "decode_seconds": decode_s}
+
+    def process(self, out, rdir: Path, seed: int, T_world_cam, sdir: Path) -> dict:
+        s = self.cfg.structured_light
+        rdir = Path(rdir)
+        radiance, render_s = self.render_fringes(rdir, seed)
+        res, extra = self.decode(radiance, seed, T_world_cam)
+        self.last_seconds = {"render": render_s, "decode": extra["decode_seconds"]}
+        files = {"sl_depth": rdir / "sl_depth.exr", "sl_valid": rdir / "sl_valid.png"}
+        write_exr(files["sl_depth"], {"Z": res.depth})
+        cv2.imwrite(str(files["sl_valid"]), res.valid.astype(np.uint8) * 255)
+        if s.debug:
+            ch = {"phase": res.phase, "offset": res.offset, "proj_x": res.proj_x,
+                  "reason": res.reason.astype(np.float32), "order_error": res.order_error,
+                  "sigma_z": extra["sigma_z"].astype(np.float32)}
+            for k, (w, m) in enumerate(zip(res.wrapped, res.modulation)):
+                ch[f"wrapped_{k}"], ch[f"modulation_{k}"] = w, m
+            files["sl_debug"] = rdir / "sl_debug.exr"
+            write_exr(files["sl_debug"], ch)
+        counts = np.bincount(res.reason.ravel(), minlength=FILTERED + 1)
+        return {
+            "files": {k: str(Path(p).relative_to(sdir)) for k, p in files.items()},
+            "periods": self.periods, "steps": self.steps, "unwrap": res.method, "samples": int(s.samples),
+            "sensor": s.sensor, "exposure": float(s.exposure), "power": float(self.cfg.projector.power),
+            "filter_width": float(self.filter_width), "P_proj": extra["P_proj"],
+            "K_proj": projector_intrinsics(self.cfg),
+            "T_cam_proj": T_cam_proj(self.cfg), "proj_resolution": list(self.proj_size),
+            "valid_fraction": float(res.valid.mean()),
+            "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
+            "median_sigma_z": _nanmedian(extra["sigma_z"]),
+        }
+
+    def teardown(self) -> None:
+        tree = self.renderer.tree
+        if tree is not None:
+            for n in [*self._rl_nodes, self.file_output]:
+                if n is not None and tree.nodes.get(n.name) is not None:
+                    tree.nodes.remove(n)
+        self._rl_nodes, self.file_output = [], None
+        self.projector.teardown()
+        self.layers, self.layer_names = [], []
+
+
+def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:
+    """Modulation left in a K-period fringe after a Gaussian blur of `blur_px` projector pixels:
+    exp(-2 pi^2 (blur_px K / W)^2) (a blurred sinusoid is the same sinusoid, scaled)."""
+    return float(np.exp(-2.0 * np.pi ** 2 * (blur_px * K / proj_width) ** 2))
+
+
+def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
+    """Make a projector light's node tree emit, for inter-reflected light only (Light Path Ray
+    Depth > 0), the pattern blurred by INDIRECT_BLUR_PX: offset + gain * (pattern - offset), times
+    the image's alpha (no light outside the projector image). Direct light is untouched.
+
+    Why: with a few paths per pixel the inter-reflected part of a fine fringe is Monte-Carlo noise
+    (each path picks up the pattern at one random point of another surface), while physically a
+    diffuse bounce averages the fine pattern over a footprint of many periods (the reason fine
+    fringes resist inter-reflections). The blur is that average, done analytically: the 64-period
+    fringe loses all modulation after a bounce (its light still adds to the offset, lowering the
+    contrast), the 8-period keeps 68%, the 1-period 99%, so the coarse patterns keep their real
+    inter-reflection bias. Not modelled: fine fringes mirrored by near-specular parts."""
+    tex = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeTexImage")
+    em = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeEmission")
+    N, L = nt.nodes, nt.links
+    lp = N.new("ShaderNodeLightPath")
+    ind = N.new("ShaderNodeMath"); ind.operation = "GREATER_THAN"
+    ind.inputs[1].default_value = 1.5                 # in a light shader direct light has depth 1
+    blur = N.new("ShaderNodeMath"); blur.operation = "MULTIPLY_ADD"       # tex * gain + offset (1 - gain)
+    blur.name = INDIRECT_NODE
+    _set_gain(blur, gain, offset)
+    clip = N.new("ShaderNodeMath"); clip.operation = "MULTIPLY"           # x alpha: dark outside the image
+    diff = N.new("ShaderNodeMath"); diff.operation = "SUBTRACT"           # blurred - sharp
+    out = N.new("ShaderNodeMath"); out.operation = "MULTIPLY_ADD"         # ind * diff + sharp
+    L.new(lp.outputs["Ray Depth"], ind.inputs[0])
+    L.new(tex.outputs["Color"], blur.inputs[0])
+    L.new(blur.outputs[0], clip.inputs[0])
+    L.new(tex.outputs["Alpha"], clip.inputs[1])
+    L.new(clip.outputs[0], diff.inputs[0])
+    L.new(tex.outputs["Color"], diff.inputs[1])
+    L.new(ind.outputs[0], out.inputs[0])
+    L.new(diff.outputs[0], out.inputs[1])
+    L.new(tex.outputs["Color"], out.inputs[2])
+    L.new(out.outputs[0], em.inputs["Color"])
+
+
+def _set_gain(node, gain: float, offset: float = 0.5) -> None:
+    node.inputs[1].default_value = float(gain)
+    node.inputs[2].default_value = float(offset * (1.0 - gain))
+
+
+def remove_leftovers(bpy_scene, tree=None) -> None:
+    """Delete the projector lights, pattern images, collections, fringe view layers and compositor
+    nodes an earlier run left in this Blender session or saved into the .blend (the pipeline
+    builds them once per run and does not tear them down), so a new run starts clean."""
+    import re
+
+    import bpy
+
+    layer_re = re.compile(re.escape(_pj.LAYER_PREFIX) + r"\d\d$")
+    for vl in list(bpy_scene.view_layers):
+        if layer_re.match(vl.name) and len(bpy_scene.view_layers) > 1:
+            bpy_scene.view_layers.remove(vl)
+    for ob in list(bpy.data.objects):
+        if ob.name.startswith(_pj.LIGHT_PREFIX) and ob.type == "LIGHT":
+            ld = ob.data
+            bpy.data.objects.remove(ob, do_unlink=True)
+            if ld is not None and ld.users == 0:
+                bpy.data.lights.remove(ld)
+    for ld in list(bpy.data.lights):
+        if ld.name.startswith(_pj.LIGHT_PREFIX) and ld.users == 0:
+            bpy.data.lights.remove(ld)
+    for img in list(bpy.data.images):
+        if img.name.startswith(_pj.IMAGE_PREFIX):
+            bpy.data.images.remove(img)
+    for coll in list(bpy.data.collections):
+        if coll.name.startswith(_pj.COLLECTION_PREFIX) and not coll.all_objects:
+            bpy.data.collections.remove(coll)
+    if tree is not None:
+        for n in list(tree.nodes):
+            if n.name.startswith(OUTPUT_NODE):
+                tree.nodes.remove(n)
+
+
+# ------------------------------------------------------------------------------------------------
+# pure numpy helpers (no bpy)
+
+def _nanmedian(a) -> float | None:
+    a = np.asarray(a)
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else None
+
+
+def depth_sigma(res, model, proj_width: int, steps: int) -> np.ndarray:
+    """Per-pixel theoretical depth sigma (m) from sl-notes: for each frequency K the phase noise
+    sigma_phi = sqrt(2/N) * sigma_I / B (B its modulation, sigma_I the sensor noise at the pixel's
+    offset), combined with the decoder's K^2 weights: sigma_x = W / (2 pi sum K^2) *
+    sqrt(sum K^2 sigma_phi^2), times |dZ/dx| of the triangulation. NaN where not decoded."""
+    per = np.asarray(res.periods, dtype=np.float64)
+    sig_i = np.asarray(model.noise_sigma(np.maximum(res.offset, 0).astype(np.float64)), np.float64)
+    var = np.zeros(res.offset.shape, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, K in enumerate(per):
+            sphi = np.sqrt(2.0 / steps) * sig_i / res.modulation[k].astype(np.float64)
+            var += K * K * sphi * sphi
+        sigma_x = proj_width / (2 * np.pi * np.sum(per * per)) * np.sqrt(var)
+        slope = res.triangulator.depth_slope(np.where(res.valid, res.depth, np.nan))
+        out = (np.abs(slope) * sigma_x).astype(np.float32)
+    out[~res.valid] = np.nan
+    return out
+
+
+def edge_speckle_filter(depth, valid, sigma_z, pixel_angle: float, *, sigmas: float = EDGE_SIGMAS,
+                        slope: float = EDGE_SLOPE, min_support: int = EDGE_MIN_SUPPORT) -> np.ndarray:
+    """Valid pixels with fewer than `min_support` agreeing 8-neighbours (see the module doc);
+    returns the bool mask of pixels to remove."""
+    z = np.where(valid, depth, np.nan).astype(np.float64)
+    s = np.where(valid, sigma_z, np.nan).astype(np.float64)
+    s = np.where(np.isfinite(s), s, 0.0)
+    H, W = z.shape
+    zp = np.pad(z, 1, constant_values=np.nan)
+    sp = np.pad(s, 1, constant_values=0.0)
+    support = np.zeros((H, W), np.int32)
+    with np.errstate(invalid="ignore"):
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dx == 0 and dy == 0:
+                    continue
+                zq = zp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
+                sq = sp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
+                tol = sigmas * np.sqrt(s * s + sq * sq) + slope * z * pixel_angle * np.hypot(dx, dy)
+                support += (np.abs(zq - z) <= tol)
+    return valid & (support < min_support)
