@@ -186,6 +186,22 @@ def written_files(directory: str | os.PathLike, basename: str) -> list[Path]:
     return sorted(out)
 
 
+def take_written_exr(directory: str | os.PathLike, basename: str, what: str = "pass") -> dict:
+    """Read the EXR the File Output node just wrote for `basename`, delete it, return its channels."""
+    from ..errors import DataPipeError
+    from ..exr import read_exr
+    written = written_files(directory, basename)
+    if not written:
+        raise DataPipeError(f"Blender wrote no {what} file {basename}*.exr into {directory} "
+                            "(check free disk space and write permission of the output folder)")
+    newest = max(written, key=lambda p: p.stat().st_mtime)
+    try:
+        return read_exr(newest)
+    finally:
+        for p in written:
+            p.unlink(missing_ok=True)
+
+
 # ------------------------------------------------------------------------------------------------
 # Cycles device, colour management
 

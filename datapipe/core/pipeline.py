@@ -329,4 +329,8 @@ class _BlenderWorld:
         self.objects.clear()
 
     def close(self) -> None:
-        pass
+        """Remove the projector lights, patterns and fringe layers (nothing left in the user's scene)."""
+        sl_cam = getattr(self, "sl", None)
+        if sl_cam is not None:
+            sl_cam.teardown()
+            self.sl = None

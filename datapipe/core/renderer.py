@@ -38,7 +38,7 @@ import bpy
 from . import compat
 from ..config import Config
 from ..errors import DataPipeError
-from ..exr import read_exr, write_exr
+from ..exr import write_exr
 
 NATIVE_LAYER = "datapipe"
 TEMP_BASENAME = "_passes"           # the File Output's per-render multilayer EXR (no braces!)
@@ -209,16 +209,7 @@ class Renderer:
         bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0
 
-        written = compat.written_files(render_dir, TEMP_BASENAME)
-        if not written:
-            raise DataPipeError(f"Blender wrote no pass file {TEMP_BASENAME}*.exr into {render_dir} "
-                                "(check free disk space and write permission of the output folder)")
-        tmp = max(written, key=lambda p: p.stat().st_mtime)
-        try:
-            channels = read_exr(tmp)
-        finally:
-            for p in written:
-                p.unlink(missing_ok=True)
+        channels = compat.take_written_exr(render_dir, TEMP_BASENAME, "pass")
         out = self._convert(channels, T_world_cam)
         out.seconds = seconds
         out.T_world_cam = T_world_cam

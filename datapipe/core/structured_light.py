@@ -73,7 +73,7 @@ import cv2
 import numpy as np
 
 from .. import sl
-from ..exr import read_exr, write_exr
+from ..exr import write_exr
 from ..geometry import projection_matrix
 from . import projector as _pj
 from .projector import LIGHTS_COLLECTION, Projector, T_cam_proj, projector_intrinsics, projector_matrix
@@ -89,8 +89,8 @@ EDGE_SIGMAS = 5.0                # noise part of the neighbour tolerance (in com
 EDGE_SLOPE = 3.7                 # tan(75 deg): steepest surface whose neighbours still agree
 EDGE_MIN_SUPPORT = 3             # agreeing 8-neighbours a valid pixel needs
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
-FILTERED = 7                     # reason code of pixels removed by the edge/speckle filter
-REASON_NAMES = {**{r.value: r.name for r in sl.Reason}, FILTERED: "FILTERED"}
+FILTERED = int(sl.Reason.FILTERED)   # reason code of pixels removed by the edge/speckle filter
+REASON_NAMES = {r.value: r.name for r in sl.Reason}
 
 
 class StructuredLightCamera:
@@ -212,17 +212,7 @@ class StructuredLightCamera:
                     vl.use = saved_use[vl.name]
             sc.cycles.filter_width, sc.cycles.seed = saved_filter, saved_seed
             sc.render.resolution_percentage = saved_pct
-        written = compat.written_files(render_dir, FRINGE_BASENAME)
-        if not written:
-            from ..errors import DataPipeError
-            raise DataPipeError(f"Blender wrote no fringe file {FRINGE_BASENAME}*.exr into {render_dir} "
-                                "(check free disk space and write permission of the output folder)")
-        tmp = max(written, key=lambda p: p.stat().st_mtime)
-        try:
-            ch = read_exr(tmp)
-        finally:
-            for p in written:
-                p.unlink(missing_ok=True)
+        ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe")
         stack = np.stack([ch[f"{name}.V"] for name in self.layer_names]).astype(np.float32)
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
             F, h, w = stack.shape

@@ -57,6 +57,7 @@ class Reason(IntEnum):
     OUTSIDE_PROJECTOR = 4   # behind the projector or outside its other image axis
     ILL_CONDITIONED = 5     # camera ray (nearly) in a projector column plane: |dZ/dx| over the cap
     INVALID_INPUT = 6       # NaN or inf in a sample
+    FILTERED = 7            # removed by a post-filter outside the decoder (the pipeline's edge/speckle filter)
 
 
 _PRIORITY = (Reason.OUTSIDE_PROJECTOR, Reason.ILL_CONDITIONED, Reason.BAD_ORDER,
