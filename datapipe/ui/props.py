@@ -323,7 +323,7 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
                        default=default(_L, "steps"), min=3, soft_max=16)
     unwrap: EnumProperty(name="Unwrapping", description="Temporal phase unwrapping method",
                          items=_items(C.UNWRAP_METHODS), default=default(_L, "unwrap"))
-    samples: IntProperty(name="Samples", description="Cycles samples for each fringe image",
+    samples: IntProperty(name="Samples", description="Render paths per camera pixel for each fringe image (point-sampled at 2x2 per pixel; 4 is enough once bounce light is blurred, see README)",
                          default=default(_L, "samples"), min=1, soft_max=4096)
     sensor: StringProperty(name="Sensor Model", description="Camera noise model preset (datapipe.sl.sensor: "
                            "shot and read noise, ADC bits, saturation), e.g. ideal, industrial",
