@@ -19,6 +19,29 @@ from ..errors import DataPipeError
 CAMERA_NAME = "datapipe_camera"
 
 
+def apply_intrinsics(cam_data, scene, camera_cfg) -> None:
+    """Set a Blender camera's lens and the scene's resolution from `cfg.camera` (also used by the
+    UI's preview camera, so the preview frames exactly what renders)."""
+    c = camera_cfg
+    cam_data.type = "PERSP"
+    cam_data.lens_unit = "MILLIMETERS"
+    cam_data.lens = c.focal_length
+    cam_data.sensor_fit = c.sensor_fit
+    # With VERTICAL fit Blender uses sensor_height; the config's sensor_width is the size of the
+    # fitted sensor dimension in every case (what intrinsics_from_blender takes).
+    cam_data.sensor_width = c.sensor_width
+    if c.sensor_fit == "VERTICAL":
+        cam_data.sensor_height = c.sensor_width
+    cam_data.shift_x = cam_data.shift_y = 0.0
+    cam_data.clip_start, cam_data.clip_end = c.clip_start, c.clip_end
+    cam_data.dof.use_dof = False
+    r = scene.render
+    r.resolution_x, r.resolution_y = (int(v) for v in c.resolution)
+    r.resolution_percentage = 100
+    r.pixel_aspect_x = r.pixel_aspect_y = 1.0
+    r.use_border = False
+
+
 class BlendCamera:
     """Creates and drives the scene's render camera.
 
@@ -47,29 +70,10 @@ class BlendCamera:
             obj = bpy.data.objects.new(CAMERA_NAME, data)
             self.scene.collection.objects.link(obj)
         obj.parent = None
-        data = obj.data
-        data.type = "PERSP"
-        data.lens_unit = "MILLIMETERS"
-        data.lens = c.focal_length
-        data.sensor_fit = c.sensor_fit
-        # With VERTICAL fit Blender uses sensor_height; the config's sensor_width is the size of the
-        # fitted sensor dimension in every case (what intrinsics_from_blender takes).
-        data.sensor_width = c.sensor_width
-        if c.sensor_fit == "VERTICAL":
-            data.sensor_height = c.sensor_width
-        data.shift_x = data.shift_y = 0.0
-        data.clip_start = c.clip_start
-        data.clip_end = c.clip_end
-        data.dof.use_dof = False
+        apply_intrinsics(obj.data, self.scene, c)
         obj.rotation_mode = "QUATERNION"
         obj.scale = (1.0, 1.0, 1.0)
         self.scene.camera = obj
-
-        r = self.scene.render
-        r.resolution_x, r.resolution_y = (int(v) for v in c.resolution)
-        r.resolution_percentage = 100
-        r.pixel_aspect_x = r.pixel_aspect_y = 1.0
-        r.use_border = False
         self.obj = obj
         self.set_pose(0)
         return self

@@ -184,18 +184,8 @@ def sync_object_scale(props) -> None:
 # camera and projector previews
 
 def _apply_intrinsics(cam_data, scene, cfg) -> None:
-    c = cfg.camera
-    cam_data.type = "PERSP"
-    cam_data.lens_unit = "MILLIMETERS"
-    cam_data.lens = c.focal_length
-    cam_data.sensor_fit = c.sensor_fit
-    cam_data.sensor_width = c.sensor_width
-    if c.sensor_fit == "VERTICAL":
-        cam_data.sensor_height = c.sensor_width
-    cam_data.clip_start, cam_data.clip_end = c.clip_start, c.clip_end
-    r = scene.render                          # the frame in the camera view has the image's shape
-    r.resolution_x, r.resolution_y = (int(v) for v in c.resolution)
-    r.resolution_percentage = 100
+    from ..core.camera import apply_intrinsics
+    apply_intrinsics(cam_data, scene, cfg.camera)
 
 
 def camera_object():
