@@ -52,9 +52,9 @@ Validity (what "valid" means)
     support(p) = #{ q in N8(p) valid : |Z_q - Z_p| <= tol_pq },
     tol_pq     = EDGE_SIGMAS * sqrt(sigma_p^2 + sigma_q^2) + EDGE_SLOPE * Z_p * pixel_angle * |q - p|
 
-   (`sigma` the per-pixel theoretical depth noise, `depth_sigma`; `pixel_angle` = 1/f_camera
+   (`sigma` the per-pixel theoretical depth noise, `sl.pixel_depth_sigma`; `pixel_angle` = 1/f_camera
    [rad per px]; the second term admits surfaces up to about atan(EDGE_SLOPE) = 75 deg from
-   fronto-parallel). Fewer than EDGE_MIN_SUPPORT agreeing neighbours: removed. Flying pixels agree
+   fronto-parallel; constants in `sl.filters`). Fewer than EDGE_MIN_SUPPORT agreeing neighbours: removed. Flying pixels agree
    with neither side, a speckle with nobody; pixels on the straight border of a surface keep 4-5
    agreeing neighbours; the tips of sharp corners erode by about one pixel, as with real edge
    filters.
@@ -85,9 +85,6 @@ OUTPUT_NODE = "datapipe_sl_file_output"
 MIN_CONTRAST = 0.5               # decode(min_contrast=): fringe contrast B/A below this = global light
 BORDER_PX = 1.0                  # camera px kept free at the projector image's left/right border
 INDIRECT_BLUR_PX = 32.0          # projector px: Gaussian blur of the pattern as seen by inter-reflected light
-EDGE_SIGMAS = 5.0                # noise part of the neighbour tolerance (in combined sigmas)
-EDGE_SLOPE = 3.7                 # tan(75 deg): steepest surface whose neighbours still agree
-EDGE_MIN_SUPPORT = 3             # agreeing 8-neighbours a valid pixel needs
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
 FILTERED = int(sl.Reason.FILTERED)   # reason code of pixels removed by the edge/speckle filter
 REASON_NAMES = {r.value: r.name for r in sl.Reason}
@@ -238,7 +235,7 @@ class StructuredLightCamera:
         res = sl.decode(dn, periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
                         proj_size=self.proj_size, unwrap=s.unwrap, noise_sigma=model.noise_sigma,
                         saturation=saturation, min_contrast=self.min_contrast)
-        sigma_z = depth_sigma(res, model, self.proj_size[0], self.steps)
+        sigma_z = sl.pixel_depth_sigma(res, model.noise_sigma, self.proj_size[0], self.steps)
         filtered = np.zeros(res.valid.shape, bool)
         if self.edge_filter if edge_filter is None else edge_filter:
             fx = float(self.camera.K[0, 0])
@@ -246,7 +243,7 @@ class StructuredLightCamera:
             with np.errstate(invalid="ignore"):
                 filtered = res.valid & ((res.proj_x < margin - 0.5)
                                         | (res.proj_x > self.proj_size[0] - 0.5 - margin))
-            filtered |= edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
+            filtered |= sl.edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
             res.valid &= ~filtered
             res.depth[filtered] = np.nan
             res.proj_x[filtered] = np.nan
@@ -385,45 +382,3 @@ def _nanmedian(a) -> float | None:
     a = np.asarray(a)
     a = a[np.isfinite(a)]
     return float(np.median(a)) if a.size else None
-
-
-def depth_sigma(res, model, proj_width: int, steps: int) -> np.ndarray:
-    """Per-pixel theoretical depth sigma (m) from sl-notes: for each frequency K the phase noise
-    sigma_phi = sqrt(2/N) * sigma_I / B (B its modulation, sigma_I the sensor noise at the pixel's
-    offset), combined with the decoder's K^2 weights: sigma_x = W / (2 pi sum K^2) *
-    sqrt(sum K^2 sigma_phi^2), times |dZ/dx| of the triangulation. NaN where not decoded."""
-    per = np.asarray(res.periods, dtype=np.float64)
-    sig_i = np.asarray(model.noise_sigma(np.maximum(res.offset, 0).astype(np.float64)), np.float64)
-    var = np.zeros(res.offset.shape, np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for k, K in enumerate(per):
-            sphi = np.sqrt(2.0 / steps) * sig_i / res.modulation[k].astype(np.float64)
-            var += K * K * sphi * sphi
-        sigma_x = proj_width / (2 * np.pi * np.sum(per * per)) * np.sqrt(var)
-        slope = res.triangulator.depth_slope(np.where(res.valid, res.depth, np.nan))
-        out = (np.abs(slope) * sigma_x).astype(np.float32)
-    out[~res.valid] = np.nan
-    return out
-
-
-def edge_speckle_filter(depth, valid, sigma_z, pixel_angle: float, *, sigmas: float = EDGE_SIGMAS,
-                        slope: float = EDGE_SLOPE, min_support: int = EDGE_MIN_SUPPORT) -> np.ndarray:
-    """Valid pixels with fewer than `min_support` agreeing 8-neighbours (see the module doc);
-    returns the bool mask of pixels to remove."""
-    z = np.where(valid, depth, np.nan).astype(np.float64)
-    s = np.where(valid, sigma_z, np.nan).astype(np.float64)
-    s = np.where(np.isfinite(s), s, 0.0)
-    H, W = z.shape
-    zp = np.pad(z, 1, constant_values=np.nan)
-    sp = np.pad(s, 1, constant_values=0.0)
-    support = np.zeros((H, W), np.int32)
-    with np.errstate(invalid="ignore"):
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dx == 0 and dy == 0:
-                    continue
-                zq = zp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
-                sq = sp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
-                tol = sigmas * np.sqrt(s * s + sq * sq) + slope * z * pixel_angle * np.hypot(dx, dy)
-                support += (np.abs(zq - z) <= tol)
-    return valid & (support < min_support)

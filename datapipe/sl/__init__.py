@@ -1,7 +1,9 @@
 """Structured light (fringe projection), pure numpy: patterns, phase, unwrapping, triangulation,
 a camera noise model, the decoder and its metrics. No Blender here, ever (design.md)."""
 from .decode import DecodeResult, Reason, decode, estimate_noise_sigma, modulation_floor_factor
-from .metrics import depth_error_stats, effective_period, theoretical_depth_sigma, theoretical_phase_sigma
+from .filters import edge_speckle_filter
+from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
+                      theoretical_phase_sigma)
 from .patterns import fringe_patterns, phase_shifts
 from .phase import PhaseResult, phase_shift
 from .sensor import PRESETS, SensorModel
@@ -16,4 +18,5 @@ __all__ = [
     "SensorModel", "PRESETS",
     "decode", "DecodeResult", "Reason", "estimate_noise_sigma", "modulation_floor_factor",
     "depth_error_stats", "theoretical_phase_sigma", "theoretical_depth_sigma", "effective_period",
+    "pixel_depth_sigma", "edge_speckle_filter",
 ]

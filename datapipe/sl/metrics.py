@@ -72,3 +72,23 @@ def depth_error_stats(depth, gt_depth, valid=None, lit=None, shadow=None, outlie
     else:
         out["false_valid_shadow"] = float("nan")
     return out
+
+
+def pixel_depth_sigma(res, noise_sigma, proj_width: int, steps: int) -> np.ndarray:
+    """Per-pixel theoretical depth sigma (m) from sl-notes: for each frequency K the phase noise
+    sigma_phi = sqrt(2/N) * sigma_I / B (B its modulation, sigma_I the sensor noise at the pixel's
+    offset; `noise_sigma` a number or a function of the signal such as SensorModel.noise_sigma), combined with the decoder's K^2 weights: sigma_x = W / (2 pi sum K^2) *
+    sqrt(sum K^2 sigma_phi^2), times |dZ/dx| of the triangulation. NaN where not decoded."""
+    per = np.asarray(res.periods, dtype=np.float64)
+    sig_i = np.asarray(noise_sigma(np.maximum(res.offset, 0).astype(np.float64)) if callable(noise_sigma)
+                       else noise_sigma, np.float64)
+    var = np.zeros(res.offset.shape, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, K in enumerate(per):
+            sphi = np.sqrt(2.0 / steps) * sig_i / res.modulation[k].astype(np.float64)
+            var += K * K * sphi * sphi
+        sigma_x = proj_width / (2 * np.pi * np.sum(per * per)) * np.sqrt(var)
+        slope = res.triangulator.depth_slope(np.where(res.valid, res.depth, np.nan))
+        out = (np.abs(slope) * sigma_x).astype(np.float32)
+    out[~res.valid] = np.nan
+    return out
