@@ -41,7 +41,6 @@ SHARDS_DIR = "_shards"
 SHARD_PRESET = "preset.json"
 ATTEMPTS_FILE = ".datapipe_attempts"
 # tests: "I:K[,I:K...]" kills shard I's runner on its first attempt once K of its scenes are complete
-KILL_ENV = "DATAPIPE_TEST_KILL_SHARD"
 
 
 def scene_name(i: int) -> str:
@@ -118,20 +117,11 @@ def _stop_previous_runner(pid_file: Path, shard_dir: Path) -> None:
         pass
 
 
-def _kill_after(shard: int, spec: str | None) -> int | None:
-    spec = spec or ""
-    for part in filter(None, spec.split(",")):
-        i, _, k = part.partition(":")
-        if i.strip().isdigit() and int(i) == shard:
-            return int(k or 1)
-    return None
-
-
 def run_shard(spec: dict) -> dict:
     """Run one shard to completion in a child process; raise on failure (Ray retries the task).
 
     spec: preset, shard_dir, shard (i, n), seed, scenes (names it must make), extra_args, runner,
-    env (extra environment variables), kill (the test hook's value, read on the driver)."""
+    env (extra environment variables)."""
     i, n = spec["shard"]
     shard_dir = Path(spec["shard_dir"])
     shard_dir.mkdir(parents=True, exist_ok=True)
@@ -142,7 +132,6 @@ def run_shard(spec: dict) -> dict:
     cmd = runner + [spec["preset"], "--out", str(shard_dir), "--shard", f"{i}/{n}", "--seed", str(spec["seed"]),
                     "--resume", *spec.get("extra_args", ())]
     log_path = shard_dir.parent / f"{shard_dir.name}.log"
-    kill_after = _kill_after(i, spec.get("kill")) if attempt == 1 else None
     env = dict(os.environ)
     env.update({str(k): str(v) for k, v in (spec.get("env") or {}).items()})
     t0 = time.time()
@@ -154,15 +143,8 @@ def run_shard(spec: dict) -> dict:
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=str(shard_dir.parent), env=env,
                                 preexec_fn=_die_with_parent if _PRCTL is not None else None)
         pid_file.write_text(f"{socket.gethostname()} {proc.pid}\n")
-        killed = False
         try:
             while proc.poll() is None:
-                if kill_after is not None and not killed:
-                    done = sum(_scene_complete(shard_dir / s) for s in spec["scenes"])
-                    if done >= kill_after:
-                        proc.kill()
-                        killed = True
-                        log.write(f"=== test hook {KILL_ENV}: killed after {done} scene(s)\n")
                 time.sleep(0.05)
         except BaseException:        # the task was cancelled: take the runner down with it
             proc.kill()
@@ -176,7 +158,7 @@ def run_shard(spec: dict) -> dict:
     if rc != 0 or missing:
         tail = log_path.read_text()[-1500:] if log_path.is_file() else ""
         raise RuntimeError(f"shard {i}/{n} failed on attempt {attempt} (exit code {rc}"
-                           f"{', killed' if killed else ''}; {len(missing)} scene(s) not complete); "
+                           f"; {len(missing)} scene(s) not complete); "
                            f"log: {log_path}\n{tail}")
     return {"shard": [i, n], "dir": str(shard_dir), "host": socket.gethostname(), "attempts": attempt,
             "seconds": round(time.time() - t0, 3), "scenes": list(spec["scenes"])}
@@ -408,7 +390,7 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
             scenes = [scene_name(k) for k in shard_scenes(len(plan), (i, n))]
             spec = {"preset": str(preset), "shard_dir": str(d), "shard": (i, n), "seed": cfg.scene.seed,
                     "scenes": scenes, "extra_args": list(extra_args), "runner": list(runner) if runner else None,
-                    "env": dict(env or {}), "kill": os.environ.get(KILL_ENV)}
+                    "env": dict(env or {})}
             refs[task.remote(spec)] = i
         reports, failures = [], []
         pending = list(refs)

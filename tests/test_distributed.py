@@ -17,7 +17,7 @@ import pytest
 
 from datapipe import config as config_mod
 from datapipe.core.writers import native
-from datapipe.distributed import KILL_ENV, merge_shards, run_distributed
+from datapipe.distributed import merge_shards, run_distributed
 from datapipe.errors import DataPipeError
 from datapipe.exr import read_exr
 
@@ -25,6 +25,12 @@ import fixtures_native as fx
 
 TESTS = Path(__file__).resolve().parent
 FAKE_RUNNER = [sys.executable, str(TESTS / "fixtures_native.py"), "run"]
+REAL_RUNNER = [sys.executable, "-m", "datapipe", "run"]
+
+
+def killing(runner, shard, scenes=1):
+    """`runner`, except that shard `shard`'s first attempt is killed once `scenes` scenes are done."""
+    return [sys.executable, str(TESTS / "kill_runner.py"), str(shard), str(scenes), "--", *runner]
 
 
 def small_cfg(**kw):
@@ -160,13 +166,12 @@ def test_ray_killed_shard_is_retried_and_resumes(tmp_path, local_ray, monkeypatc
     cfg = small_cfg(num_renders=4, min_per_scene=1, max_per_scene=1, formats=("native", "bop"))
     preset = write_preset(tmp_path / "preset.json", cfg)
     single = fx.make_native_run(tmp_path / "single", cfg=cfg)
-    monkeypatch.setenv(KILL_ENV, "0:1")                    # kill shard 0 once its first scene is complete
-    summary = run_distributed(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER, retries=2,
-                              env={"FIXTURE_SCENE_DELAY": "1.0"})
+    summary = run_distributed(preset, tmp_path / "out", num_shards=2, runner=killing(FAKE_RUNNER, 0), retries=2,
+                              env={"FIXTURE_SCENE_DELAY": "1.0"})   # shard 0 killed once its first scene is done
     out = tmp_path / "out"
     assert summary["attempts"] == {0: 2, 1: 1}
     log = (out / "logs" / "shard_0000_of_0002.log").read_text()
-    assert "killed after 1 scene" in log and "=== attempt 2" in log
+    assert "kill_runner: killed after 1 scene" in log and "=== attempt 2" in log
     assert annotations(out) == annotations(single)          # complete, nothing twice
     assert sorted(p.name for p in out.glob("scene.*")) == ["scene.0001", "scene.0002", "scene.0003", "scene.0004"]
     # the preset asks for BOP: exported once, on the merged run, with the global image ids
@@ -233,8 +238,8 @@ def test_ray_real_pipeline_two_shards_with_a_kill_match_one_process(tmp_path, lo
     r = subprocess.run([sys.executable, "-m", "datapipe", "run", str(preset), "--out", str(tmp_path / "single"),
                         "--quiet"], capture_output=True, text=True, timeout=1200)
     assert r.returncode == 0, r.stderr[-3000:]
-    monkeypatch.setenv(KILL_ENV, "1:1")                    # shard 1 is killed after its first scene
-    summary = run_distributed(preset, tmp_path / "out", num_shards=2, retries=2, extra_args=["--quiet"])
+    summary = run_distributed(preset, tmp_path / "out", num_shards=2, retries=2, extra_args=["--quiet"],
+                              runner=killing(REAL_RUNNER, 1))     # shard 1 is killed after its first scene
     assert summary["scenes"] == 4 and summary["attempts"][1] == 2
     assert real_annotations(tmp_path / "out") == real_annotations(tmp_path / "single")
     assert legacy(tmp_path / "out") == legacy(tmp_path / "single")
