@@ -5,7 +5,7 @@ VPY     := $(VENV)/bin/python
 STAMP   := $(VENV)/.installed
 OUT     ?= out/demo
 
-.PHONY: venv test test-sl demo bench extension clean
+.PHONY: venv test test-sl demo bench bench-all extension clean
 
 $(STAMP): pyproject.toml
 	test -x $(VPY) || $(PY) -m venv $(VENV)
@@ -26,6 +26,13 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	$(VPY) benchmarks/bench_sl.py
+
+# every report under benchmarks/results/ (about 30 min on 2 cores)
+bench-all: bench
+	$(VPY) benchmarks/bench_pipeline.py
+	$(VPY) benchmarks/bench_sl_render.py
+	$(VPY) benchmarks/bench_bop.py
+	$(VPY) benchmarks/bench_ray.py
 
 clean:
 	rm -rf $(VENV) out build dist *.egg-info
