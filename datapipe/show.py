@@ -278,21 +278,16 @@ def render_sheet(run_dir: Path, scene_dir: Path, scene: dict, rd: dict, info: di
     labels["rgb"] = "RGB"
     z = data["depth"]
     lo, hi = depth_range(z)
-    if z is not None:
-        tiles["depth"] = _fit(colorize(z, lo, hi), tw, th, nearest=True)
-        labels["depth"] = f"depth, z-buffer ({_valid(z).mean() * 100:.0f}% valid)"
-        legends["depth"] = _colorbar(tw, lo, hi, "mm")
-    else:
-        tiles["depth"] = _message_tile(tw, th, ["no depth output"])
-        labels["depth"] = "depth, z-buffer"
     sl = data["sl_depth"]
-    if sl is not None:
-        tiles["sl_depth"] = _fit(colorize(sl, lo, hi), tw, th, nearest=True)
-        labels["sl_depth"] = f"depth, structured light ({_valid(sl).mean() * 100:.0f}% valid)"
-        legends["sl_depth"] = _colorbar(tw, lo, hi, "mm")
-    else:
-        tiles["sl_depth"] = _message_tile(tw, th, ["structured light off"])
-        labels["sl_depth"] = "depth, structured light"
+    for key, d, title, missing in (("depth", z, "depth, z-buffer", "no depth output"),
+                                   ("sl_depth", sl, "depth, structured light", "structured light off")):
+        if d is not None:       # both on the z-buffer's colour scale, so they compare at a glance
+            tiles[key] = _fit(colorize(d, lo, hi), tw, th, nearest=True)
+            labels[key] = f"{title} ({_valid(d).mean() * 100:.0f}% valid)"
+            legends[key] = _colorbar(tw, lo, hi, "mm")
+        else:
+            tiles[key] = _message_tile(tw, th, [missing])
+            labels[key] = title
     if sl is not None and z is not None:
         both = _valid(sl) & _valid(z)
         err = np.full(z.shape, np.nan)

@@ -52,7 +52,7 @@ from mathutils import Matrix, Quaternion, Vector
 
 from ..config import Config
 from ..errors import DataPipeError
-from .scene import BlendScene, add_rigid_body
+from .scene import BlendScene, add_rigid_body, find_layer_collection
 
 TEMPLATES_COLLECTION = "datapipe_templates"
 OBJECTS_COLLECTION = "datapipe_objects"
@@ -158,7 +158,7 @@ class ObjectManager:
             if raw.users == 0:
                 bpy.data.meshes.remove(raw)
         for vl in scene.view_layers:
-            lc = _find_layer_collection(vl.layer_collection, self.templates_collection)
+            lc = find_layer_collection(vl.layer_collection, self.templates_collection.name)
             if lc is not None:
                 lc.exclude = True
         bpy.context.view_layer.update()
@@ -229,7 +229,7 @@ class ObjectManager:
                 c.objects.unlink(o)
             self.templates_collection.objects.link(o)
         # the templates collection is still part of the view layer here (excluded at the end)
-        lc = _find_layer_collection(layer.layer_collection, self.templates_collection)
+        lc = find_layer_collection(layer.layer_collection, self.templates_collection.name)
         if lc is not None:
             lc.exclude = False
         layer.update()
@@ -408,14 +408,6 @@ class ObjectManager:
                 bpy.data.objects.remove(obj, do_unlink=True)
 
 
-def _find_layer_collection(lc, coll):
-    if lc.collection == coll:
-        return lc
-    for child in lc.children:
-        found = _find_layer_collection(child, coll)
-        if found is not None:
-            return found
-    return None
 
 
 def _vertices(me: bpy.types.Mesh) -> np.ndarray:

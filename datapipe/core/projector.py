@@ -509,18 +509,10 @@ def _black_world():
     return w
 
 
-def _find_layer_collection(lc, name):
-    if lc.collection.name == name:
-        return lc
-    for child in lc.children:
-        found = _find_layer_collection(child, name)
-        if found is not None:
-            return found
-    return None
-
 
 def _set_exclude(view_layer, collection_name_: str, exclude: bool) -> bool:
-    lc = _find_layer_collection(view_layer.layer_collection, collection_name_)
+    from .scene import find_layer_collection      # bpy-side; this module stays importable without bpy
+    lc = find_layer_collection(view_layer.layer_collection, collection_name_)
     if lc is None:
         return False
     lc.exclude = exclude

@@ -291,3 +291,15 @@ class BlendScene:
         obj.visible_camera = False           # lights the scene without showing up in the picture
         self.lights.objects.link(obj)
         self.key_light = obj
+
+
+def find_layer_collection(layer_collection, name: str):
+    """The LayerCollection of collection `name` anywhere below `layer_collection` (None if absent);
+    what a view layer's per-collection `exclude` flag hangs on."""
+    if layer_collection.collection.name == name:
+        return layer_collection
+    for child in layer_collection.children:
+        found = find_layer_collection(child, name)
+        if found is not None:
+            return found
+    return None

@@ -102,6 +102,14 @@ def segment_hits_box(P0, P1, lo, hi):
 
 # ------------------------------------------------------------------------------------------------
 
+
+def one_render(cfg):
+    """One scene, one render, one instance of each part: the smallest real pipeline run."""
+    cfg.scene.num_renders = 1
+    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1
+    for o in cfg.objects:
+        o.min_instances = o.max_instances = 1
+
 def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path):
     """Plane at 0.8 m, 320x240, shipped defaults (4 fringe samples per pixel).
 
@@ -183,13 +191,10 @@ def test_structured_light_off_builds_nothing(tmp_path, monkeypatch):
     monkeypatch.setattr(SLM.StructuredLightCamera, "__init__", spy)
     cfg = C.default_config()
     cfg.structured_light.enabled = False
-    cfg.scene.num_renders = 1
-    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1
+    one_render(cfg)
     cfg.camera.resolution = [32, 24]
     cfg.render.samples = 1
     cfg.render.threads = 2
-    for o in cfg.objects:
-        o.min_instances = o.max_instances = 1
     out = tmp_path / "o"
     events = list(Pipeline(cfg, out).run())
     assert events[-1].stage == "done"
@@ -210,14 +215,11 @@ def test_debug_output_and_annotations(tmp_path):
     cfg = C.default_config()
     cfg.structured_light.enabled = True
     cfg.structured_light.debug = True
-    cfg.scene.num_renders = 1
-    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1
+    one_render(cfg)
     cfg.camera.resolution = [160, 120]
     cfg.structured_light.periods = [1, 4, 32]    # ~5 camera px per finest period at 160 px
     cfg.render.samples = 2
     cfg.render.threads = 2
-    for o in cfg.objects:
-        o.min_instances = o.max_instances = 1
     out = tmp_path / "o"
     events = list(Pipeline(cfg, out).run())
     assert events[-1].stage == "done"
