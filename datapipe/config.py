@@ -29,7 +29,9 @@ SCHEMA_VERSION = 1
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 OUTPUT_KINDS = ("rgb", "depth", "normals", "mask")
 FORMATS = ("native", "bop")
-COLLISION_SHAPES = ("MESH", "CONVEX_HULL", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "CONE")
+# AUTO: DECOMPOSED for clearly concave meshes, else CONVEX_HULL. DECOMPOSED and MESH: a compound of
+# convex pieces (Blender's moving triangle meshes threw concave parts out; see core/collision.py)
+COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "CONE")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency")
 MAX_RESOLUTION = 8192
@@ -59,7 +61,7 @@ class ObjectEntry:
     filepath: str = ""
     scale: float = 1.0                 # file units -> metres
     mass: float = 0.05                 # kg per instance
-    collision_shape: str = "CONVEX_HULL"
+    collision_shape: str = "AUTO"      # see COLLISION_SHAPES
     min_instances: int = 1
     max_instances: int = 2
     friction: float = 0.5
@@ -126,11 +128,14 @@ class RenderConfig:
 
 @dataclass
 class SimulationConfig:
-    substeps: int = 10                 # rigid-body substeps per frame
+    substeps: int = 10                 # rigid-body substeps per frame, at least; more per scene when
+                                       # the thinnest part or wall would be crossed in one substep
+    max_substeps: int = 100            # ... at most (a scene that needs more reports it)
     solver_iterations: int = 10
     max_frames: int = 200              # hard cap on simulated frames (24 fps)
-    settle_speed: float = 0.005        # m/s: a body below this ...
-    settle_frames: int = 5             # ... for this many consecutive frames is at rest
+    settle_speed: float = 0.005        # m/s: a body below this (and below 20% of its size per s) ...
+    settle_frames: int = 5             # ... for this many consecutive frames, and at least 0.5 s
+                                       # with < 1 mm motion (10% of its size if smaller), is at rest
     layer_gap: float = 0.005           # m between spawn layers
 
 
@@ -451,6 +456,9 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
     m = cfg.simulation
     if m.substeps < 1:
         add("simulation.substeps", f"must be >= 1, got {m.substeps}", "give at least 1 substep")
+    if m.max_substeps < m.substeps:
+        add("simulation.max_substeps", f"must be >= simulation.substeps ({m.substeps}), got {m.max_substeps}",
+            "give a maximum at least as large as the minimum")
     if m.solver_iterations < 1:
         add("simulation.solver_iterations", f"must be >= 1, got {m.solver_iterations}", "give at least 1 iteration")
     if m.max_frames < 1:

@@ -28,10 +28,19 @@ Instances
     within the scene), with unique pass_index 1..n, a uniformly random orientation, placed on a
     grid of bounding spheres inside the drop zone's footprint in layers from the zone's centre
     upward (spheres never overlap), and an ACTIVE rigid body (the entry's mass, friction,
-    restitution and collision shape; an explicit 0.5 mm collision margin, since Blender's default
-    0.04 m is larger than small parts). They live in "datapipe_objects". `populate()` first
+    restitution and collision shape; an explicit collision margin of 4% of the part's thinnest
+    width, at most 0.5 mm: Blender's default 0.04 m is larger than small parts, and a fixed 0.5 mm
+    left a visible gap around a 2.4 mm peg). They live in "datapipe_objects". `populate()` first
     clears the previous scene's instances; `clear()` deletes them; the templates (and their mesh
     data) stay.
+
+Collision shapes (see core/collision.py)
+    AUTO (the default) is DECOMPOSED for a clearly concave mesh (it fills less than 70% of its
+    convex hull), else CONVEX_HULL. DECOMPOSED, and MESH (Blender's triangle-mesh shape for moving
+    parts threw concave parts out of the bin), simulate the part as a COMPOUND rigid body: one
+    hidden, non-rendering child object per convex piece of the template's CoACD decomposition
+    (cached on disk), parented to the instance, in the collection "datapipe_collision". Cost: the
+    decomposition once per mesh (seconds, then cached) and one child body per piece.
 
 Centre of mass
     Blender's rigid bodies put the centre of mass at the object origin. Each template mesh stores
@@ -52,15 +61,19 @@ from mathutils import Matrix, Quaternion, Vector
 
 from ..config import Config
 from ..errors import DataPipeError
+from . import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection
 
 TEMPLATES_COLLECTION = "datapipe_templates"
 OBJECTS_COLLECTION = "datapipe_objects"
+COLLISION_COLLECTION = "datapipe_collision"
 TEMPLATE_PREFIX = "datapipe_template_"
 COM_PROP = "datapipe_com"             # template mesh custom property: centre of mass, model coords
 SIM_MESH_PROP = "datapipe_sim_mesh"   # template mesh custom property: copy re-centred on the COM
 COM_TOLERANCE = 1e-5                  # m; closer than this the model origin is used as is
-COLLISION_MARGIN = 0.0005  # m; Blender's default 0.04 m margin is larger than the parts themselves
+COLLISION_MARGIN = 0.0005  # m, the largest margin; Blender's default 0.04 m is larger than small parts
+MARGIN_FRACTION = 0.04     # margin = this x the part's thinnest width (up to COLLISION_MARGIN)
+DECOMPOSED_SHAPES = ("DECOMPOSED", "MESH")   # simulated as a compound of convex pieces
 
 _IMPORTERS = {
     ".obj": "obj",
@@ -79,6 +92,9 @@ class Instance:
     name: str                  # f"{entry_name}_{k:03d}"
     filename: str              # the source mesh file (absolute path)
     mask_index: int            # = obj.pass_index, 1..n within the scene
+    thin: float = 0.0          # thinnest width of its collision shape (m)
+    size: float = 0.0          # largest bounding-box extent (m)
+    shape: str = "CONVEX_HULL"  # the collision shape simulated (AUTO resolved; DECOMPOSED for MESH)
 
 
 @dataclass
@@ -87,6 +103,10 @@ class _Template:
     center: np.ndarray         # bounding-box centre, model coordinates (m)
     radius: float              # bounding-sphere radius about `center` (m)
     com: np.ndarray            # centre of mass (uniform density), model coordinates (m)
+    shape: str = "CONVEX_HULL"  # resolved collision shape (AUTO -> DECOMPOSED or CONVEX_HULL)
+    thin: float = 0.0          # thinnest width of the collision shape (m)
+    size: float = 0.0          # largest bounding-box extent (m)
+    pieces: tuple = ()         # DECOMPOSED: one mesh per convex piece, in the simulation frame
 
 
 def _run_importer(kind: str, path: str) -> None:
@@ -122,6 +142,8 @@ class ObjectManager:
         self.instances: list[Instance] = []
         self.templates_collection: bpy.types.Collection | None = None
         self.collection: bpy.types.Collection | None = None
+        self.collision_collection: bpy.types.Collection | None = None
+        self.decomposed_from_cache = 0    # decompositions read from the disk cache (rest computed)
 
     @property
     def scene(self) -> bpy.types.Scene:
@@ -144,6 +166,8 @@ class ObjectManager:
         self.templates_collection = self._collection(TEMPLATES_COLLECTION)
         self.templates_collection.hide_render = True
         self.collection = self._collection(OBJECTS_COLLECTION)
+        self.collision_collection = self._collection(COLLISION_COLLECTION)
+        self.collision_collection.hide_render = True
         self.templates = []
         by_file: dict[str, bpy.types.Object] = {}        # file -> its import, at the file's scale
         for i, entry in enumerate(self.cfg.objects):
@@ -293,7 +317,35 @@ class ObjectManager:
             sim.transform(Matrix.Translation(Vector((-com).tolist())))
             sim.update()
             me[SIM_MESH_PROP] = sim
-        return _Template(obj=obj, center=center, radius=radius, com=com)
+        tpl = _Template(obj=obj, center=center, radius=radius, com=com, size=float(np.ptp(pts, axis=0).max()))
+        self._collision_shape(i, tpl)
+        return tpl
+
+    def _collision_shape(self, i: int, tpl: _Template) -> None:
+        """Resolve AUTO, decompose concave parts (DECOMPOSED/MESH) and measure the thinnest width."""
+        shape = self.cfg.objects[i].collision_shape
+        me = tpl.obj.data
+        verts, tris, _ = self.model_mesh_of(me)
+        if shape == "AUTO":
+            shape = "DECOMPOSED" if collision.is_clearly_concave(verts, tris) else "CONVEX_HULL"
+        tpl.shape = "DECOMPOSED" if shape in DECOMPOSED_SHAPES else shape
+        if tpl.shape == "DECOMPOSED":
+            pieces, cached = collision.decompose(verts, tris)
+            self.decomposed_from_cache += int(cached)
+            # the pieces move with the simulated mesh: re-centred on the centre of mass if that is
+            shift = tpl.com if me.get(SIM_MESH_PROP) is not None else np.zeros(3)
+            meshes = []
+            for k, (pv, pf) in enumerate(pieces):
+                pm = bpy.data.meshes.new(f"{tpl.obj.name}_piece{k:02d}")
+                pm.from_pydata((pv - shift).tolist(), [], pf.tolist())
+                pm.update()
+                meshes.append(pm)
+            tpl.pieces = tuple(meshes)
+            tpl.thin = min(collision.min_width(pv) for pv, _ in pieces)
+        elif tpl.shape == "CONVEX_HULL":
+            tpl.thin = collision.min_width(verts)
+        else:                                   # primitives fit the bounding box
+            tpl.thin = float(np.ptp(verts, axis=0).min())
 
     # -- model data for annotations ---------------------------------------------------------------
     def model_points(self, entry_index: int) -> np.ndarray:
@@ -302,7 +354,10 @@ class ObjectManager:
 
     def model_mesh(self, entry_index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(verts (V,3) float64, triangles (F,3) int64, vertex normals (V,3) float64), model frame."""
-        me = self.templates[entry_index].obj.data
+        return self.model_mesh_of(self.templates[entry_index].obj.data)
+
+    @staticmethod
+    def model_mesh_of(me: bpy.types.Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         verts = _vertices(me)
         me.calc_loop_triangles()
         tris = np.zeros(len(me.loop_triangles) * 3, dtype=np.int32)
@@ -357,12 +412,33 @@ class ObjectManager:
             rb.mass = float(entry.mass)
             rb.friction = float(entry.friction)
             rb.restitution = float(entry.restitution)
-            rb.collision_shape = entry.collision_shape
+            tpl = self.templates[inst.entry_index]
+            margin = part_margin(tpl.thin)
+            rb.collision_shape = 'COMPOUND' if tpl.pieces else tpl.shape
             rb.mesh_source = 'BASE'
             rb.use_margin = True
-            rb.collision_margin = COLLISION_MARGIN
+            rb.collision_margin = margin
+            inst.thin, inst.size, inst.shape = tpl.thin, tpl.size, tpl.shape
+            for k, pm in enumerate(tpl.pieces):
+                self._add_piece(inst, k, pm, margin)
         self.instances = instances
         return list(instances)
+
+    def _add_piece(self, inst: Instance, k: int, mesh: bpy.types.Mesh, margin: float) -> None:
+        """One convex piece of a DECOMPOSED part: a hidden child whose local transform is the
+        identity (its mesh is already in the parent's simulation frame)."""
+        child = bpy.data.objects.new(f"{inst.name}_piece{k:02d}", mesh)
+        child.hide_render = True
+        child.display_type = 'WIRE'
+        self.collision_collection.objects.link(child)
+        child.parent = inst.obj
+        child.matrix_parent_inverse = Matrix.Identity(4)
+        bpy.context.view_layer.update()
+        rb = add_rigid_body(child, 'ACTIVE')
+        rb.collision_shape = 'CONVEX_HULL'
+        rb.mesh_source = 'BASE'
+        rb.use_margin = True
+        rb.collision_margin = margin
 
     def _place(self, radii: list[float], rng: np.random.Generator) -> list[np.ndarray]:
         """Sphere centres: a grid over the zone's footprint (minus the radius), layer upon layer from
@@ -403,11 +479,18 @@ class ObjectManager:
                 continue
             bpy.data.objects.remove(obj, do_unlink=True)
         self.instances = []
-        if self.collection is not None:             # anything else left in the instances collection
-            for obj in list(self.collection.objects):
-                bpy.data.objects.remove(obj, do_unlink=True)
+        for coll in (self.collision_collection, self.collection):   # pieces, anything else left
+            if coll is not None:
+                for obj in list(coll.objects):
+                    bpy.data.objects.remove(obj, do_unlink=True)
 
 
+
+
+def part_margin(thin: float) -> float:
+    """Collision margin of a part whose thinnest width is `thin`: MARGIN_FRACTION of it, at most
+    COLLISION_MARGIN, at least 0.01 mm (Bullet needs a non-zero margin)."""
+    return float(min(COLLISION_MARGIN, max(1e-5, MARGIN_FRACTION * thin)))
 
 
 def _vertices(me: bpy.types.Mesh) -> np.ndarray:

@@ -2,25 +2,37 @@
 
 `Simulation(cfg, blend_scene).run(instances, rng)`:
 
-1. configures the scene's rigid-body world (substeps, solver iterations, point cache frames
+1. chooses the substeps for this scene (`plan_substeps`): a part falling from the highest spawn
+   point hits at v = sqrt(2 g h); one substep may move it at most half the thinnest thing it could
+   pass through (the thinnest part's collision shape, the bin's wall/floor thickness), so
+   substeps = ceil(v * frame_time / (0.5 * thinnest)), at least `simulation.substeps`, at most
+   `simulation.max_substeps` (`substeps_capped` says when the cap was hit);
+2. configures the scene's rigid-body world (substeps, solver iterations, point cache frames
    1 .. 1 + max_frames) and resets its cache, so a scene never replays or continues the previous
    scene's simulation (the same instances and poses give the same result whatever ran before);
-2. steps frames in order with `scene.frame_set(f)`; after each frame the speed of a body is the
-   largest displacement of its bounding-box corners divided by the frame time (so spinning
-   counts too); it stops early when every body is either at rest (speed < settle_speed for
-   settle_frames consecutive frames) or already below the floor (gone for good), else after
-   max_frames frames;
-3. reads each body's evaluated world matrix, deletes the parts that left the bin (centre of their
+3. steps frames in order with `scene.frame_set(f)`. A body is at rest when its linear speed (of
+   its centre) and its angular speed times its radius both stay below min(settle_speed, 20% of
+   its size per second) for `settle_frames` frames and at least 0.5 s, and it moved less than
+   min(1 mm, 10% of its size) over that window: the rest is confirmed, not a momentary slow-down.
+   It stops when every body is at rest or gone for good (below the floor, or outside the walls
+   below their top), else after max_frames frames: the bodies still moving are then reported in
+   `unsettled`, never silently frozen;
+4. reads each body's evaluated world matrix, deletes the parts that left the bin (centre of their
    world bounding box outside the zone's footprint: "left the bin") or fell through the floor
    (below floor_z - margin: "fell through the floor"), and freezes the others: their rigid body is
-   removed, their matrix_world set to the final pose, the world's cache freed and the world
-   disabled, so rendering at any frame shows exactly these poses.
+   removed (and the convex pieces of decomposed parts deleted), their matrix_world set to the
+   final pose, the world's cache freed and the world disabled, so rendering at any frame shows
+   exactly these poses;
+5. measures the frozen result independently (`datapipe.physics_check`): interpenetrating pairs,
+   parts under the floor, floating parts.
 
 `rng` is accepted for the contract but not drawn from: Bullet is deterministic for a given
 initial state, which `ObjectManager.populate(rng)` already fixed.
 """
 from __future__ import annotations
 
+import math
+import time
 from dataclasses import dataclass, field
 
 import bpy
@@ -28,21 +40,96 @@ import numpy as np
 from mathutils import Matrix
 
 from ..config import Config
-from .objects import COM_PROP, SIM_MESH_PROP, Instance
+from ..physics_check import Part, SceneCheck, check_scene
+from .objects import COM_PROP, SIM_MESH_PROP, Instance, ObjectManager
 from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_body
 
 FRAME_START = 1
 LEFT_BIN = "left the bin"
 FELL_THROUGH = "fell through the floor"
+GRAVITY = 9.81                 # m/s^2
+SUBSTEP_FRACTION = 0.5         # one substep moves a part at most this x the thinnest width
+SETTLE_RELATIVE = 0.2          # at rest: speed below this x the part's size per second ...
+SETTLE_CONFIRM_S = 0.5         # ... for at least this long, moving less than ...
+SETTLE_MOTION = 0.001          # ... this (m) ...
+SETTLE_MOTION_RELATIVE = 0.1   # ... or this x its size if that is smaller
+
+
+@dataclass
+class SubstepPlan:
+    substeps: int
+    impact_speed: float        # m/s, from the highest spawn point
+    thinnest: float            # m, the thinnest part width or wall the substeps guard
+    capped: bool               # the rule asked for more than simulation.max_substeps
 
 
 @dataclass
 class SimResult:
     frames: int                                   # frames simulated (<= cfg.simulation.max_frames)
-    settled: bool                                 # every remaining body came to rest
+    settled: bool                                 # every remaining body came to rest (confirmed)
     kept: list[Instance]                          # still in the bin; matrix_world = final pose
     removed: list[tuple[Instance, str]]           # deleted from the scene, with the reason
     poses: dict[str, np.ndarray] = field(default_factory=dict)   # name -> final 4x4 world pose (kept)
+    unsettled: list[tuple[str, float]] = field(default_factory=list)  # kept, still moving: (name, m/s)
+    plan: SubstepPlan | None = None
+    check: SceneCheck | None = None               # independent check of the frozen result
+    seconds: float = 0.0                          # wall time of the simulation (without the check)
+
+    def summary(self) -> dict:
+        """What scene.json and the progress line report about the drop (lengths in mm)."""
+        c = self.check
+        out = {
+            "frames": self.frames, "settled": self.settled,
+            "substeps": self.plan.substeps if self.plan else None,
+            "substeps_capped": bool(self.plan and self.plan.capped),
+            "impact_speed": round(self.plan.impact_speed, 4) if self.plan else None,
+            "removed": [{"name": inst.name, "reason": why} for inst, why in self.removed],
+            "unsettled": [{"name": n, "speed": round(v, 5)} for n, v in self.unsettled],
+            "seconds": round(self.seconds, 3),
+        }
+        if c is not None:
+            out.update({
+                "max_interpenetration_mm": round(c.max_depth * 1000, 3),
+                "interpenetrating_pairs": [{"a": a, "b": b, "depth_mm": round(d * 1000, 3)} for a, b, d in c.pairs],
+                "below_floor": [{"name": n, "depth_mm": round(d * 1000, 3)} for n, d in c.below_floor],
+                "floating": [{"name": n, "gap_mm": round(g * 1000, 3)} for n, g in c.floating],
+            })
+        return out
+
+    def short(self) -> str:
+        """One progress-line fragment: '9 parts, 3 removed (left the bin), 1 unsettled, 64 frames'."""
+        bits = [f"{len(self.kept)} parts"]
+        if self.removed:
+            why = sorted({w for _, w in self.removed})
+            bits.append(f"{len(self.removed)} removed ({', '.join(why)})")
+        if not self.settled:
+            bits.append(f"{len(self.unsettled)} unsettled")
+        if self.check is not None and self.check.pairs:
+            bits.append(f"{len(self.check.pairs)} interpenetrating (max {self.check.max_depth * 1000:.1f} mm)")
+        bits.append(f"{self.frames} frames x {self.plan.substeps if self.plan else '?'} substeps")
+        return ", ".join(bits)
+
+
+def plan_substeps(cfg: Config, bs: BlendScene, instances: list[Instance], frame_time: float) -> SubstepPlan:
+    """Substeps so that a part at its impact speed moves at most SUBSTEP_FRACTION x the thinnest
+    part (or the wall/floor) per substep."""
+    sim = cfg.simulation
+    if not instances:
+        return SubstepPlan(int(sim.substeps), 0.0, 0.0, False)
+    lowest = []
+    for inst in instances:
+        M = np.array(inst.obj.matrix_world, dtype=np.float64)
+        c = np.array([tuple(v) for v in inst.obj.bound_box], dtype=np.float64) @ M[:3, :3].T + M[:3, 3]
+        lowest.append(float(c[:, 2].min()))
+    h = max(0.0, max(lowest) - bs.floor_z)
+    thin = min(inst.thin for inst in instances if inst.thin > 0) if any(i.thin > 0 for i in instances) else 0.0
+    wall = float(cfg.scene.bin_wall_thickness)
+    thinnest = min(x for x in (thin, wall) if x > 0)
+    v = math.sqrt(2 * GRAVITY * h)
+    need = math.ceil(v * frame_time / (SUBSTEP_FRACTION * thinnest)) if thinnest > 0 else 1
+    n = max(int(sim.substeps), need)
+    capped = n > int(sim.max_substeps)
+    return SubstepPlan(min(n, int(sim.max_substeps)), v, thinnest, capped)
 
 
 class Simulation:
@@ -50,63 +137,39 @@ class Simulation:
         self.cfg = cfg
         self.blend_scene = blend_scene
         self.margin = INSIDE_MARGIN
+        self._meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}   # mesh name -> (verts, tris)
 
-    def _configure_world(self) -> bpy.types.RigidBodyWorld:
+    def _configure_world(self, substeps: int) -> bpy.types.RigidBodyWorld:
         sim = self.cfg.simulation
         scene = self.blend_scene.scene
         rbw = ensure_rigidbody_world(scene)
         rbw.enabled = True
         rbw.time_scale = 1.0
         # each of these assignments resets the world's cache (rna update), even with equal values
-        rbw.substeps_per_frame = int(sim.substeps)
+        rbw.substeps_per_frame = int(substeps)
         rbw.solver_iterations = int(sim.solver_iterations)
         rbw.point_cache.frame_start = FRAME_START
         rbw.point_cache.frame_end = FRAME_START + int(sim.max_frames)
         return rbw
 
     def run(self, instances: list[Instance], rng: np.random.Generator | None = None) -> SimResult:
-        sim = self.cfg.simulation
-        bs = self.blend_scene
-        scene = bs.scene
+        t0 = time.perf_counter()
+        scene = self.blend_scene.scene
+        dt = scene.render.fps_base / scene.render.fps
+        plan = plan_substeps(self.cfg, self.blend_scene, instances, dt)
+        # model-frame bounding boxes, read before the simulation swaps in re-centred meshes
         corners = [np.array([tuple(c) for c in inst.obj.bound_box], dtype=np.float64) for inst in instances]
         offsets = [self._use_com_mesh(inst) for inst in instances]   # T_sim_model per instance
-        rbw = self._configure_world()
+        rbw = self._configure_world(plan.substeps)
         scene.frame_set(FRAME_START)               # back to the initial state: Bullet world rebuilt
-        dt = scene.render.fps_base / scene.render.fps
-
-        def world_state():
-            """Model-frame world poses and world bounding-box corners of every instance."""
-            dg = bpy.context.evaluated_depsgraph_get()
-            mats = [np.array(inst.obj.evaluated_get(dg).matrix_world, dtype=np.float64) @ off
-                    for inst, off in zip(instances, offsets)]
-            pts = [c @ M[:3, :3].T + M[:3, 3] for c, M in zip(corners, mats)]
-            return mats, pts
-
-        mats, prev = world_state()
-        still = np.zeros(len(instances), dtype=int)
-        frames, settled = 0, len(instances) == 0
-        for k in range(1, int(sim.max_frames) + 1):
-            scene.frame_set(FRAME_START + k)
-            frames = k
-            mats, pts = world_state()
-            done = True
-            for j, (p0, p1) in enumerate(zip(prev, pts)):
-                speed = float(np.linalg.norm(p1 - p0, axis=1).max()) / dt
-                still[j] = still[j] + 1 if speed < sim.settle_speed else 0
-                gone = p1.mean(axis=0)[2] < bs.floor_z - self.margin
-                if not (gone or still[j] >= sim.settle_frames):
-                    done = False
-            prev = pts
-            if done:
-                settled = True
-                break
+        frames, settled, mats, unsettled = self._step(instances, offsets, corners, dt)
 
         kept: list[Instance] = []
         removed: list[tuple[Instance, str]] = []
         poses: dict[str, np.ndarray] = {}
-        for inst, M, p in zip(instances, mats, prev):
-            lo, hi = p.min(axis=0), p.max(axis=0)
-            centre = (lo + hi) / 2
+        bs = self.blend_scene
+        for inst, M, c in zip(instances, mats, corners):
+            centre = (c @ M[:3, :3].T + M[:3, 3]).mean(axis=0)
             if not bs.inside_footprint(centre, self.margin):
                 removed.append((inst, LEFT_BIN))
             elif centre[2] < bs.floor_z - self.margin:
@@ -114,10 +177,89 @@ class Simulation:
             else:
                 kept.append(inst)
                 poses[inst.name] = M
+        gone = {inst.name for inst, _ in removed}
+        unsettled = [(n, v) for n, v in unsettled if n not in gone]
         for inst, _ in removed:
-            bpy.data.objects.remove(inst.obj, do_unlink=True)
+            _delete_with_pieces(inst.obj)
         self._freeze(kept, poses, rbw)
-        return SimResult(frames=frames, settled=settled, kept=kept, removed=removed, poses=poses)
+        seconds = time.perf_counter() - t0
+        res = SimResult(frames=frames, settled=settled and not unsettled, kept=kept, removed=removed,
+                        poses=poses, unsettled=unsettled, plan=plan, seconds=seconds)
+        res.check = self.check(kept, poses)
+        return res
+
+
+    def _step(self, instances: list[Instance], offsets: list[np.ndarray], corners: list[np.ndarray], dt: float):
+        """Step until every body is at rest (confirmed) or gone, or max_frames. Returns (frames,
+        settled, model-frame world poses, [(name, speed m/s)] of the bodies still moving)."""
+        sim = self.cfg.simulation
+        scene = self.blend_scene.scene
+        n = len(instances)
+        sizes = np.array([max(inst.size, 1e-4) if inst.size else
+                          float(np.ptp(c, axis=0).max()) for inst, c in zip(instances, corners)])
+        radius = sizes / 2
+        v_max = np.minimum(float(sim.settle_speed), SETTLE_RELATIVE * sizes)
+        motion = np.minimum(SETTLE_MOTION, SETTLE_MOTION_RELATIVE * sizes)
+        window = max(int(sim.settle_frames), math.ceil(SETTLE_CONFIRM_S / dt - 1e-9))
+
+        def state():
+            dg = bpy.context.evaluated_depsgraph_get()
+            mats = [np.array(inst.obj.evaluated_get(dg).matrix_world, dtype=np.float64) @ off
+                    for inst, off in zip(instances, offsets)]
+            return mats, [c @ M[:3, :3].T + M[:3, 3] for c, M in zip(corners, mats)]
+
+        mats, pts = state()
+        still = np.zeros(n, dtype=int)
+        anchor = list(pts)                     # corners when the current rest run began
+        speed = np.zeros(n)
+        frames, settled = 0, n == 0
+        for k in range(1, int(sim.max_frames) + 1):
+            scene.frame_set(FRAME_START + k)
+            frames = k
+            prev_mats = mats
+            mats, new = state()
+            done = True
+            for j in range(n):
+                lin = float(np.linalg.norm(mats[j][:3, 3] - prev_mats[j][:3, 3])) / dt
+                R = prev_mats[j][:3, :3].T @ mats[j][:3, :3]
+                ang = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))) / dt
+                speed[j] = max(lin, ang * radius[j])
+                if speed[j] < v_max[j] and np.linalg.norm(new[j] - anchor[j], axis=1).max() < motion[j]:
+                    still[j] += 1
+                else:
+                    still[j], anchor[j] = 0, new[j]
+                if not (self._gone(new[j]) or still[j] >= window):
+                    done = False
+            pts = new
+            if done:
+                settled = True
+                break
+        moving = [(inst.name, float(speed[j])) for j, inst in enumerate(instances)
+                  if not (self._gone(pts[j]) or still[j] >= window)]
+        return frames, settled, mats, moving
+
+    def _gone(self, corners: np.ndarray) -> bool:
+        """Below the floor, or outside the walls and below their top: it cannot come back."""
+        bs = self.blend_scene
+        c = corners.mean(axis=0)
+        if c[2] < bs.floor_z - self.margin:
+            return True
+        return bool(self.cfg.scene.make_bin and not bs.inside_footprint(c, self.margin)
+                    and corners[:, 2].max() < bs.top_z)
+
+    def check(self, kept: list[Instance], poses: dict[str, np.ndarray]) -> SceneCheck:
+        """Independent check of the frozen result (model meshes at the final poses)."""
+        parts = []
+        for inst in kept:
+            me = inst.obj.data
+            if me.name not in self._meshes:
+                v, t, _ = ObjectManager.model_mesh_of(me)
+                self._meshes[me.name] = (v, t)
+            v, t = self._meshes[me.name]
+            parts.append(Part(inst.name, v, t, poses[inst.name]))
+        bs = self.blend_scene
+        walls = (bs.drop_zone_center, bs.drop_zone_half) if self.cfg.scene.make_bin else None
+        return check_scene(parts, bs.floor_z, walls)
 
     @staticmethod
     def _use_com_mesh(inst: Instance) -> np.ndarray:
@@ -140,6 +282,8 @@ class Simulation:
     def _freeze(self, kept: list[Instance], poses: dict[str, np.ndarray], rbw) -> None:
         scene = self.blend_scene.scene
         for inst in kept:
+            for child in list(inst.obj.children):  # convex pieces of a decomposed part
+                bpy.data.objects.remove(child, do_unlink=True)
             remove_rigid_body(inst.obj)
             model_mesh = inst.obj.get("datapipe_model_mesh")
             if model_mesh is not None:             # back to the template's mesh (model frame)
@@ -153,3 +297,9 @@ class Simulation:
         bpy.context.view_layer.update()
         for inst in kept:                          # report exactly what will be rendered
             poses[inst.name] = np.array(inst.obj.matrix_world, dtype=np.float64)
+
+
+def _delete_with_pieces(obj: bpy.types.Object) -> None:
+    for child in list(obj.children):
+        bpy.data.objects.remove(child, do_unlink=True)
+    bpy.data.objects.remove(obj, do_unlink=True)

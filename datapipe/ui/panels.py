@@ -116,7 +116,8 @@ class DATAPIPE_PT_simulation(_DataPipePanel, Panel):
         layout.use_property_decorate = False
         m = _props(context).simulation
         col = layout.column(align=True)
-        for name in ("substeps", "solver_iterations", "max_frames", "settle_speed", "settle_frames", "layer_gap"):
+        for name in ("substeps", "max_substeps", "solver_iterations", "max_frames", "settle_speed", "settle_frames",
+                     "layer_gap"):
             col.prop(m, name)
 
 

@@ -119,8 +119,11 @@ _M = C.SimulationConfig
 
 
 class DATAPIPE_PG_simulation(PropertyGroup):
-    substeps: IntProperty(name="Substeps", description="Rigid-body substeps per frame",
+    substeps: IntProperty(name="Substeps", description="Rigid-body substeps per frame, at least (more per scene "
+                          "when a part could cross the thinnest part or wall in one substep)",
                           default=default(_M, "substeps"), min=1, soft_max=100)
+    max_substeps: IntProperty(name="Max Substeps", description="Rigid-body substeps per frame, at most",
+                              default=default(_M, "max_substeps"), min=1, soft_max=1000)
     solver_iterations: IntProperty(name="Solver Iterations", description="Rigid-body constraint solver iterations",
                                    default=default(_M, "solver_iterations"), min=1, soft_max=100)
     max_frames: IntProperty(name="Max Frames", description="Hard cap on simulated frames per scene (24 fps)",

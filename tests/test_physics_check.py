@@ -1,0 +1,73 @@
+"""The independent scene check (no bpy) against analytic geometry: boxes whose overlap, gaps and
+floor depth are known exactly."""
+import numpy as np
+import pytest
+
+from datapipe.physics_check import Part, check_scene, point_triangle_distance, winding_number
+
+
+def box(half):
+    hx, hy, hz = half
+    v = np.array([(x, y, z) for x in (-hx, hx) for y in (-hy, hy) for z in (-hz, hz)], dtype=float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    tris = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    return v, np.array(tris)
+
+
+def pose(t, angle=0.0):
+    T = np.eye(4)
+    c, s = np.cos(angle), np.sin(angle)
+    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    T[:3, 3] = t
+    return T
+
+
+def test_winding_number_and_distance_of_a_box():
+    v, f = box((0.01, 0.02, 0.03))
+    P = np.array([[0, 0, 0], [0.009, 0.0, 0.0], [0.011, 0, 0], [0.05, 0.05, 0.05]])
+    w = winding_number(P, v[f])
+    assert np.allclose(w, [1, 1, 0, 0], atol=1e-9)
+    d = point_triangle_distance(P, v[f])
+    assert d == pytest.approx([0.01, 0.001, 0.001, np.linalg.norm([0.04, 0.03, 0.02])], abs=1e-12)
+
+
+@pytest.mark.parametrize("overlap", [0.0003, 0.002])
+def test_overlapping_boxes_give_the_overlap_depth(overlap):
+    v, f = box((0.01, 0.01, 0.005))
+    a = Part("a", v, f, pose([0, 0, 0.005]))
+    b = Part("b", v, f, pose([0.02 - overlap, 0.003, 0.005], angle=0.0))
+    res = check_scene([a, b], floor_z=0.0)
+    assert res.max_depth == pytest.approx(overlap, abs=1e-9)
+    assert (len(res.pairs) == 1) == (overlap > 0.0005)
+    assert not res.floating and not res.below_floor
+
+
+def test_rotated_box_corner_into_another():
+    v, f = box((0.01, 0.01, 0.005))
+    a = Part("a", v, f, pose([0, 0, 0.005]))
+    d = 0.01 * np.sqrt(2)                      # half diagonal of the 45-degree box
+    b = Part("b", v, f, pose([0.01 + d - 0.001, 0, 0.005], angle=np.pi / 4))   # its corner 1 mm in
+    res = check_scene([a, b], floor_z=0.0)
+    assert res.max_depth == pytest.approx(0.001, abs=1e-6)
+
+
+def test_floating_and_below_floor():
+    v, f = box((0.01, 0.01, 0.005))
+    parts = [Part("rest", v, f, pose([0, 0, 0.005])),
+             Part("float", v, f, pose([0.1, 0, 0.005 + 0.003])),      # 3 mm above the floor
+             Part("sunk", v, f, pose([-0.1, 0, 0.005 - 0.001])),      # 1 mm into the floor
+             Part("stacked", v, f, pose([0.0, 0, 0.0151]))]            # 0.1 mm above "rest"
+    res = check_scene(parts, floor_z=0.0)
+    assert [n for n, _ in res.floating] == ["float"]
+    assert res.floating[0][1] == pytest.approx(0.003, abs=1e-9)
+    assert [n for n, _ in res.below_floor] == ["sunk"]
+    assert res.below_floor[0][1] == pytest.approx(0.001, abs=1e-9)
+
+
+def test_leaning_on_a_wall_is_not_floating():
+    v, f = box((0.01, 0.01, 0.005))
+    p = Part("p", v, f, pose([0.09, 0, 0.02]))          # 15 mm up, touching the wall at x = 0.1
+    res = check_scene([p], floor_z=0.0, walls=(np.zeros(3), np.array([0.1, 0.1, 0.1])))
+    assert not res.floating
+    res = check_scene([p], floor_z=0.0)
+    assert res.floating and res.floating[0][1] == pytest.approx(0.015, abs=1e-9)
