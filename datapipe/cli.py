@@ -64,6 +64,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "validate":
             cfg = config_mod.load(args.preset)
             cfg.validate()
+            from .part_fit import part_fit_warnings
+            for w in part_fit_warnings(cfg):
+                print(f"datapipe: warning: {w}", file=sys.stderr)
             print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
                   f"{len(cfg.camera.poses)} camera poses, structured light "
                   f"{'on' if cfg.structured_light.enabled else 'off'})")

@@ -137,6 +137,9 @@ class SimulationConfig:
     settle_frames: int = 5             # ... for this many consecutive frames, and at least 0.5 s
                                        # with < 1 mm motion (10% of its size if smaller), is at rest
     layer_gap: float = 0.005           # m between spawn layers
+    redraw_lost_share: float = 1.0     # redraw a scene when more than this share of its parts is lost
+                                       # (left the bin / fell through); 1.0: never
+    redraw_attempts: int = 2           # ... at most this many times (each from its own derived seed)
 
 
 @dataclass
@@ -284,6 +287,15 @@ def _join(path: str, key: str) -> str:
 
 # ------------------------------------------------------------------------------------------------
 # validation
+
+def _check_redraw(m: SimulationConfig, add) -> None:
+    if not (math.isfinite(m.redraw_lost_share) and 0.0 <= m.redraw_lost_share <= 1.0):
+        add("simulation.redraw_lost_share", f"must be in [0, 1], got {m.redraw_lost_share}",
+            "give a share of parts between 0 and 1 (1 never redraws)")
+    if not 0 <= m.redraw_attempts <= 10:
+        add("simulation.redraw_attempts", f"must be in 0..10, got {m.redraw_attempts}",
+            "give a small number of retries (each costs one more simulation)")
+
 
 def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
     """Every problem at once, each with its field path and the fix. Empty list = valid."""
@@ -468,6 +480,7 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
         add("simulation.settle_frames", f"must be >= 1, got {m.settle_frames}", "give at least 1 frame")
     if m.layer_gap < 0:
         add("simulation.layer_gap", f"must be >= 0, got {m.layer_gap}", "give a gap >= 0 m")
+    _check_redraw(m, add)
 
     o = cfg.output
     if not o.path:

@@ -71,3 +71,22 @@ def test_leaning_on_a_wall_is_not_floating():
     assert not res.floating
     res = check_scene([p], floor_z=0.0)
     assert res.floating and res.floating[0][1] == pytest.approx(0.015, abs=1e-9)
+
+
+def test_part_fit_warns_for_a_part_larger_than_the_drop_zone(tmp_path):
+    from datapipe.config import ObjectEntry, default_config
+    from datapipe.part_fit import mesh_extent, part_fit_warnings
+    v, f = box((0.02, 0.01, 0.005))
+    p = tmp_path / "box.obj"
+    p.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(f"f {a+1} {b+1} {c+1}\n" for a, b, c in f))
+    stl = tmp_path / "box.stl"                       # binary STL of the same box
+    import struct
+    stl.write_bytes(b"\0" * 80 + struct.pack("<I", len(f)) + b"".join(
+        struct.pack("<12fH", 0, 0, 0, *v[a], *v[b], *v[c], 0) for a, b, c in f))
+    assert mesh_extent(p) == pytest.approx([0.04, 0.02, 0.01])
+    assert mesh_extent(stl) == pytest.approx([0.04, 0.02, 0.01])
+    cfg = default_config()                          # zone 0.3 x 0.2 x 0.2 m
+    assert part_fit_warnings(cfg) == []             # the demo parts fit
+    cfg.objects = [ObjectEntry(filepath=str(p), scale=1.0), ObjectEntry(filepath=str(stl), scale=5.0)]
+    w = part_fit_warnings(cfg)                      # 0.2 x 0.1 x 0.05 m: sphere 0.229 m > 0.2 m
+    assert len(w) == 1 and w[0].startswith("objects[1]:") and "drop_zone_scale" in w[0]

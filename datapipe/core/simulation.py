@@ -74,6 +74,7 @@ class SimResult:
     plan: SubstepPlan | None = None
     check: SceneCheck | None = None               # independent check of the frozen result
     seconds: float = 0.0                          # wall time of the simulation (without the check)
+    attempts: int = 1                             # drops made (> 1: redrawn, see drop_scene)
 
     def summary(self) -> dict:
         """What scene.json and the progress line report about the drop (lengths in mm)."""
@@ -86,6 +87,7 @@ class SimResult:
             "removed": [{"name": inst.name, "reason": why} for inst, why in self.removed],
             "unsettled": [{"name": n, "speed": round(v, 5)} for n, v in self.unsettled],
             "seconds": round(self.seconds, 3),
+            "attempts": self.attempts,
         }
         if c is not None:
             out.update({
@@ -107,7 +109,34 @@ class SimResult:
         if self.check is not None and self.check.pairs:
             bits.append(f"{len(self.check.pairs)} interpenetrating (max {self.check.max_depth * 1000:.1f} mm)")
         bits.append(f"{self.frames} frames x {self.plan.substeps if self.plan else '?'} substeps")
+        if self.attempts > 1:
+            bits.append(f"drop {self.attempts}")
         return ", ".join(bits)
+
+
+def redraw_rng(scene_seed: int, attempt: int) -> np.random.Generator:
+    """The generator of redraw `attempt` (1, 2, ...) of a scene: derived from the scene's seed only,
+    so a redrawn scene is the same in every run, shard and resume."""
+    return np.random.default_rng(np.random.SeedSequence([int(scene_seed) & 0xFFFFFFFF, 0x52445257, int(attempt)]))
+
+
+def drop_scene(objects: ObjectManager, simulation: "Simulation", rng: np.random.Generator,
+               scene_seed: int) -> tuple[SimResult, np.random.Generator]:
+    """Populate and simulate; when more than `simulation.redraw_lost_share` of the parts is lost,
+    draw the scene again from `redraw_rng(scene_seed, k)`, at most `simulation.redraw_attempts`
+    times. Returns the last drop's result and the generator it used (the scene draws on from it)."""
+    cfg = simulation.cfg.simulation
+    attempt = 0
+    while True:
+        insts = objects.populate(rng)
+        res = simulation.run(insts, rng)
+        res.attempts = attempt + 1
+        lost = len(res.removed) / max(1, len(insts))
+        if lost <= cfg.redraw_lost_share or attempt >= cfg.redraw_attempts:
+            return res, rng
+        attempt += 1
+        objects.clear()
+        rng = redraw_rng(scene_seed, attempt)
 
 
 def plan_substeps(cfg: Config, bs: BlendScene, instances: list[Instance], frame_time: float) -> SubstepPlan:

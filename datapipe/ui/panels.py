@@ -117,7 +117,7 @@ class DATAPIPE_PT_simulation(_DataPipePanel, Panel):
         m = _props(context).simulation
         col = layout.column(align=True)
         for name in ("substeps", "max_substeps", "solver_iterations", "max_frames", "settle_speed", "settle_frames",
-                     "layer_gap"):
+                     "layer_gap", "redraw_lost_share", "redraw_attempts"):
             col.prop(m, name)
 
 

@@ -137,6 +137,12 @@ class DATAPIPE_PG_simulation(PropertyGroup):
     layer_gap: FloatProperty(name="Layer Gap", description="Vertical gap between spawn layers of parts",
                              subtype="DISTANCE", unit="LENGTH", min=0.0, soft_max=0.1, precision=4,
                              default=default(_M, "layer_gap"))
+    redraw_lost_share: FloatProperty(
+        name="Redraw Above Lost Share", description="Redraw a scene (from a derived seed) when more than this "
+        "share of its parts left the bin or fell through the floor; 1 never redraws",
+        min=0.0, max=1.0, precision=2, default=default(_M, "redraw_lost_share"))
+    redraw_attempts: IntProperty(name="Redraw Attempts", description="Redraws per scene, at most",
+                                 min=0, max=10, default=default(_M, "redraw_attempts"))
 
 
 # ------------------------------------------------------------------------------------------------

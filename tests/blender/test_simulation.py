@@ -279,3 +279,34 @@ def test_frame_cap_with_parts_moving_is_reported(parts):
     assert all(v > 0.01 for _, v in res.unsettled)                    # still falling
     s = res.summary()
     assert s["settled"] is False and len(s["unsettled"]) == 2 and "2 unsettled" in res.short()
+
+
+def test_scene_is_redrawn_when_too_many_parts_are_lost(monkeypatch):
+    """A drop that loses parts is redrawn from derived seeds, at most redraw_attempts times, and the
+    same scene seed always gives the same redraws."""
+    from datapipe.core import simulation as S
+    cfg = one_part_cfg(n=2)
+    cfg.simulation.redraw_lost_share = 0.4
+    cfg.simulation.redraw_attempts = 2
+    bs, om, sim = make(cfg)
+    real_run, seen = sim.run, []
+
+    def run(insts, rng=None):               # the first drop loses a part, redraws do not
+        if not seen:
+            place(insts[0], [bs.drop_zone_center[0] + bs.drop_zone_half[0] + 0.15, 0, bs.top_z])
+        seen.append([np.array(i.obj.matrix_world).round(9).tolist() for i in insts])
+        return real_run(insts, rng)
+    monkeypatch.setattr(sim, "run", run)
+    res, rng = S.drop_scene(om, sim, scene_rng(0, 3), 1234)
+    assert res.attempts == 2 and not res.removed and len(res.kept) == 2
+    assert res.summary()["attempts"] == 2 and "drop 2" in res.short()
+    first_redraw = seen[1]
+    om.clear()
+    seen.clear()
+    cfg.simulation.redraw_attempts = 0      # no redraws: the lossy drop is kept, and reported
+    res0, _ = S.drop_scene(om, sim, scene_rng(0, 3), 1234)
+    assert res0.attempts == 1 and len(res0.removed) == 1
+    om.clear()
+    # the redraw is a function of the scene seed alone
+    a = om.populate(S.redraw_rng(1234, 1))
+    assert [np.array(i.obj.matrix_world).round(9).tolist() for i in a] == first_redraw

@@ -29,7 +29,7 @@ def test_object_add_remove_reorder(d, assets_dir):
     bpy.ops.datapipe.object_add()
     assert [o.filepath.rsplit("/", 1)[-1] for o in d.objects] == ["peg.obj", "nut.obj", ""]
     assert d.objects_index == 2
-    assert d.objects[2].mass == pytest.approx(0.05) and d.objects[2].collision_shape == "CONVEX_HULL"
+    assert d.objects[2].mass == pytest.approx(0.05) and d.objects[2].collision_shape == "AUTO"
     d.objects_index = 1
     bpy.ops.datapipe.object_move(direction="UP")
     assert d.objects_index == 0
