@@ -28,7 +28,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 import numpy as np  # noqa: E402
 
 import fixtures_native as fx  # noqa: E402
-from datapipe.core.writers import bop  # noqa: E402
+from datapipe.io import bop  # noqa: E402
+from datapipe.io.models import load_models  # noqa: E402
+from datapipe.io.silhouette import rasterize_silhouette  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -56,7 +58,7 @@ def main(argv=None) -> int:
         scene = json.loads((scene_dir / "scene.json").read_text())
         n_img = len(scene["renders"])
         n_inst = [len(r["objects"]) for r in scene["renders"]]
-        models = bop.load_models(run / "models")
+        models = load_models(run / "models")
 
         totals, rasters = [], []
         for k in range(a.repeat):
@@ -72,7 +74,7 @@ def main(argv=None) -> int:
                 for o in rd["objects"]:
                     T = np.asarray(o["T_cam_obj"])
                     m = models[o["obj_id"]]
-                    bop.rasterize_silhouette(m.verts_mm, m.faces, K, T[:3, :3], T[:3, 3] * 1000, a.width, a.height)
+                    rasterize_silhouette(m.verts_mm, m.faces, K, T[:3, :3], T[:3, 3] * 1000, a.width, a.height)
             rasters.append((time.perf_counter() - t0) / n_img)
             shutil.rmtree(root)
         per_img = statistics.median(totals)

@@ -32,7 +32,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -43,6 +42,7 @@ sys.path.insert(0, str(ROOT))
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
+from datapipe.sl.scanner import FILTERED, MIN_CONTRAST  # noqa: E402
 
 SEED = 1234                       # render seed (Cycles + sensor model) of every case
 SENSORS = ("ideal", "industrial", "industrial_8bit")
@@ -55,7 +55,7 @@ LIGHT_FACTORS = (0.25, 1, 2)      # robustness metric: x1/4 light (dark parts, ~
 DECODER_SETTINGS = (("decoder defaults (contrast 0.05), no filter", 0.05, False),
                     ("contrast 0.5, no filter", 0.5, False),
                     ("contrast 0.05 + edge filter", 0.05, True),
-                    ("contrast 0.5 + edge filter (shipped)", SLM.MIN_CONTRAST, True))
+                    ("contrast 0.5 + edge filter (shipped)", MIN_CONTRAST, True))
 VARIANTS = {"default": {},                                         # 2x2 point samples (shipped)
             "filter1.5": {"supersample": 1, "filter_width": 1.5},  # Cycles' default pixel filter
             "noreg": {"indirect_blur_px": 0.0}}                    # inter-reflections not regularised
@@ -211,11 +211,11 @@ def render_all(cases, cache: Path, log):
 # ------------------------------------------------------------------------------------------------
 # decoding and metrics (numpy only)
 
-def metrics(res, extra, z) -> dict:
+def metrics(res, scan, z) -> dict:
     v = res.valid & np.isfinite(z)
     st = sl.depth_error_stats(res.depth, z, valid=res.valid)
     e = (res.depth - z)[v].astype(np.float64)
-    s = extra["sigma_z"][v].astype(np.float64)
+    s = scan.sigma_z[v].astype(np.float64)
     ok = np.isfinite(s) & (s > 0)
     mad = lambda a: float(1.4826 * np.median(np.abs(a - np.median(a)))) if a.size else float("nan")  # noqa: E731
     return {
@@ -226,7 +226,7 @@ def metrics(res, extra, z) -> dict:
         "ratio": mad(e[ok] / s[ok]) if ok.any() else float("nan"),
         "miss1mm": float(1.0 - np.mean(res.valid & (np.abs(res.depth - z) <= 1e-3))),
         "saturated": float(np.mean(res.reason == sl.Reason.SATURATED)),
-        "filtered": float(np.mean(res.reason == SLM.FILTERED)),
+        "filtered": float(np.mean(res.reason == FILTERED)),
     }
 
 
@@ -242,8 +242,8 @@ def decode_all(cases, meta, cache: Path, log):
         cfg.camera.resolution = list(RES[c["res"]])
         cfg.structured_light.periods = list(c["periods"])
         cfg.structured_light.steps = c["steps"]
-        slc = SLM.StructuredLightCamera(cfg, None, SimpleNamespace(K=nat["K"]), None)
-        slc.decode(rad, SEED, nat["T"])            # warm the triangulation cache
+        scanner = sl.Scanner.from_config(cfg)
+        scanner.scan(rad, SEED, nat["K"], nat["T"])      # warm the triangulation cache
         settings = [(s, D.exposure, "shipped") for s in SENSORS]
         if c["scene"] == "bin":       # light levels for the robustness metric (dark parts / bright parts)
             settings += [("industrial", D.exposure * f, f"light x{f:g}") for f in LIGHT_FACTORS if f != 1]
@@ -252,11 +252,11 @@ def decode_all(cases, meta, cache: Path, log):
             settings += [("industrial", D.exposure, label) for label, _, _ in DECODER_SETTINGS[:-1]]
         for sensor, exposure, setting in settings:
             dec = next(((mc, ef) for lab, mc, ef in DECODER_SETTINGS if lab == setting),
-                       (SLM.MIN_CONTRAST, True))
-            slc.min_contrast = dec[0]
-            (res, extra), wall, _ = timed(lambda: slc.decode(rad, SEED, nat["T"], sensor=sensor,
-                                                             exposure=exposure, edge_filter=dec[1]))
-            m = metrics(res, extra, nat["depth"])
+                       (MIN_CONTRAST, True))
+            scanner = sl.Scanner.from_config(cfg, sensor=sensor, exposure=exposure, min_contrast=dec[0],
+                                             edge_filter=dec[1])
+            scan, wall, _ = timed(lambda: scanner.scan(rad, SEED, nat["K"], nat["T"]))
+            m = metrics(scan.result, scan, nat["depth"])
             r = meta[key(c)]
             row = {"scene": c["scene"], "res": "x".join(map(str, RES[c["res"]])), "tag": c["tag"],
                    "periods": " ".join(map(str, c["periods"])), "steps": c["steps"],
@@ -428,7 +428,7 @@ def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: boo
          "plane (the floor alone at Z = 0.8 m). Projector: preset (912x570, f 16 mm, 0.15 m baseline, "
          f"8.5 deg toe-in). Shipped defaults (base point): periods {BASE['periods']}, {BASE['steps']} steps, "
          f"{BASE['samples']} fringe samples per camera pixel (2x2 point sub-samples), sensor `{D.sensor}`, "
-         f"exposure {D.exposure}, decoder min_contrast {SLM.MIN_CONTRAST} + edge/speckle filter. "
+         f"exposure {D.exposure}, decoder min_contrast {MIN_CONTRAST} + edge/speckle filter. "
          "Native render: 32 samples, RGB + depth + normals + mask.\n",
          "Columns: `render_cpu_s` fringe render (all fringe layers, own Cycles call), `decode_s` sensor "
          "model + decode + filter (wall), `native_cpu_s` the native render, `fringe_over_native` = "

@@ -78,8 +78,9 @@ def main(argv: list[str] | None = None) -> int:
                 + (["--no-overview"] if args.no_overview else [])
             return show.main(argv2)
         if args.command == "bop":
-            from .core.writers.bop import export_bop
-            out = Path(args.out) if args.out else Path(args.run_dir) / "bop"
+            from .io.bop import export_bop
+            from .io.layout import BOP_DIR
+            out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
             export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size)
             print(f"BOP dataset written to {out}")
             return 0
@@ -115,9 +116,13 @@ def _run(cfg, args, preset_path) -> int:
     pipe.check()            # every input problem before any Blender work
     _prepare_blender()
     t0 = time.perf_counter()
-    for ev in pipe.run():
-        if not args.quiet or ev.stage in ("done", "cancelled"):
-            print(ev.line(), file=sys.stderr, flush=True)
+    last = None
+    for last in pipe.run():
+        if not args.quiet or last.stage in ("done", "cancelled"):
+            print(last.line(), file=sys.stderr, flush=True)
+    if last is not None and last.stage == "done":
+        from .show import overview_after_run
+        overview_after_run(pipe.out, pipe.cfg.output)
     print(f"dataset: {pipe.out} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
     return 0
 

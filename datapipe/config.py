@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError, Problem
+from .io.files import write_text_atomic
 
 SCHEMA_VERSION = 1
 
@@ -504,9 +505,7 @@ def save(cfg: Config, path: str | os.PathLike) -> None:
     """Write a JSON preset atomically (write, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(cfg.to_dict(), indent=2) + "\n")
 
 
 def loads(text: str, *, base_dir=None) -> Config:

@@ -34,41 +34,19 @@ from typing import Callable, Iterable, Sequence
 
 from . import config as config_mod
 from .errors import DataPipeError
+from .io import layout
+from .io.files import copy_atomic, read_json, write_json_atomic
+from .io.layout import config_identity, scene_name
+from .io.writers import open_writers
 from .seeds import plan_scenes, shard_scenes
-from .core.writers.native import config_identity
 
 SHARDS_DIR = "_shards"
 SHARD_PRESET = "preset.json"
 ATTEMPTS_FILE = ".datapipe_attempts"
-# tests: "I:K[,I:K...]" kills shard I's runner on its first attempt once K of its scenes are complete
-
-
-def scene_name(i: int) -> str:
-    return f"scene.{i + 1:04d}"
 
 
 def shard_dir_name(i: int, n: int) -> str:
     return f"shard_{i:04d}_of_{n:04d}"
-
-
-
-
-def _read_json(p: Path):
-    with open(p) as f:
-        return json.load(f)
-
-
-def _write_json_atomic(p: Path, data) -> None:
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1) + "\n")
-    os.replace(tmp, p)
-
-
-def _scene_complete(sdir: Path) -> bool:
-    try:
-        return bool(_read_json(sdir / "scene.json").get("complete", False))
-    except (OSError, json.JSONDecodeError):
-        return False
 
 
 # ------------------------------------------------------------------------------------------------
@@ -154,7 +132,7 @@ def run_shard(spec: dict) -> dict:
             if proc.poll() is not None:
                 pid_file.unlink(missing_ok=True)
     rc = proc.returncode
-    missing = [s for s in spec["scenes"] if not _scene_complete(shard_dir / s)]
+    missing = [s for s in spec["scenes"] if not layout.scene_complete(shard_dir / s)]
     if rc != 0 or missing:
         tail = log_path.read_text()[-1500:] if log_path.is_file() else ""
         raise RuntimeError(f"shard {i}/{n} failed on attempt {attempt} (exit code {rc}"
@@ -174,20 +152,63 @@ def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.Path
     Checks everything before touching anything: each shard is a DataPipe run of the same plan, seed
     and preset; every scene of the plan is complete in exactly one shard (duplicates and missing
     scenes are refused, naming them and the shard to re-run); image ids are the global ones. Then
-    moves (or copies, move=False) the scene folders, copies models/, rebuilds output_dict.pickle
-    from the scenes' scene.json, and writes run.json for the whole run. `config`: the preset dict
-    to record in run.json (default: the shards' own)."""
+    moves (or copies, move=False) the scene folders, copies models/, runs the preset's writers on
+    the merged scenes (output_dict.pickle rebuilt from the scenes' scene.json; BOP when the preset
+    asks for it) and writes run.json for the whole run. `config`: the preset dict to record in
+    run.json (default: the shards' own)."""
     shard_dirs = [Path(d) for d in shard_dirs]
     out = Path(out_dir)
+    runs = _shard_runs(shard_dirs)
+    ref = runs[0]
+    plan = [int(x) for x in ref["plan"]]
+    expected = [scene_name(i) for i in range(len(plan))]
+    owner, problems = _scene_owners(shard_dirs, runs, out, plan)
+    scene_docs = {s: read_json(d / s / layout.SCENE_FILE) for s, d in owner.items()}
+    problems += _image_id_problems(owner, scene_docs, plan)
+    model_src = _model_source(shard_dirs, problems)
+    if problems:
+        raise DataPipeError("merge refused, nothing was moved:\n  - " + "\n  - ".join(problems))
+
+    out.mkdir(parents=True, exist_ok=True)
+    if model_src is not None:
+        _copy_models(model_src, out / layout.MODELS_DIR)
+    for s in expected:
+        _place_scene(owner[s] / s, out / s, move=move)
+    cfg_dict = json.loads(json.dumps(config if config is not None else ref.get("config", {})))
+    cfg_dict.setdefault("output", {})["path"] = str(out.resolve())
+    writers = open_writers(cfg_dict["output"], out, batch=True)
+    writers.start()
+    for s in expected:
+        writers.catch_up(out / s, scene_docs[s])
+    written = writers.finish()
+    record = {k: v for k, v in ref.items() if k not in ("stats",)}
+    record.update({
+        "config": cfg_dict, "config_identity": config_identity(cfg_dict), "plan": plan, "seed": ref.get("seed"),
+        "shard": [0, 1], "scenes": expected, "scenes_done": expected, "status": "complete",
+        "merged_from": [{"dir": str(d), "shard": r.get("shard"), "stats": r.get("stats")}
+                        for d, r in zip(shard_dirs, runs)],
+    })
+    reports = list(shard_reports)
+    if reports:
+        record["shard_reports"] = reports
+    write_json_atomic(out / layout.RUN_FILE, record)
+    summary = {"out": str(out), "scenes": len(expected), "images": sum(plan), "shards": len(shard_dirs)}
+    if "bop" in written:
+        summary["bop"] = {**written["bop"], "scenes": len(expected)}
+    return summary
+
+
+def _shard_runs(shard_dirs: list[Path]) -> list[dict]:
+    """run.json of every shard; refuses folders that are no run, or runs of another plan, seed or preset."""
     if not shard_dirs:
         raise DataPipeError("merge: no shard folders given")
     runs = []
     for d in shard_dirs:
-        rj = d / "run.json"
+        rj = d / layout.RUN_FILE
         if not rj.is_file():
             raise DataPipeError(f"merge: {d} is not a DataPipe run folder (no run.json); "
                                 "fix: give the --out folders of `datapipe run --shard i/n` runs")
-        runs.append(_read_json(rj))
+        runs.append(read_json(rj))
     ref = runs[0]
     for d, r in zip(shard_dirs[1:], runs[1:]):
         for key in ("plan", "seed"):
@@ -199,21 +220,23 @@ def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.Path
         if a != b:
             raise DataPipeError(f"merge: {d} was made from a different preset than {shard_dirs[0]}; "
                                 "fix: merge only shards of one run (same preset and --seed)")
-    plan = [int(x) for x in ref["plan"]]
-    expected = [scene_name(i) for i in range(len(plan))]
-    first_image = [sum(plan[:i]) for i in range(len(plan))]
+    return runs
 
+
+def _scene_owners(shard_dirs: list[Path], runs: list[dict], out: Path, plan: list[int]):
+    """{scene name: the shard holding it complete}, and the problems: duplicates, scenes beyond the
+    plan, scenes already in `out`, missing scenes (with the shard to re-run)."""
+    expected = [scene_name(i) for i in range(len(plan))]
     owner: dict[str, Path] = {}
     duplicates: dict[str, list[str]] = {}
     unknown = []
     for d in shard_dirs:
-        for sdir in sorted(p for p in d.glob("scene.*") if p.is_dir()):
-            if not _scene_complete(sdir):
+        for sdir in layout.scene_dirs(d):
+            if not layout.scene_complete(sdir):
                 continue                     # a scene killed mid-way: not merged (reported as missing)
             if sdir.name not in expected:
                 unknown.append(str(sdir))
-                continue
-            if sdir.name in owner:
+            elif sdir.name in owner:
                 duplicates.setdefault(sdir.name, [str(owner[sdir.name])]).append(str(d))
             else:
                 owner[sdir.name] = d
@@ -230,80 +253,67 @@ def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.Path
                         f"{len(plan)} scenes: {', '.join(unknown[:5])}")
     missing = [s for s in expected if s not in owner]
     if missing:
-        by_shard = []
-        counts = {tuple(r.get("shard") or (0, 1))[1] for r in runs}
-        given = {tuple(r.get("shard") or (0, 1)): d for r, d in zip(runs, shard_dirs)}
-        for s in missing:
-            i = expected.index(s)
-            hint = ""
-            if len(counts) == 1:
-                n = next(iter(counts))
-                j = next(j for j in range(n) if i in shard_scenes(len(plan), (j, n)))
-                if (j, n) in given:
-                    hint = f" (shard {j}/{n} in {given[(j, n)]}: re-run it with --resume)"
-                else:
-                    hint = f" (shard {j}/{n}, not among the folders given: run it with --shard {j}/{n} --resume)"
-            by_shard.append(s + hint)
-        problems.append(f"{len(missing)} of {len(plan)} scenes missing: " + "; ".join(by_shard[:10])
-                        + (" ..." if len(by_shard) > 10 else ""))
-    scene_docs = {}
+        hints = [s + _rerun_hint(expected.index(s), len(plan), runs, shard_dirs) for s in missing]
+        problems.append(f"{len(missing)} of {len(plan)} scenes missing: " + "; ".join(hints[:10])
+                        + (" ..." if len(hints) > 10 else ""))
+    return owner, problems
+
+
+def _rerun_hint(i: int, n_scenes: int, runs: list[dict], shard_dirs: list[Path]) -> str:
+    """Which shard makes scene i, and how to (re-)run it (when every shard split the run alike)."""
+    counts = {tuple(r.get("shard") or (0, 1))[1] for r in runs}
+    if len(counts) != 1:
+        return ""
+    given = {tuple(r.get("shard") or (0, 1)): d for r, d in zip(runs, shard_dirs)}
+    n = next(iter(counts))
+    j = next(j for j in range(n) if i in shard_scenes(n_scenes, (j, n)))
+    if (j, n) in given:
+        return f" (shard {j}/{n} in {given[(j, n)]}: re-run it with --resume)"
+    return f" (shard {j}/{n}, not among the folders given: run it with --shard {j}/{n} --resume)"
+
+
+def _image_id_problems(owner: dict[str, Path], scene_docs: dict[str, dict], plan: list[int]) -> list[str]:
+    """Each scene's renders carry the run's global image ids (first_image[i] ...)."""
+    expected = [scene_name(i) for i in range(len(plan))]
+    first_image = [sum(plan[:i]) for i in range(len(plan))]
+    problems = []
     for s, d in owner.items():
-        doc = _read_json(d / s / "scene.json")
         i = expected.index(s)
-        ids = [int(r["image_id"]) for r in doc.get("renders", [])]
+        ids = [int(r["image_id"]) for r in scene_docs[s].get("renders", [])]
         if ids != list(range(first_image[i], first_image[i] + plan[i])):
             problems.append(f"{d / s}: image ids {ids} are not the run's ({first_image[i]}..{first_image[i] + plan[i] - 1})")
-        scene_docs[s] = doc
-    # models: the same meshes in every shard that has them
+    return problems
+
+
+def _model_source(shard_dirs: list[Path], problems: list[str]) -> Path | None:
+    """The models/ folder to copy: the same meshes in every shard that has them (else a problem)."""
     model_src = None
     for d in shard_dirs:
-        info = d / "models" / "models_info.json"
+        info = d / layout.MODELS_DIR / layout.MODELS_INFO
         if info.is_file():
             if model_src is None:
-                model_src = d / "models"
-            elif _read_json(info) != _read_json(model_src / "models_info.json"):
-                problems.append(f"{d / 'models'} differs from {model_src}: the shards used different meshes")
-    if problems:
-        raise DataPipeError("merge refused, nothing was moved:\n  - " + "\n  - ".join(problems))
+                model_src = d / layout.MODELS_DIR
+            elif read_json(info) != read_json(model_src / layout.MODELS_INFO):
+                problems.append(f"{d / layout.MODELS_DIR} differs from {model_src}: the shards used different meshes")
+    return model_src
 
-    # -- act ------------------------------------------------------------------------------------
-    out.mkdir(parents=True, exist_ok=True)
-    if model_src is not None and model_src.resolve() != (out / "models").resolve():
-        (out / "models").mkdir(exist_ok=True)
-        for p in sorted(model_src.iterdir()):
-            if p.is_file() and not p.name.endswith(".tmp"):
-                shutil.copyfile(p, out / "models" / (p.name + ".tmp"))
-                os.replace(out / "models" / (p.name + ".tmp"), out / "models" / p.name)
-    for s in expected:
-        src, dst = owner[s] / s, out / s
-        if src.resolve() == dst.resolve():
-            continue
-        if move:
-            os.replace(src, dst) if _same_fs(src, out) else shutil.move(str(src), str(dst))
-        else:
-            shutil.copytree(src, dst)
 
-    cfg_dict = config if config is not None else ref.get("config", {})
-    legacy = cfg_dict.get("output", {}).get("legacy_pickle", True)
-    if legacy:
-        from .core.writers import native
-        import pickle
-        data = {s: native.legacy_scene_entry(scene_docs[s]) for s in expected}
-        native.write_bytes_atomic(out / native.LEGACY_PICKLE, pickle.dumps(data, protocol=4))
-    cfg_dict = json.loads(json.dumps(cfg_dict))
-    cfg_dict.setdefault("output", {})["path"] = str(out.resolve())
-    record = {k: v for k, v in ref.items() if k not in ("stats",)}
-    record.update({
-        "config": cfg_dict, "config_identity": config_identity(cfg_dict), "plan": plan, "seed": ref.get("seed"),
-        "shard": [0, 1], "scenes": expected, "scenes_done": expected, "status": "complete",
-        "merged_from": [{"dir": str(d), "shard": r.get("shard"), "stats": r.get("stats")}
-                        for d, r in zip(shard_dirs, runs)],
-    })
-    reports = list(shard_reports)
-    if reports:
-        record["shard_reports"] = reports
-    _write_json_atomic(out / "run.json", record)
-    return {"out": str(out), "scenes": len(expected), "images": sum(plan), "shards": len(shard_dirs)}
+def _copy_models(src: Path, dst: Path) -> None:
+    if src.resolve() == dst.resolve():
+        return
+    dst.mkdir(exist_ok=True)
+    for p in sorted(src.iterdir()):
+        if p.is_file() and not p.name.endswith(".tmp"):
+            copy_atomic(p, dst / p.name)
+
+
+def _place_scene(src: Path, dst: Path, *, move: bool) -> None:
+    if src.resolve() == dst.resolve():
+        return
+    if move:
+        os.replace(src, dst) if _same_fs(src, dst.parent) else shutil.move(str(src), str(dst))
+    else:
+        shutil.copytree(src, dst)
 
 
 def _same_fs(a: Path, b: Path) -> bool:
@@ -345,23 +355,58 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
         cfg.scene.seed = int(seed)
     cfg.validate()
     out = Path(out_dir).resolve()
-    if out.exists() and not out.is_dir():
-        raise DataPipeError(f"output: {out} exists and is not a folder (fix: choose a folder path)")
-    if out.is_dir() and any(p.name.startswith("scene.") for p in out.iterdir()):
-        raise DataPipeError(f"output: {out} already holds scenes (fix: choose an empty folder; a distributed "
-                            f"run resumes from {out / SHARDS_DIR} when re-run into the same folder)")
+    _check_out_dir(out)
     s = cfg.scene
     plan = plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
     shards_root = out / SHARDS_DIR
     shards_root.mkdir(parents=True, exist_ok=True)
+    preset = _write_shard_preset(cfg, shards_root)
+    spec = {"preset": str(preset), "seed": cfg.scene.seed, "extra_args": list(extra_args),
+            "runner": list(runner) if runner else None, "env": dict(env or {})}
+    dirs, reports = _run_shards_on_ray(spec, plan, shards_root, address=address, num_shards=num_shards,
+                                       retries=retries, cpus_per_shard=cpus_per_shard,
+                                       gpus_per_shard=gpus_per_shard, say=say)
+    for d in dirs:
+        if not d.is_dir():
+            raise DataPipeError(f"{d} is not visible on this machine: the output folder must be on a filesystem "
+                                "that every Ray node mounts at the same path")
+    reports.sort(key=lambda r: r["shard"][0])
+    summary = merge_shards(dirs, out, move=True, config=cfg.to_dict(), shard_reports=reports)
+    _keep_logs(shards_root, out / "logs", drop_shards=not keep_shards)
+    summary["attempts"] = {r["shard"][0]: r["attempts"] for r in reports}
+    say(f"ray: merged {summary['scenes']} scenes ({summary['images']} renders) from {len(dirs)} shard(s) into {out}")
+    if "bop" in summary:
+        say(f"ray: BOP dataset written to {out / layout.BOP_DIR}")
+    from .show import overview_after_run
+    overview = overview_after_run(out, cfg.output)
+    if overview is not None:
+        summary["overview"] = str(overview)
+    return summary
 
+
+def _check_out_dir(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise DataPipeError(f"output: {out} exists and is not a folder (fix: choose a folder path)")
+    if out.is_dir() and any(p.name.startswith(layout.SCENE_PREFIX) for p in out.iterdir()):
+        raise DataPipeError(f"output: {out} already holds scenes (fix: choose an empty folder; a distributed "
+                            f"run resumes from {out / SHARDS_DIR} when re-run into the same folder)")
+
+
+def _write_shard_preset(cfg, shards_root: Path) -> Path:
+    """The preset every shard runs: native only (BOP is written once, at the merge), no overview."""
     shard_cfg = cfg.copy()
     shard_cfg.output.formats = ["native"]
     shard_cfg.output.overview = False
     shard_cfg.output.path = str(shards_root)
     preset = shards_root / SHARD_PRESET
     config_mod.save(shard_cfg, preset)
+    return preset
 
+
+def _run_shards_on_ray(spec: dict, plan: list[int], shards_root: Path, *, address, num_shards, retries,
+                       cpus_per_shard, gpus_per_shard, say) -> tuple[list[Path], list[dict]]:
+    """Start (or join) Ray, run one task per shard, wait for all; returns (shard folders, reports).
+    Raises DataPipeError naming the failed shards' logs when any failed after its retries."""
     ray = _ray()
     started = False
     if not ray.is_initialized():
@@ -380,32 +425,14 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
             raise DataPipeError(f"{shards_root} holds shards of a split into a different number of shards "
                                 f"({old[0].name}); fix: re-run with the same --shards, or delete {shards_root}")
         say(f"ray: {len(plan)} scenes ({sum(plan)} renders) in {n} shard(s) on {slots} slot(s), "
-            f"seed {cfg.scene.seed}, retries {retries}")
+            f"seed {spec['seed']}, retries {retries}")
         task = ray.remote(run_shard).options(max_retries=int(retries), retry_exceptions=True,
                                              num_cpus=cpus_per_shard, num_gpus=gpus_per_shard)
-        refs, dirs = {}, []
-        for i in range(n):
-            d = shards_root / shard_dir_name(i, n)
-            dirs.append(d)
-            scenes = [scene_name(k) for k in shard_scenes(len(plan), (i, n))]
-            spec = {"preset": str(preset), "shard_dir": str(d), "shard": (i, n), "seed": cfg.scene.seed,
-                    "scenes": scenes, "extra_args": list(extra_args), "runner": list(runner) if runner else None,
-                    "env": dict(env or {})}
-            refs[task.remote(spec)] = i
-        reports, failures = [], []
-        pending = list(refs)
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            i = refs[ready[0]]
-            try:
-                rep = ray.get(ready[0])
-                reports.append(rep)
-                say(f"ray: shard {i}/{n} done on {rep['host']} ({len(rep['scenes'])} scenes, "
-                    f"{rep['seconds']:.1f} s, attempt {rep['attempts']})")
-            except Exception as e:  # RayTaskError wrapping the last attempt's error, or a lost worker
-                msg = str(e).strip().splitlines()
-                failures.append((i, msg[-1] if msg else repr(e)))
-                say(f"ray: shard {i}/{n} FAILED after {retries + 1} attempt(s): {msg[-1] if msg else e}")
+        dirs = [shards_root / shard_dir_name(i, n) for i in range(n)]
+        refs = {task.remote({**spec, "shard_dir": str(d), "shard": (i, n),
+                             "scenes": [scene_name(k) for k in shard_scenes(len(plan), (i, n))]}): i
+                for i, d in enumerate(dirs)}
+        reports, failures = _wait_for_shards(ray, refs, n, retries, say)
         if failures:
             raise DataPipeError(f"{len(failures)} of {n} shard(s) failed after {retries + 1} attempt(s) each: "
                                 + "; ".join(f"shard {i}/{n} (log {shards_root / (shard_dir_name(i, n) + '.log')})"
@@ -414,28 +441,31 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
     finally:
         if started:
             ray.shutdown()
+    return dirs, reports
 
-    for d in dirs:
-        missing_local = not d.is_dir()
-        if missing_local:
-            raise DataPipeError(f"{d} is not visible on this machine: the output folder must be on a filesystem "
-                                "that every Ray node mounts at the same path")
-    reports.sort(key=lambda r: r["shard"][0])
-    summary = merge_shards(dirs, out, move=True, config=cfg.to_dict(), shard_reports=reports)
-    # keep the logs, drop the emptied shard folders
-    logs = out / "logs"
+
+def _wait_for_shards(ray, refs: dict, n: int, retries: int, say) -> tuple[list[dict], list[tuple[int, str]]]:
+    reports, failures = [], []
+    pending = list(refs)
+    while pending:
+        ready, pending = ray.wait(pending, num_returns=1)
+        i = refs[ready[0]]
+        try:
+            rep = ray.get(ready[0])
+            reports.append(rep)
+            say(f"ray: shard {i}/{n} done on {rep['host']} ({len(rep['scenes'])} scenes, "
+                f"{rep['seconds']:.1f} s, attempt {rep['attempts']})")
+        except Exception as e:  # RayTaskError wrapping the last attempt's error, or a lost worker
+            msg = str(e).strip().splitlines()
+            failures.append((i, msg[-1] if msg else repr(e)))
+            say(f"ray: shard {i}/{n} FAILED after {retries + 1} attempt(s): {msg[-1] if msg else e}")
+    return reports, failures
+
+
+def _keep_logs(shards_root: Path, logs: Path, *, drop_shards: bool) -> None:
+    """Move the shard logs into OUT/logs; drop the emptied shard folders unless asked to keep them."""
     logs.mkdir(exist_ok=True)
     for p in sorted(shards_root.glob("*.log")):
         os.replace(p, logs / p.name)
-    if not keep_shards:
+    if drop_shards:
         shutil.rmtree(shards_root, ignore_errors=True)
-    summary["attempts"] = {r["shard"][0]: r["attempts"] for r in reports}
-    say(f"ray: merged {summary['scenes']} scenes ({summary['images']} renders) from {n} shard(s) into {out}")
-    if "bop" in cfg.output.formats:
-        from .core.writers.bop import export_bop
-        summary["bop"] = export_bop(out, out / "bop")
-        say(f"ray: BOP dataset written to {out / 'bop'}")
-    if cfg.output.overview:
-        from .show import make_overview
-        summary["overview"] = str(make_overview(out))
-    return summary

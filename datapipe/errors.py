@@ -31,3 +31,19 @@ class ConfigError(DataPipeError):
 
     def paths(self) -> list[str]:
         return [p.path for p in self.problems]
+
+
+class ArgumentValueError(DataPipeError, ValueError):
+    """A function argument has a wrong value or shape (also a ValueError for plain numpy code)."""
+
+
+class ArgumentTypeError(DataPipeError, TypeError):
+    """A function argument has a wrong type (also a TypeError)."""
+
+
+def bad_value(arg: str, problem: str, fix: str) -> ArgumentValueError:
+    return ArgumentValueError(f"{arg}: {problem} (fix: {fix})")
+
+
+def bad_type(arg: str, problem: str, fix: str) -> ArgumentTypeError:
+    return ArgumentTypeError(f"{arg}: {problem} (fix: {fix})")

@@ -1,4 +1,6 @@
-"""Frames, rotations and pinhole intrinsics shared by core/ (Blender) and sl/ (decoder). No bpy.
+"""Frames, rotations, pinhole intrinsics and projection matrices shared by core/ (Blender), sl/
+(decoder) and io/. No bpy; imports nothing of DataPipe but its errors (sl/ builds on this, not
+the other way round).
 
 Blender's camera (and spot light) looks down its local -Z with +Y up; OpenCV's looks down +Z with
 +Y down. The two differ by a 180-degree rotation about X: `BLENDER_TO_OPENCV`.
@@ -9,8 +11,7 @@ import math
 
 import numpy as np
 
-from .sl.triangulate import intrinsics_from_blender as _sl_intrinsics
-from .sl.triangulate import projection_matrix  # noqa: F401  (one source of truth, re-exported)
+from .errors import DataPipeError, bad_type, bad_value
 
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])   # T_blcam_cvcam (its own inverse)
 
@@ -94,10 +95,11 @@ def intrinsics_from_blender(focal_mm: float, sensor_mm: float, width: int, heigh
     """Pinhole K of an unshifted Blender camera with square pixels; pixel centres at integers.
 
     DataPipe's configs carry one sensor size: it is the sensor width, or with sensor_fit VERTICAL
-    the sensor height (BlendCamera sets Blender's sensor_height from it then). One implementation:
-    `datapipe.sl.triangulate.intrinsics_from_blender`.
+    the sensor height (BlendCamera sets Blender's sensor_height from it then). The general form
+    (separate sensor height, lens shift) is `intrinsics_from_blender_camera`.
     """
-    return _sl_intrinsics(focal_mm, sensor_mm, int(width), int(height), sensor_fit, sensor_height_mm=sensor_mm)
+    return intrinsics_from_blender_camera(focal_mm, sensor_mm, int(width), int(height), sensor_fit,
+                                          sensor_height_mm=sensor_mm)
 
 
 def project_points(K, T_cam_X, pts) -> np.ndarray:
@@ -106,3 +108,174 @@ def project_points(K, T_cam_X, pts) -> np.ndarray:
     pc = pts @ T_cam_X[:3, :3].T + T_cam_X[:3, 3]
     uv = pc @ np.asarray(K).T
     return uv[:, :2] / uv[:, 2:3]
+
+
+def intrinsics_from_blender_camera(focal_mm: float, sensor_width_mm: float, width: int, height: int,
+                                   sensor_fit: str = "AUTO", *, sensor_height_mm: float = 24.0,
+                                   shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
+    """OpenCV intrinsics ``K`` (3x3 float64) of a Blender perspective camera, square pixels.
+
+    ``sensor_fit``: 'AUTO' (Blender's default: the sensor width applies to the larger image
+    dimension), 'HORIZONTAL' (sensor width <-> image width) or 'VERTICAL' (``sensor_height_mm``
+    <-> image height). Principal point ``cx = W/2 - 0.5``, ``cy = H/2 - 0.5`` (pixel centres at
+    integers), moved by Blender's lens shift (in units of the fitted dimension; +shift_y moves the
+    view up, i.e. the principal point down in the image).
+    """
+    for name, v in (("focal_mm", focal_mm), ("sensor_width_mm", sensor_width_mm),
+                    ("sensor_height_mm", sensor_height_mm)):
+        if not np.isfinite(v) or v <= 0:
+            raise bad_value(name, f"must be a finite number > 0, got {v!r}", "give the length in millimetres")
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise bad_value(name, f"must be a positive int, got {v!r}", "give the resolution in pixels")
+    fit = str(sensor_fit).upper()
+    if fit == "AUTO":
+        size_px, sensor = max(width, height), sensor_width_mm
+    elif fit == "HORIZONTAL":
+        size_px, sensor = width, sensor_width_mm
+    elif fit == "VERTICAL":
+        size_px, sensor = height, sensor_height_mm
+    else:
+        raise bad_value("sensor_fit", f"must be 'AUTO', 'HORIZONTAL' or 'VERTICAL', got {sensor_fit!r}",
+                        "use Blender's camera.data.sensor_fit value")
+    f = focal_mm * size_px / sensor
+    cx = width / 2.0 - 0.5 - shift_x * size_px
+    cy = height / 2.0 - 0.5 + shift_y * size_px
+    return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+
+
+def projection_matrix(K, T_world_cam) -> np.ndarray:
+    """``P = K @ inv(T_world_cam)[:3]`` (3x4, float64): world -> pixel for a camera whose pose in
+    the world is ``T_world_cam`` (4x4, OpenCV camera frame: x right, y down, z forward)."""
+    K = finite_matrix(K, (3, 3), "K")
+    T = finite_matrix(T_world_cam, (4, 4), "T_world_cam")
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+        raise bad_value("T_world_cam", f"last row is {T[3].tolist()}, not [0, 0, 0, 1]",
+                        "pass a rigid 4x4 pose matrix")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+        raise bad_value("T_world_cam", "rotation part is not a proper rotation",
+                        "pass a rigid pose (orthonormal rotation, det +1, no scale)")
+    inv = np.eye(4)
+    inv[:3, :3] = R.T
+    inv[:3, 3] = -R.T @ T[:3, 3]
+    return K @ inv[:3]
+
+
+def finite_matrix(m, shape, name) -> np.ndarray:
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise bad_type(name, f"must be a numeric {shape[0]}x{shape[1]} matrix, got {type(m).__name__}",
+                       f"pass a {shape[0]}x{shape[1]} numpy array") from None
+    if a.shape != shape:
+        raise bad_value(name, f"has shape {a.shape}, expected {shape}", f"pass a {shape[0]}x{shape[1]} matrix")
+    if not np.all(np.isfinite(a)):
+        raise bad_value(name, "contains NaN or inf", "check the calibration / pose that produced it")
+    return a
+
+
+# ------------------------------------------------------------------------------------------------
+# the projector (a pinhole like the camera, realised in Blender as a spot light; derivations in
+# core/projector.py's docstring)
+
+SPOT_MARGIN = 1.05                          # cone half-angle tangent = 1.05 x the image corner's
+MAX_CORNER_ANGLE = math.radians(80.0)       # image corner off-axis angle limit (cone < 180 deg)
+
+def projector_cfg(cfg):
+    """Accept a Config or a ProjectorConfig."""
+    return getattr(cfg, "projector", cfg)
+
+
+def projector_resolution(cfg) -> tuple[int, int]:
+    w, h = projector_cfg(cfg).resolution
+    return int(w), int(h)
+
+
+def projector_intrinsics(cfg) -> np.ndarray:
+    """K_p (3x3, pixel centres at integers) from focal length (mm), sensor width (mm), W x H.
+
+    The projector is an unshifted pinhole with square pixels and Blender's AUTO sensor fit (the
+    sensor width applies to the larger image dimension) - the same rule as the camera."""
+    pr = projector_cfg(cfg)
+    w, h = projector_resolution(pr)
+    return intrinsics_from_blender(pr.focal_length, pr.sensor_width, w, h, "AUTO")
+
+
+def projector_pose_blender(cfg) -> np.ndarray:
+    """T_blcam_bllight: the light object's pose in the camera object's local (Blender) axes."""
+    pr = projector_cfg(cfg)
+    return pose_matrix(pr.location, rotation_from_config(pr.rotation))
+
+
+def T_cam_proj(cfg) -> np.ndarray:
+    """4x4 pose of the projector (OpenCV projector frame) in the OpenCV camera frame."""
+    return BLENDER_TO_OPENCV @ projector_pose_blender(cfg) @ BLENDER_TO_OPENCV
+
+
+def projector_matrix(cfg, T_world_cam) -> np.ndarray:
+    """P_proj (3x4): homogeneous world points -> projector pixels (x column, y row; OpenCV).
+
+    `T_world_cam` is the camera pose in the OpenCV frame (as BlendCamera returns it)."""
+    T_world_proj = np.asarray(T_world_cam, dtype=np.float64) @ T_cam_proj(cfg)
+    return projector_intrinsics(cfg) @ np.linalg.inv(T_world_proj)[:3]
+
+
+def texture_mapping(cfg) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """(scale, location) of the Mapping node that turns (N.x/N.z, N.y/N.z) into image (s, t)."""
+    K = projector_intrinsics(cfg)
+    w, h = projector_resolution(cfg)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    scale = (-fx / w, -fy / h, 1.0)
+    location = ((cx + 0.5) / w, 1.0 - (cy + 0.5) / h, 0.0)
+    return scale, location
+
+
+def image_half_angle(cfg) -> float:
+    """Angle between the optical axis and the ray through the image's farthest outer corner (rad)."""
+    K = projector_intrinsics(cfg)
+    w, h = projector_resolution(cfg)
+    xs = (np.array([-0.5, w - 0.5]) - K[0, 2]) / K[0, 0]
+    ys = (np.array([-0.5, h - 0.5]) - K[1, 2]) / K[1, 1]
+    return math.atan(math.hypot(np.abs(xs).max(), np.abs(ys).max()))
+
+
+def spot_size(cfg, margin: float = SPOT_MARGIN) -> float:
+    """Full cone angle (rad) a little wider than the image, so the image is the aperture."""
+    half = math.atan(margin * math.tan(image_half_angle(cfg)))
+    corner = image_half_angle(cfg)
+    if corner > MAX_CORNER_ANGLE:
+        raise DataPipeError(
+            f"projector field of view too wide: its image corner is {math.degrees(corner):.1f} deg off axis, "
+            f"more than {math.degrees(MAX_CORNER_ANGLE):.0f} (a spot light cone is at most 180 deg) (fix: raise "
+            "projector.focal_length or lower projector.sensor_width)")
+    return 2.0 * half
+
+
+def pattern_pixels(pattern: np.ndarray) -> np.ndarray:
+    """(H, W) pattern, row 0 = top of the projected image -> flat RGBA float32 for Image.pixels.
+
+    Blender images are stored bottom-up, so the rows are flipped; R = G = B = value, A = 1."""
+    p = np.asarray(pattern, dtype=np.float32)
+    h, w = p.shape
+    rgba = np.empty((h, w, 4), dtype=np.float32)
+    rgba[..., :3] = p[::-1, :, None]
+    rgba[..., 3] = 1.0
+    return rgba.ravel()
+
+
+def check_patterns(cfg, patterns) -> np.ndarray:
+    """Validate a (P, H, W) stack against the projector resolution; returns float32 array."""
+    arr = np.asarray(patterns, dtype=np.float32)
+    w, h = projector_resolution(cfg)
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[1:] != (h, w):
+        raise DataPipeError(f"fringe patterns have shape {np.shape(patterns)}, the projector needs (P, {h}, {w}) "
+                            "(fix: make the patterns at projector.resolution [width, height])")
+    if arr.shape[0] < 1 or arr.shape[0] > 100:
+        raise DataPipeError(f"{arr.shape[0]} fringe patterns: one view layer each, 1..100 supported "
+                            "(fix: use fewer periods or steps)")
+    if not np.all(np.isfinite(arr)) or arr.min() < 0:
+        raise DataPipeError("fringe patterns must be finite and >= 0 (they are light intensities)")
+    return arr

@@ -28,6 +28,10 @@ import cv2
 import numpy as np
 
 from .errors import DataPipeError
+from .io import layout
+from .io.files import imwrite_atomic, read_json
+from .io.models import load_models
+from .io.silhouette import rasterize_silhouette
 
 PANELS = ("rgb", "depth", "sl_depth", "diff", "mask", "poses")
 PAD = 8
@@ -152,49 +156,32 @@ def _message_tile(tw, th, lines) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 # reading a run
 
-def _read_json(p: Path) -> dict:
-    with open(p) as f:
-        return json.load(f)
-
-
 def scenes_of(run_dir: Path) -> list[tuple[Path, dict]]:
-    out = []
-    for sj in sorted(Path(run_dir).glob("scene.*/scene.json")):
-        try:
-            scene = _read_json(sj)
-        except (OSError, json.JSONDecodeError):
-            continue
-        if scene.get("complete", True):
-            out.append((sj.parent, scene))
-    return out
-
-
-def _render_file(scene_dir: Path, rd: dict, kind: str, default: str) -> Path:
-    rel = rd.get("files", {}).get(kind)
-    return scene_dir / rel if rel else scene_dir / rd["name"] / default
+    """(scene folder, scene.json) of every complete scene, in order."""
+    return list(layout.iter_scenes(run_dir))
 
 
 def _load_render(scene_dir: Path, rd: dict) -> dict:
     from .exr import read_depth, read_mask
     W, H = (int(x) for x in rd["resolution"])
     out = {"W": W, "H": H}
-    p = _render_file(scene_dir, rd, "rgb", "rgb.png")
+    p = layout.render_file(scene_dir, rd, "rgb")
     rgb = cv2.imread(str(p), cv2.IMREAD_COLOR) if p.is_file() else None
     out["rgb"] = rgb if rgb is not None else np.zeros((H, W, 3), np.uint8)
-    p = _render_file(scene_dir, rd, "depth", "depth.exr")
+    p = layout.render_file(scene_dir, rd, "depth")
     out["depth"] = read_depth(p).astype(np.float64) * 1000.0 if p.is_file() else None
-    p = _render_file(scene_dir, rd, "sl_depth", "sl_depth.exr")
+    p = layout.render_file(scene_dir, rd, "sl_depth")
     out["sl_depth"] = read_depth(p).astype(np.float64) * 1000.0 if p.is_file() else None
-    p = _render_file(scene_dir, rd, "mask", "mask.exr")
+    p = layout.render_file(scene_dir, rd, "mask")
     out["mask"] = read_mask(p) if p.is_file() else None
     return out
 
 
 def _load_models_info(run_dir: Path) -> dict[int, dict]:
-    p = Path(run_dir) / "models" / "models_info.json"
+    p = Path(run_dir) / layout.MODELS_DIR / layout.MODELS_INFO
     if not p.is_file():
         return {}
-    return {int(k): v for k, v in _read_json(p).items()}
+    return {int(k): v for k, v in read_json(p).items()}
 
 
 def _valid(d):
@@ -369,7 +356,6 @@ def _hist_panel(values, bins: np.ndarray, title: str, xlabel: str, *, w=440, h=3
 
 def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray:
     """The run's overview as a BGR image (samples at most `max_renders` renders, evenly)."""
-    from .core.writers.bop import load_models, rasterize_silhouette
     run_dir = Path(run_dir)
     scenes = scenes_of(run_dir)
     if not scenes:
@@ -378,9 +364,9 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
     step = max(1, math.ceil(len(renders) / max_renders))
     sample = renders[::step]
     models = {}
-    if (run_dir / "models").is_dir():
+    if (run_dir / layout.MODELS_DIR).is_dir():
         try:
-            models = load_models(run_dir / "models")
+            models = load_models(run_dir / layout.MODELS_DIR)
         except Exception:
             models = {}
     errs, fracs, n_all, n_vis, sl_valid = [], [], [], [], []
@@ -449,10 +435,10 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
     title = (f"{run_dir.name}: {len(scenes)} scenes, {len(renders)} renders, {n_inst if step == 1 else '~'} "
              f"instances" + (f" (statistics over {len(sample)} sampled renders)" if step > 1 else ""))
     _text(img, title, (PAD, 22), 0.55)
-    run_json = run_dir / "run.json"
+    run_json = run_dir / layout.RUN_FILE
     if run_json.is_file():
         try:
-            rj = _read_json(run_json)
+            rj = read_json(run_json)
             _text(img, f"seed {rj.get('seed')}   plan {len(rj.get('plan', []))} scenes   status "
                        f"{rj.get('status', '?')}", (PAD, Hs - 8), 0.42, (200, 200, 200))
         except (OSError, json.JSONDecodeError):
@@ -462,18 +448,21 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
 
 def _imwrite(path: Path, img: np.ndarray) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    if not cv2.imwrite(str(tmp), img):
-        raise DataPipeError(f"could not write {path}")
-    tmp.replace(path)
-    return path
+    return imwrite_atomic(path, img)
 
 
 def make_overview(run_dir: str | Path, out_path: str | Path | None = None, *, max_renders: int = 400) -> Path:
     """Write the run's overview sheet (default RUN_DIR/sheets/overview.png) and return its path."""
     run_dir = Path(run_dir)
-    out_path = Path(out_path) if out_path else run_dir / "sheets" / "overview.png"
+    out_path = Path(out_path) if out_path else run_dir / layout.SHEETS_DIR / layout.OVERVIEW_FILE
     return _imwrite(out_path, overview_image(run_dir, max_renders=max_renders))
+
+
+def overview_after_run(run_dir: str | Path, output) -> Path | None:
+    """The overview sheet a finished run asks for (`output.overview`; OutputConfig or its dict).
+    Called by the CLI, the add-on and the Ray driver after a run, never by the run engine."""
+    wanted = output.get("overview", True) if isinstance(output, dict) else output.overview
+    return make_overview(run_dir) if wanted else None
 
 
 def sheet_name(scene_dir: Path, rd: dict) -> str:
@@ -488,7 +477,7 @@ def make_sheets(run_dir: str | Path, out_dir: str | Path | None = None, *, max_r
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise DataPipeError(f"{run_dir}: no such run folder (fix: give the --out folder of a run)")
-    out_dir = Path(out_dir) if out_dir else run_dir / "sheets"
+    out_dir = Path(out_dir) if out_dir else run_dir / layout.SHEETS_DIR
     scenes = scenes_of(run_dir)
     if not scenes:
         raise DataPipeError(f"{run_dir}: no complete scene (scene.*/scene.json) to show "
@@ -501,7 +490,7 @@ def make_sheets(run_dir: str | Path, out_dir: str | Path | None = None, *, max_r
                 break
             written.append(_imwrite(out_dir / sheet_name(sd, rd), render_sheet(run_dir, sd, sc, rd, info)))
     if overview:
-        written.append(make_overview(run_dir, out_dir / "overview.png"))
+        written.append(make_overview(run_dir, out_dir / layout.OVERVIEW_FILE))
     return written
 
 

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from datapipe.config import Config, ObjectEntry, CameraPose
-from datapipe.core.writers import native
+from datapipe.io import legacy as legacy_pickle
 from datapipe.exr import write_exr
 from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_blender
 from datapipe.seeds import plan_scenes, render_seed, scene_seed, shard_scenes, parse_shard
@@ -330,7 +330,7 @@ def make_native_run(tmp_dir, *, cfg: Config | None = None, seed: int | None = No
     plan = plan_scenes(cfg.scene.num_renders, cfg.scene.min_renders_per_scene, cfg.scene.max_renders_per_scene, seed)
     if scenes is None:
         scenes = shard_scenes(len(plan), shard) if shard else range(len(plan))
-    from datapipe.core.writers.bop import write_models
+    from datapipe.io.models import write_models
     write_models(out / "models", box_meshes(mesh_subdiv))
     legacy = None
     done = [s for s in range(len(plan)) if (out / f"scene.{s + 1:04d}" / "scene.json").is_file()] if resume else []
@@ -340,7 +340,7 @@ def make_native_run(tmp_dir, *, cfg: Config | None = None, seed: int | None = No
         name, scene_json, _ = write_scene(out, cfg, seed, s, plan, min_boxes=min_boxes, max_boxes=max_boxes,
                                           spread=spread, truncate=truncate)
         if cfg.output.legacy_pickle:
-            native.update_legacy_pickle(out, scene_json)   # the pipeline's own writer
+            legacy_pickle.update_legacy_pickle(out, scene_json)   # the pipeline's own writer
         done.append(s)
         _write_run_files(out, cfg, seed, plan, shard, done, legacy)
         if scene_delay:

@@ -13,7 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from datapipe.core.writers.bop import BopWriter, export_bop, write_models
+from datapipe.io.bop import BopWriter, export_bop
+from datapipe.io.models import write_models
 from datapipe.errors import DataPipeError
 from datapipe.exr import read_exr, write_exr
 
@@ -382,8 +383,7 @@ def test_write_models_ascii_binary_and_exact_diameter(tmp_path):
     normals = rng.normal(size=(300, 3))
     for binary in (True, False):
         d = tmp_path / ("bin" if binary else "ascii")
-        from datapipe.core.writers import bop as bopmod
-        bopmod.write_models(d, {7: (pts, faces, normals)}, binary=binary)
+        write_models(d, {7: (pts, faces, normals)}, binary=binary)
         V, F = ref_read_ply(d / "obj_000007.ply")
         np.testing.assert_allclose(V[:, :3], pts * 1000, atol=2e-3)
         np.testing.assert_array_equal(F, faces)

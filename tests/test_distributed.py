@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from datapipe import config as config_mod
-from datapipe.core.writers import native
+from datapipe.io import legacy as legacy_pickle
 from datapipe.distributed import merge_shards, run_distributed
 from datapipe.errors import DataPipeError
 from datapipe.exr import read_exr
@@ -56,7 +56,7 @@ def annotations(run: Path) -> dict:
 
 
 def legacy(run: Path) -> dict:
-    data = native.load_legacy_output(run / "output_dict.pickle")
+    data = legacy_pickle.load_legacy_output(run / "output_dict.pickle")
     return {s: {r: {"wrld2cam_pose": np.asarray(v["wrld2cam_pose"]).round(9).tolist(),
                     "objects": [(o["name"], o["mask_index"], np.asarray(o["T_cam_obj"]).round(9).tolist())
                                 for o in v["objects_in_scene"]]}

@@ -16,9 +16,13 @@ import numpy as np
 
 from .. import __version__
 from ..config import Config
-from ..errors import DataPipeError, Problem, ConfigError
+from ..errors import DataPipeError
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
-from .writers import native
+from ..io import layout
+from ..io.files import read_json, write_json_atomic
+from ..io.models import write_models
+from ..io.native import write_scene
+from ..io.writers import open_writers
 
 STAGES = ("placement", "simulation", "render", "structured_light", "write")
 
@@ -41,9 +45,9 @@ class Progress:
         stages = f" ({stages})" if stages else ""
         where = ""
         if self.scene is not None:
-            where = f" {native.scene_name(self.scene)}"
+            where = f" {layout.scene_name(self.scene)}"
             if self.render is not None:
-                where += f"/{native.render_name(self.render)}"
+                where += f"/{layout.render_name(self.render)}"
         return f"[{self.done}/{self.total}]{where} {self.message}{stages}{eta}".rstrip()
 
 
@@ -53,7 +57,7 @@ def _fmt_s(s: float) -> str:
 
 
 def _config_identity(cfg: Config) -> dict:
-    return native.config_identity(cfg.to_dict())
+    return layout.config_identity(cfg.to_dict())
 
 
 class Pipeline:
@@ -81,19 +85,19 @@ class Pipeline:
         if self.out.exists() and not self.out.is_dir():
             raise DataPipeError(f"output: {self.out} exists and is not a folder (fix: choose a folder path)")
         if self.out.is_dir() and any(self.out.iterdir()):
-            run_file = self.out / native.RUN_FILE
+            run_file = self.out / layout.RUN_FILE
             if self.resume:
                 if not run_file.is_file():
-                    raise DataPipeError(f"output: cannot resume {self.out}: it has no {native.RUN_FILE} "
+                    raise DataPipeError(f"output: cannot resume {self.out}: it has no {layout.RUN_FILE} "
                                         "(fix: choose the folder of an earlier DataPipe run, or an empty folder)")
-                prev = native.read_json(run_file)
+                prev = read_json(run_file)
                 if prev.get("config_identity") != _config_identity(self.cfg):
                     raise DataPipeError(f"output: {self.out} holds a run of a different preset or seed "
                                         "(fix: resume with the same preset and --seed, or choose another folder)")
             elif self.force:
                 if not run_file.is_file():
                     raise DataPipeError(f"output: refusing to empty {self.out}: it does not look like a DataPipe "
-                                        f"run (no {native.RUN_FILE}) (fix: choose another folder)")
+                                        f"run (no {layout.RUN_FILE}) (fix: choose another folder)")
             else:
                 raise DataPipeError(f"output: {self.out} is not empty (fix: pass --resume to continue that run, "
                                     "or choose an empty folder; nothing was written)")
@@ -110,22 +114,22 @@ class Pipeline:
             shutil.rmtree(self.out)
         self.out.mkdir(parents=True, exist_ok=True)
         self._write_run_file(status="running")
+        writers = open_writers(self.cfg.output, self.out)
+        writers.start()
 
         done = 0
         todo = []
         for i in self.scene_ids:
-            sdir = self.out / native.scene_name(i)
-            if self.resume and native.scene_complete(sdir):
+            sdir = self.out / layout.scene_name(i)
+            scene = layout.read_scene(sdir) if self.resume else None
+            if scene is not None and scene.get("complete", False):
                 done += self.plan[i]
-                if "bop" in self.cfg.output.formats:      # finished just before a crash: BOP may lack it
-                    from .writers.bop import BopWriter
-                    writer = BopWriter(self.out / "bop")
-                    if not writer.has_scene(sdir):
-                        writer.add_scene(sdir)
+                writers.catch_up(sdir, scene)       # finished just before a crash: BOP or the pickle may lack it
                 yield Progress("skip", done, self.total, scene=i, message="already complete")
             else:
                 todo.append(i)
         if not todo:
+            writers.finish()
             self._write_run_file(status="complete")
             yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
                            message="nothing to do: every scene is complete")
@@ -135,6 +139,7 @@ class Pipeline:
         t0 = time.perf_counter()
         world = _BlenderWorld(self.cfg, self.out)
         world.setup()
+        write_models(self.out / layout.MODELS_DIR, world.model_meshes())
         self.stats["seconds"]["setup"] = time.perf_counter() - t0
         self.stats["imports"] = world.objects.import_count
 
@@ -145,16 +150,16 @@ class Pipeline:
                 if self._cancel:
                     yield from self._cancelled(done, i, t_start)
                     return
-                sdir = self.out / native.scene_name(i)
+                sdir = self.out / layout.scene_name(i)
                 if sdir.exists():                   # a scene killed mid-way is made again from scratch
                     shutil.rmtree(sdir)
                 sdir.mkdir(parents=True)
                 yield Progress("scene", done, self.total, scene=i, message="dropping parts")
-                scene, sim_seconds = world.start_scene(i, self.cfg.scene.seed, self.plan[i])
+                scene, pose_indices, sim_seconds = world.start_scene(i, self.cfg.scene.seed, self.plan[i])
                 for k, v in sim_seconds.items():
                     self.stats["seconds"][k] += v
                 self.stats["frames"][scene["name"]] = scene["simulation"]["frames"]
-                for r, pose_index in enumerate(scene["_pose_indices"]):
+                for r, pose_index in enumerate(pose_indices):
                     rec, secs = world.render(i, r, pose_index, sdir, self.cfg.scene.seed,
                                              image_id=int(self.first_image_id[i] + r))
                     scene["renders"].append(rec)
@@ -172,7 +177,12 @@ class Pipeline:
                         break
                 t0 = time.perf_counter()
                 complete = len(scene["renders"]) == self.plan[i]
-                world.finish_scene(scene, sdir, complete=complete)
+                scene["complete"] = complete
+                if complete:
+                    writers.add_scene(sdir, scene)
+                else:
+                    write_scene(sdir, scene)        # the record of a cancelled scene (not complete)
+                world.finish_scene()
                 self.stats["seconds"]["write"] += time.perf_counter() - t0
                 if complete:
                     self._mark_scene_done(i)
@@ -183,10 +193,8 @@ class Pipeline:
                     return
         finally:
             world.close()
+        writers.finish()
         self._write_run_file(status="complete")
-        if self.cfg.output.overview:
-            from ..show import make_overview
-            make_overview(self.out)
         yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
                        message=f"finished {made} render(s) in {_fmt_s(time.perf_counter() - t_start)}")
 
@@ -197,8 +205,8 @@ class Pipeline:
 
     # -- run.json ---------------------------------------------------------------------------------
     def _run_record(self) -> dict:
-        path = self.out / native.RUN_FILE
-        return native.read_json(path) if path.is_file() else {}
+        path = self.out / layout.RUN_FILE
+        return read_json(path) if path.is_file() else {}
 
     def _write_run_file(self, status: str) -> None:
         rec = self._run_record()
@@ -209,20 +217,20 @@ class Pipeline:
             "seed": self.cfg.scene.seed,
             "plan": self.plan,
             "shard": list(self.shard),
-            "scenes": [native.scene_name(i) for i in self.scene_ids],
+            "scenes": [layout.scene_name(i) for i in self.scene_ids],
             "status": status,
             "stats": self.stats,
         })
         rec.setdefault("scenes_done", [])
-        native.write_json_atomic(self.out / native.RUN_FILE, rec)
+        write_json_atomic(self.out / layout.RUN_FILE, rec)
 
     def _mark_scene_done(self, i: int) -> None:
         rec = self._run_record()
         done = set(rec.get("scenes_done", []))
-        done.add(native.scene_name(i))
+        done.add(layout.scene_name(i))
         rec["scenes_done"] = sorted(done)
         rec["stats"] = self.stats
-        native.write_json_atomic(self.out / native.RUN_FILE, rec)
+        write_json_atomic(self.out / layout.RUN_FILE, rec)
 
 
 class _BlenderWorld:
@@ -253,12 +261,10 @@ class _BlenderWorld:
             from .structured_light import StructuredLightCamera
             self.sl = StructuredLightCamera(self.cfg, bscene, self.camera, self.renderer)
             self.sl.setup()
-        self._write_models()
 
-    def _write_models(self) -> None:
-        from .writers.bop import write_models
-        meshes = {i + 1: self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
-        write_models(self.out / "models", meshes)
+    def model_meshes(self) -> dict:
+        """{obj_id: (verts m, faces, normals)} of every object entry (scale baked), for OUT/models."""
+        return {i + 1: self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
 
     def start_scene(self, i: int, base: int, n_renders: int):
         seed_python(base, i)
@@ -272,19 +278,19 @@ class _BlenderWorld:
         self.instances = sim.kept
         objects = [self._object_record(inst) for inst in sim.kept]
         scene = {
-            "scene_id": i, "name": native.scene_name(i), "seed": scene_seed(base, i),
+            "scene_id": i, "name": layout.scene_name(i), "seed": scene_seed(base, i),
             "simulation": {"frames": sim.frames, "settled": sim.settled,
                            "removed": [{"name": inst.name, "reason": why} for inst, why in sim.removed]},
-            "objects": objects, "renders": [], "_pose_indices": pose_indices,
+            "objects": objects, "renders": [],
         }
-        return scene, {"placement": t1 - t0, "simulation": t2 - t1}
+        return scene, pose_indices, {"placement": t1 - t0, "simulation": t2 - t1}
 
     def _object_record(self, inst) -> dict:
         return {"name": inst.name, "filename": inst.filename, "obj_id": inst.entry_index + 1,
                 "mask_index": inst.mask_index}
 
     def render(self, i: int, r: int, pose_index: int, sdir: Path, base: int, *, image_id: int):
-        rdir = sdir / native.render_name(r)
+        rdir = sdir / layout.render_name(r)
         rdir.mkdir(parents=True, exist_ok=True)
         T_world_cam = self.camera.set_pose(pose_index)
         T_world_blcam = np.array(self.camera.obj.matrix_world, dtype=np.float64)
@@ -293,7 +299,7 @@ class _BlenderWorld:
         out = self.renderer.render(rdir, seed)
         t1 = time.perf_counter()
         rec = {
-            "render_id": r, "name": native.render_name(r), "image_id": image_id, "pose_index": int(pose_index),
+            "render_id": r, "name": layout.render_name(r), "image_id": image_id, "pose_index": int(pose_index),
             "K": self.camera.K, "resolution": list(self.camera.resolution),
             "T_world_cam": T_world_cam, "T_world_blcam": T_world_blcam, "seed": seed,
             "files": {k: str(Path(p).relative_to(sdir)) for k, p in out.files.items()},
@@ -312,20 +318,13 @@ class _BlenderWorld:
         secs = {"render": cycles_s, "write": max(0.0, (t1 - t0) - cycles_s)}   # EXR read-back + file writes
         if self.sl is not None:
             t2 = time.perf_counter()
-            rec["structured_light"] = self.sl.process(out, rdir, seed, T_world_cam, sdir)
+            rec["structured_light"] = self.sl.process(rdir, seed, T_world_cam, sdir)
             rec["files"].update(rec["structured_light"].pop("files", {}))
             secs["structured_light"] = time.perf_counter() - t2
         return rec, secs
 
-    def finish_scene(self, scene: dict, sdir: Path, *, complete: bool) -> None:
-        scene.pop("_pose_indices", None)
-        scene["complete"] = complete
-        native.write_scene(sdir, scene)
-        if complete and self.cfg.output.legacy_pickle:
-            native.update_legacy_pickle(self.out, scene)
-        if complete and "bop" in self.cfg.output.formats:
-            from .writers.bop import BopWriter
-            BopWriter(self.out / "bop").add_scene(sdir)
+    def finish_scene(self) -> None:
+        """Delete what the scene created (templates, camera, projector stay)."""
         self.objects.clear()
 
     def close(self) -> None:

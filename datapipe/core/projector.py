@@ -1,9 +1,9 @@
 """The fringe projector: one Cycles spot light per pattern, parented to the camera.
 
-Pure math (no bpy, importable anywhere): `projector_intrinsics`, `projector_pose_blender`,
-`T_cam_proj`, `projector_matrix`, `texture_mapping`, `spot_size`, `pattern_pixels`.
-Blender side (bpy imported lazily inside the methods): `Projector`, `make_fringe_view_layers`,
-`fringe_layer_leaks`.
+The pure math (no bpy) lives in datapipe.geometry: `projector_intrinsics`,
+`projector_pose_blender`, `T_cam_proj`, `projector_matrix`, `texture_mapping`, `spot_size`,
+`pattern_pixels`, `check_patterns`. Here: the Blender side (`Projector`, `make_fringe_view_layers`,
+`fringe_layer_leaks`); the frames and the node-tree mapping are derived below.
 
 Frames
 ------
@@ -61,13 +61,13 @@ smooth, and cancel in phase-shift decoding (only the modulation B changes).
 """
 from __future__ import annotations
 
-import math
 from typing import Iterable, Sequence
 
 import numpy as np
 
 from ..errors import DataPipeError
-from ..geometry import BLENDER_TO_OPENCV, intrinsics_from_blender, pose_matrix, rotation_from_config
+from ..geometry import (check_patterns, pattern_pixels, projector_cfg, projector_intrinsics, projector_matrix,
+                        projector_pose_blender, projector_resolution, spot_size, texture_mapping, T_cam_proj)
 
 LIGHTS_COLLECTION = "datapipe_lights"       # the scene's own lights (BlendScene); excluded from fringe layers
 COLLECTION_PREFIX = "datapipe_sl_"          # one collection per projector light: datapipe_sl_00, ...
@@ -75,9 +75,7 @@ LAYER_PREFIX = "sl_"                        # one view layer per pattern: sl_00,
 IMAGE_PREFIX = "datapipe_sl_pattern_"
 LIGHT_PREFIX = "datapipe_projector_"
 PROJECTOR_ENERGY_W = 10.0                   # light power (W); the pattern value * power scales it
-SPOT_MARGIN = 1.05                          # cone half-angle tangent = 1.05 x the image corner's
 INTERPOLATIONS = ("Linear", "Closest")
-MAX_CORNER_ANGLE = math.radians(80.0)       # image corner off-axis angle limit (cone < 180 deg)
 
 
 def collection_name(i: int) -> str:
@@ -86,108 +84,6 @@ def collection_name(i: int) -> str:
 
 def layer_name(i: int) -> str:
     return f"{LAYER_PREFIX}{i:02d}"
-
-
-# ------------------------------------------------------------------------------------------------
-# pure math (no bpy)
-
-def _projector_cfg(cfg):
-    """Accept a Config or a ProjectorConfig."""
-    return getattr(cfg, "projector", cfg)
-
-
-def projector_resolution(cfg) -> tuple[int, int]:
-    w, h = _projector_cfg(cfg).resolution
-    return int(w), int(h)
-
-
-def projector_intrinsics(cfg) -> np.ndarray:
-    """K_p (3x3, pixel centres at integers) from focal length (mm), sensor width (mm), W x H.
-
-    The projector is an unshifted pinhole with square pixels and Blender's AUTO sensor fit (the
-    sensor width applies to the larger image dimension) - the same rule as the camera."""
-    pr = _projector_cfg(cfg)
-    w, h = projector_resolution(pr)
-    return intrinsics_from_blender(pr.focal_length, pr.sensor_width, w, h, "AUTO")
-
-
-def projector_pose_blender(cfg) -> np.ndarray:
-    """T_blcam_bllight: the light object's pose in the camera object's local (Blender) axes."""
-    pr = _projector_cfg(cfg)
-    return pose_matrix(pr.location, rotation_from_config(pr.rotation))
-
-
-def T_cam_proj(cfg) -> np.ndarray:
-    """4x4 pose of the projector (OpenCV projector frame) in the OpenCV camera frame."""
-    return BLENDER_TO_OPENCV @ projector_pose_blender(cfg) @ BLENDER_TO_OPENCV
-
-
-def projector_matrix(cfg, T_world_cam) -> np.ndarray:
-    """P_proj (3x4): homogeneous world points -> projector pixels (x column, y row; OpenCV).
-
-    `T_world_cam` is the camera pose in the OpenCV frame (as BlendCamera returns it)."""
-    T_world_proj = np.asarray(T_world_cam, dtype=np.float64) @ T_cam_proj(cfg)
-    return projector_intrinsics(cfg) @ np.linalg.inv(T_world_proj)[:3]
-
-
-def texture_mapping(cfg) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    """(scale, location) of the Mapping node that turns (N.x/N.z, N.y/N.z) into image (s, t)."""
-    K = projector_intrinsics(cfg)
-    w, h = projector_resolution(cfg)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    scale = (-fx / w, -fy / h, 1.0)
-    location = ((cx + 0.5) / w, 1.0 - (cy + 0.5) / h, 0.0)
-    return scale, location
-
-
-def image_half_angle(cfg) -> float:
-    """Angle between the optical axis and the ray through the image's farthest outer corner (rad)."""
-    K = projector_intrinsics(cfg)
-    w, h = projector_resolution(cfg)
-    xs = (np.array([-0.5, w - 0.5]) - K[0, 2]) / K[0, 0]
-    ys = (np.array([-0.5, h - 0.5]) - K[1, 2]) / K[1, 1]
-    return math.atan(math.hypot(np.abs(xs).max(), np.abs(ys).max()))
-
-
-def spot_size(cfg, margin: float = SPOT_MARGIN) -> float:
-    """Full cone angle (rad) a little wider than the image, so the image is the aperture."""
-    half = math.atan(margin * math.tan(image_half_angle(cfg)))
-    corner = image_half_angle(cfg)
-    if corner > MAX_CORNER_ANGLE:
-        raise DataPipeError(
-            f"projector field of view too wide: its image corner is {math.degrees(corner):.1f} deg off axis, "
-            f"more than {math.degrees(MAX_CORNER_ANGLE):.0f} (a spot light cone is at most 180 deg) (fix: raise "
-            "projector.focal_length or lower projector.sensor_width)")
-    return 2.0 * half
-
-
-def pattern_pixels(pattern: np.ndarray) -> np.ndarray:
-    """(H, W) pattern, row 0 = top of the projected image -> flat RGBA float32 for Image.pixels.
-
-    Blender images are stored bottom-up, so the rows are flipped; R = G = B = value, A = 1."""
-    p = np.asarray(pattern, dtype=np.float32)
-    h, w = p.shape
-    rgba = np.empty((h, w, 4), dtype=np.float32)
-    rgba[..., :3] = p[::-1, :, None]
-    rgba[..., 3] = 1.0
-    return rgba.ravel()
-
-
-def check_patterns(cfg, patterns) -> np.ndarray:
-    """Validate a (P, H, W) stack against the projector resolution; returns float32 array."""
-    arr = np.asarray(patterns, dtype=np.float32)
-    w, h = projector_resolution(cfg)
-    if arr.ndim == 2:
-        arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (h, w):
-        raise DataPipeError(f"fringe patterns have shape {np.shape(patterns)}, the projector needs (P, {h}, {w}) "
-                            "(fix: make the patterns at projector.resolution [width, height])")
-    if arr.shape[0] < 1 or arr.shape[0] > 100:
-        raise DataPipeError(f"{arr.shape[0]} fringe patterns: one view layer each, 1..100 supported "
-                            "(fix: use fewer periods or steps)")
-    if not np.all(np.isfinite(arr)) or arr.min() < 0:
-        raise DataPipeError("fringe patterns must be finite and >= 0 (they are light intensities)")
-    return arr
 
 
 # ------------------------------------------------------------------------------------------------
@@ -269,7 +165,7 @@ class Projector:
         # cancel a scaled camera object so the light's world matrix stays rigid
         sx, sy, sz = self.camera_obj.matrix_world.to_scale()
         parent_inv = Matrix.Diagonal((1.0 / sx, 1.0 / sy, 1.0 / sz, 1.0))
-        power = _projector_cfg(self.cfg).power
+        power = projector_cfg(self.cfg).power
         for i, pat in enumerate(arr):
             img = bpy.data.images.new(f"{IMAGE_PREFIX}{i:02d}", w, h, alpha=True, float_buffer=True)
             img.colorspace_settings.name = "Non-Color"     # before the pixels: values arrive unchanged
@@ -360,7 +256,6 @@ def make_fringe_view_layers(bpy_scene, lights_collections: Sequence, exclude: It
     object still visible in a fringe layer besides its own projector, or an emitting world with no
     black override, raises DataPipeError (see `fringe_layer_leaks`).
     Existing layers of the same name are replaced. Returns the new layers in pattern order."""
-    import bpy
 
     proj_names = [c.name for c in lights_collections]
     excl_names = [getattr(c, "name", c) for c in exclude]

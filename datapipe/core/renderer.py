@@ -18,19 +18,16 @@ object index come from the pixel centre (seed- and sample-count independent, no 
 while the Normal pass is averaged over all samples (mixed at edges); the Normal pass is in world
 space; background depth is 1e10.
 
-Extra view layers (structured-light fringes, a later addition) hook in without rework:
-`add_view_layer_output(view_layer, item, kind, socket_type)` adds a Render Layers node for the
-layer (one per layer) and an input `item` on the same File Output node; the arrays come back in
-`RenderOutput.layers[item]`.
+The structured-light fringes are rendered in a call of their own (core/structured_light.py): they
+need another pixel filter and resolution than the native layer.
 """
 from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 import bpy
@@ -38,7 +35,7 @@ import bpy
 from . import compat
 from ..config import Config
 from ..errors import DataPipeError
-from ..exr import write_exr
+from ..io.native import write_render_maps
 
 NATIVE_LAYER = "datapipe"
 TEMP_BASENAME = "_passes"           # the File Output's per-render multilayer EXR (no braces!)
@@ -52,7 +49,7 @@ _NATIVE_ITEMS = {
     "mask": ("IndexOB", "index", "FLOAT"),
 }
 _PASS_FLAGS = {"depth": "use_pass_z", "normals": "use_pass_normal", "mask": "use_pass_object_index"}
-_FILES = {"rgb": "rgb.png", "depth": "depth.exr", "normals": "normals.exr", "mask": "mask.exr"}
+_OUTPUTS = ("rgb", "depth", "normals", "mask")   # in the order their files are written and annotated
 _CHANNELS = {"FLOAT": ("V",), "VECTOR": ("X", "Y", "Z"), "RGBA": ("R", "G", "B", "A")}
 
 
@@ -64,10 +61,8 @@ class RenderOutput:
     mask: np.ndarray | None = None              # (H, W) int32 pass_index, 0 = background
     normals: np.ndarray | None = None           # (H, W, 3) float32, OpenCV camera frame
     rgb: np.ndarray | None = None               # (H, W, 3) uint8 sRGB
-    fringes: object | None = None               # filled by the structured-light addition
     seconds: float = 0.0                        # wall time of the Cycles render itself
     T_world_cam: np.ndarray | None = None       # camera pose the render was made from
-    layers: dict[str, np.ndarray] = field(default_factory=dict)   # extra view-layer outputs
 
 
 def srgb_oetf(linear: np.ndarray) -> np.ndarray:
@@ -88,13 +83,12 @@ class Renderer:
         self.cfg = cfg
         self.scene = scene
         self.camera = camera
-        self.outputs: list[str] = [k for k in _FILES if k in cfg.render.outputs]
+        self.outputs: list[str] = [k for k in _OUTPUTS if k in cfg.render.outputs]
         self.view_layer = None
         self.tree = None
         self.file_output = None
         self._rl_nodes: dict[str, object] = {}           # view layer name -> Render Layers node
         self._items: dict[str, tuple[str, str, str]] = {}  # EXR layer -> (view layer, pass, socket type)
-        self._extra: list[str] = []                       # items added by add_view_layer_output
 
     # -- once per run -----------------------------------------------------------------------------
     def setup(self) -> "Renderer":
@@ -147,7 +141,6 @@ class Renderer:
         self.tree = compat.compositor_tree(self.scene, clear=True)
         self._rl_nodes.clear()
         self._items.clear()
-        self._extra.clear()
         self.file_output = compat.new_file_output(self.tree, bpy.app.tempdir or "/tmp", TEMP_BASENAME)
         rl = self._render_layers(self.view_layer)
         compat.add_compositor_sink(self.tree, compat.rl_socket(rl, "image"))
@@ -170,22 +163,6 @@ class Renderer:
         socket = compat.rl_socket(self._render_layers(view_layer), pass_kind)
         self.tree.links.new(socket, compat.file_output_add_input(self.file_output, item, socket_type))
         self._items[item] = (view_layer.name, pass_kind, socket_type)
-
-    # -- hooks for extra view layers (structured light) ------------------------------------------
-    def add_view_layer_output(self, view_layer, item: str, kind: str = "image",
-                              socket_type: str = "RGBA") -> str:
-        """Write pass `kind` ('image', 'depth', 'normal', 'index', 'alpha') of `view_layer` into
-        each render's EXR as layer `item` (no braces, unique); it comes back as
-        `RenderOutput.layers[item]`: (H, W) for FLOAT, (H, W, 3) for VECTOR and RGB of RGBA.
-        Enable the layer's passes before calling. Call after setup(); once per run."""
-        if self.tree is None:
-            raise DataPipeError("Renderer.setup() must run before view-layer outputs are added")
-        if "{" in item or "}" in item or "." in item:
-            raise ValueError(f"File Output layer name {item!r} must not contain braces or dots")
-        view_layer.use = True
-        self._link(view_layer, item, kind, socket_type)
-        self._extra.append(item)
-        return item
 
     # -- once per render --------------------------------------------------------------------------
     def render(self, render_dir: str | os.PathLike, seed: int) -> RenderOutput:
@@ -245,26 +222,16 @@ class Renderer:
             norm = np.linalg.norm(n_cam, axis=-1, keepdims=True)
             hit = norm > 1e-6
             out.normals = np.where(hit, n_cam / np.where(hit, norm, 1.0), 0.0).astype(np.float32)
-        for item in self._extra:
-            out.layers[item] = self._layer(channels, item)
         return out
 
     def _write(self, render_dir: Path, out: RenderOutput) -> dict[str, Path]:
-        files: dict[str, Path] = {}
+        maps = {}
         if out.rgb is not None:
-            path = render_dir / _FILES["rgb"]
-            tmp = render_dir / "rgb.tmp.png"
-            if not cv2.imwrite(str(tmp), np.ascontiguousarray(out.rgb[..., ::-1])):
-                raise DataPipeError(f"cannot write {path} (check the output folder)")
-            os.replace(tmp, path)
-            files["rgb"] = path
+            maps["rgb"] = np.ascontiguousarray(out.rgb[..., ::-1])        # cv2 writes BGR
         if out.depth is not None:
-            files["depth"] = render_dir / _FILES["depth"]
-            write_exr(files["depth"], {"Z": out.depth})
+            maps["depth"] = {"Z": out.depth}
         if out.normals is not None:
-            files["normals"] = render_dir / _FILES["normals"]
-            write_exr(files["normals"], {c: out.normals[..., i] for i, c in enumerate("XYZ")})
+            maps["normals"] = {c: out.normals[..., i] for i, c in enumerate("XYZ")}
         if out.mask is not None:
-            files["mask"] = render_dir / _FILES["mask"]
-            write_exr(files["mask"], {"Y": out.mask.astype(np.float32)})
-        return files
+            maps["mask"] = {"Y": out.mask.astype(np.float32)}
+        return write_render_maps(render_dir, maps)

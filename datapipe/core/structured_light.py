@@ -1,6 +1,7 @@
 """The structured-light camera inside the pipeline: projector + fringe view layers at setup, then per
-render: fringe render -> sensor model -> decode -> validity filters -> sl_depth.exr / sl_valid.png
-(+ sl_debug.exr). Defaults and their measurements: benchmarks/results/sl_render.md.
+render: fringe render (here) -> `sl.Scanner` (sensor model -> decode -> filters, pure numpy) ->
+sl_depth.exr / sl_valid.png (+ sl_debug.exr). Defaults and their measurements:
+benchmarks/results/sl_render.md.
 
 Only built when `cfg.structured_light.enabled`; with it off, none of this exists in the scene.
 
@@ -35,32 +36,13 @@ after a bounce (its light still raises the offset and lowers the contrast), the 
 1-period 98%, so the coarse patterns keep their real inter-reflection bias. Direct light is
 unchanged (tested byte-for-byte). Not modelled: fine fringes mirrored by near-specular parts.
 
-Validity (what "valid" means)
------------------------------
-1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated, and
-   fringe contrast B/A >= MIN_CONTRAST (0.5; the decoder's default is 0.05). Direct light has
-   B/A ~0.9; a pixel lit mostly by light reflected from another surface (e.g. the projector's
-   shadow next to a bin wall, seen through the glossy floor) has ~0.2-0.4 and the phase of the
-   other surface.
-2. projector border: pixels within BORDER_PX camera pixel of the projector image's left/right
-   edge (their sub-samples straddle the edge of the lit area).
-3. edge / speckle filter: a camera pixel that straddles a depth edge mixes the fringes of both
-   surfaces and, where the mixture unwraps consistently, decodes to a depth between them (a
-   "flying pixel"); multi-path light can shift a few pixels by whole fringes. Each valid pixel is
-   compared with the valid pixels of its 3x3 neighbourhood:
+Sensor, decode and filters
+--------------------------
+`sl.Scanner` (datapipe/sl/scanner.py): exposure, the seeded sensor model, the decoder with
+min_contrast 0.5 against inter-reflections, the projector-border and edge/speckle filters
+(reason FILTERED = 7), and the maps written per render. This module only renders the fringes.
 
-    support(p) = #{ q in N8(p) valid : |Z_q - Z_p| <= tol_pq },
-    tol_pq     = EDGE_SIGMAS * sqrt(sigma_p^2 + sigma_q^2) + EDGE_SLOPE * Z_p * pixel_angle * |q - p|
-
-   (`sigma` the per-pixel theoretical depth noise, `sl.pixel_depth_sigma`; `pixel_angle` = 1/f_camera
-   [rad per px]; the second term admits surfaces up to about atan(EDGE_SLOPE) = 75 deg from
-   fronto-parallel; constants in `sl.filters`). Fewer than EDGE_MIN_SUPPORT agreeing neighbours: removed. Flying pixels agree
-   with neither side, a speckle with nobody; pixels on the straight border of a surface keep 4-5
-   agreeing neighbours; the tips of sharp corners erode by about one pixel, as with real edge
-   filters.
-Pixels removed by 2. and 3. get reason FILTERED (7) in sl_debug.exr and the annotations.
-
-Timing: `last_seconds` holds the fringe call's and the decode's wall time of the last render (the
+Timing: `last_seconds` holds the fringe call's and the scan's wall time of the last render (the
 pipeline reports both as its "structured_light" stage); they are kept out of the annotations so
 two runs of one seed write identical scene.json files.
 """
@@ -69,25 +51,20 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from .. import sl
-from ..exr import write_exr
-from ..geometry import projection_matrix
+from ..geometry import T_cam_proj, projector_intrinsics
+from ..io.native import write_render_maps
 from . import projector as _pj
-from .projector import LIGHTS_COLLECTION, Projector, T_cam_proj, projector_intrinsics, projector_matrix
+from .projector import LIGHTS_COLLECTION, Projector
 
 FRINGE_FILTER_WIDTH = 0.01      # px, Blackman-Harris pixel filter of the fringe render (point samples)
 FRINGE_SUPERSAMPLE = 2           # fringe render at this factor x the camera resolution, block-averaged
 FRINGE_BASENAME = "_sl_fringes"  # the fringe call's multilayer EXR in the render folder (deleted)
 OUTPUT_NODE = "datapipe_sl_file_output"
-MIN_CONTRAST = 0.5               # decode(min_contrast=): fringe contrast B/A below this = global light
-BORDER_PX = 1.0                  # camera px kept free at the projector image's left/right border
 INDIRECT_BLUR_PX = 32.0          # projector px: Gaussian blur of the pattern as seen by inter-reflected light
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
-FILTERED = int(sl.Reason.FILTERED)   # reason code of pixels removed by the edge/speckle filter
-REASON_NAMES = {r.value: r.name for r in sl.Reason}
 
 
 class StructuredLightCamera:
@@ -96,7 +73,7 @@ class StructuredLightCamera:
     >>> slc = StructuredLightCamera(cfg, bpy_scene, camera, renderer); slc.setup()
     >>> info = slc.process(out, render_dir, seed, T_world_cam, scene_dir)   # after renderer.render
     >>> stack, seconds = slc.render_fringes(render_dir, seed)               # the pieces, for benchmarks
-    >>> res, extra = slc.decode(stack, seed, T_world_cam)
+    >>> scan = slc.scanner.scan(stack, seed, camera.K, T_world_cam)         # sl.Scanner
     """
 
     def __init__(self, cfg, bpy_scene, camera, renderer):
@@ -104,20 +81,17 @@ class StructuredLightCamera:
         s = cfg.structured_light
         self.periods, self.steps = list(s.periods), int(s.steps)
         self.proj_size = tuple(int(v) for v in cfg.projector.resolution)
-        self.sensor = sl.SensorModel.preset(s.sensor)
+        self.scanner = sl.Scanner.from_config(cfg)   # refuses an ambiguous period set before any render
         self.filter_width = FRINGE_FILTER_WIDTH
         self.supersample = FRINGE_SUPERSAMPLE
         self.indirect_blur_px = INDIRECT_BLUR_PX
         self.samples = int(s.samples)
-        self.min_contrast = MIN_CONTRAST
-        self.edge_filter = True
         self.layers: list = []
         self.layer_names: list[str] = []
         self.file_output = None
         self._rl_nodes: list = []
         self.last_seconds: dict = {}     # {"render": s, "decode": s} of the last process() (not annotated:
                                          # annotations stay identical between runs of one seed)
-        sl.plan_unwrap(self.periods, s.unwrap)     # refuse an ambiguous period set before any render
 
     # -- once per run -----------------------------------------------------------------------------
     def setup(self) -> None:
@@ -216,72 +190,24 @@ class StructuredLightCamera:
             stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
         return stack, seconds
 
-    def decode(self, radiance, seed: int, T_world_cam, *, sensor: str | None = None,
-               exposure: float | None = None, edge_filter: bool | None = None):
-        """Linear radiance stack -> (DecodeResult, extra). Applies exposure, the sensor model
-        (seeded), the decoder and the edge/speckle filter (filtered pixels: reason FILTERED, NaN).
-        `sensor` (preset name) and `exposure` override the config's for this call (benchmarks).
-
-        extra: {"sigma_z": per-pixel theoretical depth sigma (m, NaN where invalid), "filtered":
-        bool mask, "P_proj", "P_cam", "sensor": SensorModel, "decode_seconds"}."""
-        t0 = time.perf_counter()
-        s = self.cfg.structured_light
-        model = self.sensor if sensor is None else sl.SensorModel.preset(sensor)
-        gain = float(s.exposure if exposure is None else exposure)
-        radiance = np.clip(np.asarray(radiance, dtype=np.float32), 0.0, None) * gain
-        dn, saturation = model.apply(radiance, seed)
-        P_cam = projection_matrix(self.camera.K, T_world_cam)
-        P_proj = projector_matrix(self.cfg, T_world_cam)
-        res = sl.decode(dn, periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
-                        proj_size=self.proj_size, unwrap=s.unwrap, noise_sigma=model.noise_sigma,
-                        saturation=saturation, min_contrast=self.min_contrast)
-        sigma_z = sl.pixel_depth_sigma(res, model.noise_sigma, self.proj_size[0], self.steps)
-        filtered = np.zeros(res.valid.shape, bool)
-        if self.edge_filter if edge_filter is None else edge_filter:
-            fx = float(self.camera.K[0, 0])
-            margin = BORDER_PX * float(projector_intrinsics(self.cfg)[0, 0]) / fx + 0.5
-            with np.errstate(invalid="ignore"):
-                filtered = res.valid & ((res.proj_x < margin - 0.5)
-                                        | (res.proj_x > self.proj_size[0] - 0.5 - margin))
-            filtered |= sl.edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
-            res.valid &= ~filtered
-            res.depth[filtered] = np.nan
-            res.proj_x[filtered] = np.nan
-            res.phase[filtered] = np.nan
-            res.reason[filtered] = FILTERED
-        sigma_z[~res.valid] = np.nan
-        decode_s = time.perf_counter() - t0
-        return res, {"sigma_z": sigma_z, "filtered": filtered, "P_proj": P_proj, "P_cam": P_cam,
-                     "sensor": model, "decode_seconds": decode_s}
-
-    def process(self, out, rdir: Path, seed: int, T_world_cam, sdir: Path) -> dict:
+    def process(self, rdir: Path, seed: int, T_world_cam, sdir: Path) -> dict:
+        """Render the fringes, scan them, write the maps; returns the render's structured_light record."""
         s = self.cfg.structured_light
         rdir = Path(rdir)
         radiance, render_s = self.render_fringes(rdir, seed)
-        res, extra = self.decode(radiance, seed, T_world_cam)
-        self.last_seconds = {"render": render_s, "decode": extra["decode_seconds"]}
-        files = {"sl_depth": rdir / "sl_depth.exr", "sl_valid": rdir / "sl_valid.png"}
-        write_exr(files["sl_depth"], {"Z": res.depth})
-        cv2.imwrite(str(files["sl_valid"]), res.valid.astype(np.uint8) * 255)
-        if s.debug:
-            ch = {"phase": res.phase, "offset": res.offset, "proj_x": res.proj_x,
-                  "reason": res.reason.astype(np.float32), "order_error": res.order_error,
-                  "sigma_z": extra["sigma_z"].astype(np.float32)}
-            for k, (w, m) in enumerate(zip(res.wrapped, res.modulation)):
-                ch[f"wrapped_{k}"], ch[f"modulation_{k}"] = w, m
-            files["sl_debug"] = rdir / "sl_debug.exr"
-            write_exr(files["sl_debug"], ch)
-        counts = np.bincount(res.reason.ravel(), minlength=FILTERED + 1)
+        scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam)
+        self.last_seconds = {"render": render_s, "decode": scan.seconds}
+        files = write_render_maps(rdir, scan.maps(debug=s.debug))
+        summary = scan.summary()
         return {
             "files": {k: str(Path(p).relative_to(sdir)) for k, p in files.items()},
-            "periods": self.periods, "steps": self.steps, "unwrap": res.method, "samples": int(s.samples),
+            "periods": self.periods, "steps": self.steps, "unwrap": summary["unwrap"], "samples": int(s.samples),
             "sensor": s.sensor, "exposure": float(s.exposure), "power": float(self.cfg.projector.power),
-            "filter_width": float(self.filter_width), "P_proj": extra["P_proj"],
+            "filter_width": float(self.filter_width), "P_proj": scan.P_proj,
             "K_proj": projector_intrinsics(self.cfg),
             "T_cam_proj": T_cam_proj(self.cfg), "proj_resolution": list(self.proj_size),
-            "valid_fraction": float(res.valid.mean()),
-            "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
-            "median_sigma_z": _nanmedian(extra["sigma_z"]),
+            "valid_fraction": summary["valid_fraction"], "reasons": summary["reasons"],
+            "median_sigma_z": summary["median_sigma_z"],
         }
 
     def teardown(self) -> None:
@@ -303,15 +229,17 @@ def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:
 
 def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
     """Make a projector light's node tree emit, for inter-reflected light only (Light Path Ray
-    Depth > 0), the pattern blurred by INDIRECT_BLUR_PX: offset + gain * (pattern - offset), times
-    the image's alpha (no light outside the projector image). Direct light is untouched.
+    Depth > 1.5: in a light shader direct light has ray depth 1), the pattern blurred by
+    INDIRECT_BLUR_PX: offset + gain * (pattern - offset), times the image's alpha (no light outside
+    the projector image). Direct light is untouched.
 
     Why: with a few paths per pixel the inter-reflected part of a fine fringe is Monte-Carlo noise
     (each path picks up the pattern at one random point of another surface), while physically a
     diffuse bounce averages the fine pattern over a footprint of many periods (the reason fine
-    fringes resist inter-reflections). The blur is that average, done analytically: the 64-period
-    fringe loses all modulation after a bounce (its light still adds to the offset, lowering the
-    contrast), the 8-period keeps 68%, the 1-period 99%, so the coarse patterns keep their real
+    fringes resist inter-reflections). The blur is that average, done analytically
+    (`indirect_gain`): with the default 32 px blur on a 912 px projector the 64-period fringe keeps
+    ~0 of its modulation after a bounce (its light still adds to the offset, lowering the
+    contrast), the 8-period 21%, the 1-period 98%, so the coarse patterns keep their real
     inter-reflection bias. Not modelled: fine fringes mirrored by near-specular parts."""
     tex = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeTexImage")
     em = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeEmission")
@@ -373,12 +301,3 @@ def remove_leftovers(bpy_scene, tree=None) -> None:
         for n in list(tree.nodes):
             if n.name.startswith(OUTPUT_NODE):
                 tree.nodes.remove(n)
-
-
-# ------------------------------------------------------------------------------------------------
-# pure numpy helpers (no bpy)
-
-def _nanmedian(a) -> float | None:
-    a = np.asarray(a)
-    a = a[np.isfinite(a)]
-    return float(np.median(a)) if a.size else None

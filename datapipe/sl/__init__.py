@@ -1,11 +1,12 @@
 """Structured light (fringe projection), pure numpy: patterns, phase, unwrapping, triangulation,
-a camera noise model, the decoder and its metrics. No Blender here, ever (design.md)."""
+a camera noise model, the decoder and its metrics, and the scanner (sensor -> decode -> filters). No Blender here, ever (design.md)."""
 from .decode import DecodeResult, Reason, decode, estimate_noise_sigma, modulation_floor_factor
 from .filters import edge_speckle_filter
 from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
                       theoretical_phase_sigma)
 from .patterns import fringe_patterns, phase_shifts
 from .phase import PhaseResult, phase_shift
+from .scanner import Scan, Scanner
 from .sensor import PRESETS, SensorModel
 from .triangulate import Triangulator, TriangulationResult, intrinsics_from_blender, projection_matrix
 from .unwrap import UnwrapResult, plan_unwrap, unwrap_phase
@@ -19,4 +20,5 @@ __all__ = [
     "decode", "DecodeResult", "Reason", "estimate_noise_sigma", "modulation_floor_factor",
     "depth_error_stats", "theoretical_phase_sigma", "theoretical_depth_sigma", "effective_period",
     "pixel_depth_sigma", "edge_speckle_filter",
+    "Scanner", "Scan",
 ]

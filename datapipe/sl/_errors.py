@@ -6,14 +6,14 @@ and ``pytest.raises(ValueError)`` catch them). Messages name the argument and th
 """
 from __future__ import annotations
 
-from ..errors import DataPipeError
+from ..errors import ArgumentTypeError, ArgumentValueError
 
 
-class SLValueError(DataPipeError, ValueError):
+class SLValueError(ArgumentValueError):
     """An argument of a structured-light function has a wrong value or shape."""
 
 
-class SLTypeError(DataPipeError, TypeError):
+class SLTypeError(ArgumentTypeError):
     """An argument of a structured-light function has a wrong type."""
 
 

@@ -1,4 +1,5 @@
-"""Camera-projector triangulation in closed form, plus the camera-model helpers shared with Blender.
+"""Camera-projector triangulation in closed form (the camera-model helpers it re-exports,
+`intrinsics_from_blender` and `projection_matrix`, live in datapipe.geometry).
 
 Geometry. ``P_cam = K [R|t]`` and ``P_proj`` are 3x4 world -> pixel matrices (OpenCV convention,
 pixel centres at integers). ``P_cam`` is normalised (sign and scale) so that for a world point X,
@@ -28,78 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from ..geometry import finite_matrix as _finite_matrix
+from ..geometry import intrinsics_from_blender_camera as intrinsics_from_blender
+from ..geometry import projection_matrix
 from ._errors import bad_type, bad_value
 
 __all__ = ["Triangulator", "TriangulationResult", "intrinsics_from_blender", "projection_matrix"]
-
-
-# --------------------------------------------------------------------------------------------
-# camera model helpers (one source of truth for the Blender side too)
-# --------------------------------------------------------------------------------------------
-
-def intrinsics_from_blender(focal_mm: float, sensor_width_mm: float, width: int, height: int,
-                            sensor_fit: str = "AUTO", *, sensor_height_mm: float = 24.0,
-                            shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
-    """OpenCV intrinsics ``K`` (3x3 float64) of a Blender perspective camera, square pixels.
-
-    ``sensor_fit``: 'AUTO' (Blender's default: the sensor width applies to the larger image
-    dimension), 'HORIZONTAL' (sensor width <-> image width) or 'VERTICAL' (``sensor_height_mm``
-    <-> image height). Principal point ``cx = W/2 - 0.5``, ``cy = H/2 - 0.5`` (pixel centres at
-    integers), moved by Blender's lens shift (in units of the fitted dimension; +shift_y moves the
-    view up, i.e. the principal point down in the image).
-    """
-    for name, v in (("focal_mm", focal_mm), ("sensor_width_mm", sensor_width_mm),
-                    ("sensor_height_mm", sensor_height_mm)):
-        if not np.isfinite(v) or v <= 0:
-            raise bad_value(name, f"must be a finite number > 0, got {v!r}", "give the length in millimetres")
-    for name, v in (("width", width), ("height", height)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise bad_value(name, f"must be a positive int, got {v!r}", "give the resolution in pixels")
-    fit = str(sensor_fit).upper()
-    if fit == "AUTO":
-        size_px, sensor = max(width, height), sensor_width_mm
-    elif fit == "HORIZONTAL":
-        size_px, sensor = width, sensor_width_mm
-    elif fit == "VERTICAL":
-        size_px, sensor = height, sensor_height_mm
-    else:
-        raise bad_value("sensor_fit", f"must be 'AUTO', 'HORIZONTAL' or 'VERTICAL', got {sensor_fit!r}",
-                        "use Blender's camera.data.sensor_fit value")
-    f = focal_mm * size_px / sensor
-    cx = width / 2.0 - 0.5 - shift_x * size_px
-    cy = height / 2.0 - 0.5 + shift_y * size_px
-    return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
-
-
-def projection_matrix(K, T_world_cam) -> np.ndarray:
-    """``P = K @ inv(T_world_cam)[:3]`` (3x4, float64): world -> pixel for a camera whose pose in
-    the world is ``T_world_cam`` (4x4, OpenCV camera frame: x right, y down, z forward)."""
-    K = _finite_matrix(K, (3, 3), "K")
-    T = _finite_matrix(T_world_cam, (4, 4), "T_world_cam")
-    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
-        raise bad_value("T_world_cam", f"last row is {T[3].tolist()}, not [0, 0, 0, 1]",
-                        "pass a rigid 4x4 pose matrix")
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
-        raise bad_value("T_world_cam", "rotation part is not a proper rotation",
-                        "pass a rigid pose (orthonormal rotation, det +1, no scale)")
-    inv = np.eye(4)
-    inv[:3, :3] = R.T
-    inv[:3, 3] = -R.T @ T[:3, 3]
-    return K @ inv[:3]
-
-
-def _finite_matrix(m, shape, name) -> np.ndarray:
-    try:
-        a = np.asarray(m, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise bad_type(name, f"must be a numeric {shape[0]}x{shape[1]} matrix, got {type(m).__name__}",
-                       f"pass a {shape[0]}x{shape[1]} numpy array") from None
-    if a.shape != shape:
-        raise bad_value(name, f"has shape {a.shape}, expected {shape}", f"pass a {shape[0]}x{shape[1]} matrix")
-    if not np.all(np.isfinite(a)):
-        raise bad_value(name, "contains NaN or inf", "check the calibration / pose that produced it")
-    return a
 
 
 def _size(s, name):

@@ -82,8 +82,18 @@ class Run:
             self.set_status(f"Cancelled at {p.done}/{p.total}: everything written so far is kept "
                             "(Resume continues the run)")
         elif p is not None:
+            if p.stage == "done":
+                self._overview()
             self.set_status(f"Done: {p.done}/{p.total} renders in {self.pipeline.out}", 1.0)
         _end(self)
+
+    def _overview(self) -> None:
+        """The run's overview sheet (output.overview); a failure to draw it does not fail the run."""
+        from ..show import overview_after_run
+        try:
+            overview_after_run(self.pipeline.out, self.pipeline.cfg.output)
+        except Exception:
+            traceback.print_exc()
 
     def fail(self, message: str) -> None:
         self.finished = True

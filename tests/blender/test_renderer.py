@@ -265,22 +265,6 @@ def test_linear_emission_gives_srgb_value(factory_scene, tmp_path):
     assert scene.view_settings.view_transform == "Standard" and scene.render.dither_intensity == 0
 
 
-def test_extra_view_layer_output_hook(factory_scene, tmp_path):
-    """A second view layer wired into the same File Output (how fringe layers will hook in)."""
-    scene = factory_scene
-    cfg = make_cfg(outputs=("rgb", "depth"))
-    cam, ren = setup(scene, cfg)
-    add_plane(material=emission_material((0.5, 0.25, 0.1)))
-    vl = scene.view_layers.new("fringe_test")
-    ren.add_view_layer_output(vl, "fringe_00", "image", "RGBA")
-    out = ren.render(tmp_path, seed=0)
-    layer = out.layers["fringe_00"]
-    assert layer.shape == (H, W, 3)
-    np.testing.assert_allclose(layer, np.broadcast_to([0.5, 0.25, 0.1], (H, W, 3)), rtol=5e-3)
-    assert sum(n.bl_idname == "CompositorNodeRLayers" for n in ren.tree.nodes) == 2
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["depth.exr", "rgb.png"]
-
-
 def test_user_errors_are_datapipe_errors(factory_scene, tmp_path):
     scene = factory_scene
     cfg = make_cfg(outputs=("depth",))

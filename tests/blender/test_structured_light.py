@@ -20,7 +20,8 @@ from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
 from datapipe.core.camera import BlendCamera  # noqa: E402
 from datapipe.core.pipeline import Pipeline  # noqa: E402
-from datapipe.core.projector import T_cam_proj, projector_intrinsics, projector_matrix  # noqa: E402
+from datapipe.geometry import T_cam_proj, projector_intrinsics, projector_matrix  # noqa: E402
+from datapipe.sl.scanner import REASON_NAMES  # noqa: E402
 from datapipe.core.renderer import Renderer  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
 from datapipe.exr import read_depth, read_exr  # noqa: E402
@@ -56,7 +57,7 @@ def build(tmp_path, cfg, box=False):
 def render(tmp_path, ren, slc, T):
     rdir = tmp_path / "r"
     out = ren.render(rdir, SEED)
-    info = slc.process(out, rdir, SEED, T, tmp_path)
+    info = slc.process(rdir, SEED, T, tmp_path)
     return out, info, read_depth(rdir / "sl_depth.exr")
 
 
@@ -134,9 +135,10 @@ def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path):
     assert abs(np.median(err)) < 5e-5                    # no bias
 
     # the physical limit: sigma_phi = sqrt(2/N) sigma_I / B, sigma_Z = Z^2/(f_p b) T_eff/(2 pi) sigma_phi
-    res, extra = slc.decode(slc.render_fringes(tmp_path / "again", SEED)[0], SEED, T)
+    scan = slc.scanner.scan(slc.render_fringes(tmp_path / "again", SEED)[0], SEED, cam.K, T)
+    res = scan.result
     B = float(np.median(res.modulation[-1][res.valid]))
-    sigma_i = float(slc.sensor.noise_sigma(np.median(res.offset[res.valid])))
+    sigma_i = float(slc.scanner.sensor.noise_sigma(np.median(res.offset[res.valid])))
     sphi = sl.theoretical_phase_sigma(sigma_i, B, cfg.structured_light.steps)
     f_p = projector_intrinsics(cfg)[0, 0]
     b = float(np.linalg.norm(T_cam_proj(cfg)[:3, 3]))
@@ -145,9 +147,9 @@ def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path):
     assert 0.05e-3 < sigma_z < 0.25e-3
     assert 3 * 0.674 * sigma_z < 1e-3                   # the 1 mm bound is far above the noise
     # the per-pixel limit the camera reports agrees with the closed form (geometry ~10%)
-    assert np.nanmedian(extra["sigma_z"]) == pytest.approx(sigma_z, rel=0.25)
+    assert np.nanmedian(scan.sigma_z) == pytest.approx(sigma_z, rel=0.25)
     robust_sigma = 1.4826 * np.median(np.abs(err - np.median(err)))
-    assert robust_sigma <= 1.5 * np.nanmedian(extra["sigma_z"])
+    assert robust_sigma <= 1.5 * np.nanmedian(scan.sigma_z)
     assert info["valid_fraction"] == pytest.approx(valid.mean())
 
 
@@ -240,7 +242,7 @@ def test_debug_output_and_annotations(tmp_path):
     ch = {c.split(".")[0]: v for c, v in dbg.items()}
     H, W = 120, 160
     reason = np.rint(ch["reason"]).astype(int)
-    assert reason.shape == (H, W) and set(np.unique(reason)) <= set(SLM.REASON_NAMES)
+    assert reason.shape == (H, W) and set(np.unique(reason)) <= set(REASON_NAMES)
     for k in range(F):
         w = ch[f"wrapped_{k}"]
         assert np.nanmin(w) >= 0 and np.nanmax(w) < 2 * np.pi + 1e-6
@@ -277,12 +279,11 @@ def test_native_render_unchanged_by_structured_light(tmp_path):
     slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
     slc.setup()
     after = ren.render(tmp_path / "b", SEED)
-    slc.process(after, tmp_path / "b", SEED, T, tmp_path)
+    slc.process(tmp_path / "b", SEED, T, tmp_path)
     again = ren.render(tmp_path / "c", SEED)
     for o in (after, again):
         assert np.array_equal(o.rgb, before.rgb)
         assert np.array_equal(o.depth, before.depth, equal_nan=True)
-        assert not o.layers
     assert blend.scene.cycles.filter_width == filter_width
     assert blend.scene.render.resolution_percentage == 100
     slc.teardown()

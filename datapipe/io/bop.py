@@ -1,0 +1,422 @@
+"""BOP export (https://github.com/thodan/bop_toolkit/blob/master/docs/bop_datasets_format.md). No bpy.
+
+Pure numpy / scipy / cv2 / json: reads the native output layout (docs/ARCHITECTURE.md) and writes
+the BOP-scenewise layout BlenderProc's `write_bop` users know:
+
+    BOP_ROOT/
+      camera.json                    {cx, cy, fx, fy, width, height, depth_scale}
+      models/obj_000001.ply          x y z nx ny nz (mm) + faces;  models_info.json (mm)
+      train_pbr/000000/              chunk = image_id // chunk_size, im_id = image_id % chunk_size
+        rgb/000000.png               the native rgb.png (8-bit, 3 channels)
+        depth/000000.png             z-buffer depth, uint16, depth_mm = value * depth_scale, 0 = no data
+        depth_sl/000000.png          structured-light depth, same encoding (when the run has it)
+        mask/000000_000001.png       full (unoccluded) silhouette of annotation 1, 0/255
+        mask_visib/000000_000001.png visible part of annotation 1 (native mask.exr == mask_index)
+        scene_camera.json  scene_gt.json  scene_gt_info.json
+        scene_gt_coco.json           COCO instances (bop_toolkit's calc_gt_coco: RLE of mask_visib,
+                                     amodal bbox, "ignore" when visib_fract < 0.1)
+        datapipe.json                im_id -> native scene/render names and the global image_id
+
+Masks are named IMID_GTID with GTID the index of the annotation in the image's scene_gt list.
+
+Full silhouettes: the renders give only the visible mask, so `mask/` is rasterised here from the
+model (models/obj_*.ply, the mesh Blender rendered, scale baked) posed with cam_K and T_cam_obj: a
+pixel belongs to the silhouette when its centre (integer coordinates) lies inside a projected
+triangle. Like bop_toolkit's calc_gt_info (which renders on a 3x canvas) the count `px_count_all`
+and `bbox_obj` include the part of the silhouette cut off by the image border (up to one image size
+beyond each side). The visible mask is added to the silhouette so that visib_fract <= 1 even where
+the rasteriser and the renderer disagree on an edge pixel. Triangles with a vertex closer than
+1 mm to the camera plane are skipped (bin-picking parts are always well in front of the camera).
+
+Statistics follow bop_toolkit's calc_gt_info, except that the visible mask is the renderer's exact
+instance mask instead of a depth test with a tolerance: px_count_visib = pixels of mask_visib,
+px_count_valid = silhouette pixels (in the image) with valid ground-truth depth, visib_fract =
+px_count_visib / px_count_all, bboxes as (x, y, w, h) with w = x_max - x_min (bop_toolkit's
+calc_2d_bbox), and both bboxes [-1, -1, -1, -1] when nothing is visible.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import cv2
+import numpy as np
+
+from ..errors import DataPipeError
+from ..exr import read_depth, read_mask
+from . import layout
+from .files import copy_atomic, imwrite_atomic, read_json, read_json_or_empty, write_json_lines_atomic
+from .models import Model, load_models, model_filename, write_models
+from .silhouette import mask_bbox, rasterize_silhouette
+
+SPLIT = "train_pbr"
+MAX_UINT16 = 65535
+
+
+# ------------------------------------------------------------------------------------------------
+# depth encoding, statistics
+
+def depth_range_m(depth_scale: float) -> float:
+    return MAX_UINT16 * depth_scale / 1000.0
+
+
+def encode_depth(depth_m: np.ndarray, depth_scale: float, *, what: str = "depth") -> np.ndarray:
+    """Planar depth in metres (NaN/inf/<=0 = no data) -> uint16 with depth_mm = value * depth_scale."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    q = np.zeros(d.shape, dtype=np.float64)
+    q[valid] = np.rint(d[valid] * 1000.0 / depth_scale)
+    if valid.any() and q.max() > MAX_UINT16:
+        far = float(d[valid].max())
+        need = far * 1000.0 / MAX_UINT16
+        nice = next((s for s in (0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0) if s >= need), need)
+        raise DataPipeError(
+            f"{what}: {far:.3f} m is beyond what 16-bit BOP depth holds with depth_scale {depth_scale} mm "
+            f"(at most {depth_range_m(depth_scale):.4f} m); export with depth_scale={nice} "
+            f"(BopWriter(..., depth_scale={nice}) or `export_bop(..., depth_scale={nice})`), or move the "
+            "camera / clip_end closer")
+    q[valid & (q < 1)] = 1          # a hit closer than half a step is still data, not "no data"
+    return q.astype(np.uint16)
+
+def mask_to_rle(mask: np.ndarray) -> dict:
+    """COCO's uncompressed RLE (column-major runs, starting with a run of zeros), as bop_toolkit writes it."""
+    flat = np.asarray(mask, dtype=bool).ravel(order="F")
+    counts = [] if (len(flat) and not flat[0]) or not len(flat) else [0]
+    if len(flat):
+        change = np.flatnonzero(np.concatenate(([True], flat[:-1] != flat[1:], [True])))
+        counts += np.diff(change).tolist()
+    return {"counts": counts, "size": [int(mask.shape[0]), int(mask.shape[1])]}
+
+
+def gt_info(sil_mask: np.ndarray, px_count_all: int, bbox_obj: list[int], visib: np.ndarray,
+            depth_valid: np.ndarray) -> dict:
+    """One scene_gt_info entry from the full silhouette (inside the image), the visible mask and
+    the ground-truth depth's validity."""
+    extra = int(np.count_nonzero(visib & ~sil_mask))     # visible pixels the rasteriser missed
+    sil = sil_mask | visib
+    px_all = int(px_count_all) + extra
+    px_visib = int(np.count_nonzero(visib))
+    px_valid = int(np.count_nonzero(sil & depth_valid))
+    if px_visib > 0:
+        bbox_visib = mask_bbox(visib)
+        if extra:
+            b2 = mask_bbox(sil)
+            b = bbox_obj if bbox_obj[0] != -1 else b2
+            lo_x, lo_y = min(b[0], b2[0]), min(b[1], b2[1])
+            hi_x, hi_y = max(b[0] + b[2], b2[0] + b2[2]), max(b[1] + b[3], b2[1] + b2[3])
+            bbox_obj = [lo_x, lo_y, hi_x - lo_x, hi_y - lo_y]
+    else:
+        bbox_visib = [-1, -1, -1, -1]
+        bbox_obj = [-1, -1, -1, -1]
+    return {"bbox_obj": [int(x) for x in bbox_obj], "bbox_visib": [int(x) for x in bbox_visib],
+            "px_count_all": px_all, "px_count_valid": px_valid, "px_count_visib": px_visib,
+            "visib_fract": float(px_visib / px_all) if px_all > 0 else 0.0}
+
+# ------------------------------------------------------------------------------------------------
+# helpers
+
+def _mat(x, shape) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != shape:
+        raise DataPipeError(f"expected a {shape} matrix in scene.json, got shape {a.shape}")
+    return a
+
+
+# ------------------------------------------------------------------------------------------------
+# the writer
+
+CHUNK_FILES = ("scene_camera", "scene_gt", "scene_gt_info", "datapipe")
+COCO_VISIB_MIN = 0.1      # bop_toolkit's calc_gt_coco: annotations less visible than this are "ignore"
+
+
+@dataclass
+class _ImageEntry:
+    """What one native render adds to its chunk's JSON files."""
+    image_id: int
+    chunk: int
+    im_id: int
+    camera: dict
+    gts: list
+    infos: list
+    meta: dict
+    coco: dict
+
+
+class BopWriter:
+    """Add native scenes one at a time to a BOP dataset; safe to call after every scene.
+
+    Images are written first, then each touched chunk's JSON files are re-written atomically (write
+    a temporary file, rename), so a crash loses nothing written before, and re-adding a scene (a
+    resumed run) overwrites its own entries. One writer per BOP folder at a time. It is also the
+    run's "bop" writer (datapipe.io.writers): start / has_scene / add_scene / finish."""
+
+    name = "bop"
+
+    def __init__(self, bop_root: str | os.PathLike, *, depth_scale: float = 0.1, chunk_size: int = 1000,
+                 split: str = SPLIT, models_dir: str | os.PathLike | None = None):
+        if not (depth_scale > 0):
+            raise DataPipeError(f"depth_scale must be > 0 mm, got {depth_scale}")
+        if int(chunk_size) < 1:
+            raise DataPipeError(f"chunk_size must be >= 1, got {chunk_size}")
+        self.root = Path(bop_root)
+        self.depth_scale = float(depth_scale)
+        self.chunk_size = int(chunk_size)
+        self.split = split
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._models: dict[int, Model] | None = None
+        self._chunks: dict[int, dict[str, dict]] = {}    # chunks in memory: the last scene's (see add_scene)
+        self._chunks_touched: set[int] = set()
+        self._camera_written = (self.root / "camera.json").is_file()
+        self.images_written = 0
+        if models_dir is not None:
+            self.set_models(models_dir)
+
+    def start(self) -> None:
+        pass
+
+    # -- models -----------------------------------------------------------------------------------
+    @property
+    def models_dir(self) -> Path:
+        return self.root / layout.MODELS_DIR
+
+    def set_models(self, source: str | os.PathLike | Mapping[int, tuple]) -> None:
+        """Copy a native models/ folder (obj_*.ply + models_info.json), or write {obj_id: mesh}."""
+        if isinstance(source, Mapping):
+            write_models(self.models_dir, source)
+        else:
+            src = Path(source)
+            if not (src / layout.MODELS_INFO).is_file():
+                raise DataPipeError(f"{src}: no {layout.MODELS_INFO} (the run's models/ folder is written at the "
+                                    "start of a run by datapipe.io.models.write_models)")
+            if src.resolve() != self.models_dir.resolve():
+                self.models_dir.mkdir(parents=True, exist_ok=True)
+                for p in sorted(src.iterdir()):
+                    if p.is_file() and (p.suffix == ".ply" or p.name == layout.MODELS_INFO):
+                        copy_atomic(p, self.models_dir / p.name)
+        self._models = None
+
+    def models(self) -> dict[int, Model]:
+        if self._models is None:
+            self._models = load_models(self.models_dir)
+        return self._models
+
+    # -- chunks -----------------------------------------------------------------------------------
+    def chunk_dir(self, chunk: int) -> Path:
+        return self.root / self.split / f"{chunk:06d}"
+
+    def _chunk(self, chunk: int) -> dict[str, dict]:
+        if chunk not in self._chunks:
+            d = self.chunk_dir(chunk)
+            data = {name: read_json_or_empty(d / f"{name}.json") for name in CHUNK_FILES}
+            coco = read_json_or_empty(d / "scene_gt_coco.json")
+            per_image = {str(im["id"]): {"image": im, "annotations": []} for im in coco.get("images", [])}
+            for ann in coco.get("annotations", []):
+                a = {k: v for k, v in ann.items() if k != "id"}
+                per_image.setdefault(str(ann["image_id"]), {"image": None, "annotations": []})["annotations"].append(a)
+            data["coco"] = per_image
+            self._chunks[chunk] = data
+        return self._chunks[chunk]
+
+    def _coco(self, data: dict) -> dict:
+        """scene_gt_coco.json of a chunk (bop_toolkit's calc_gt_coco layout, amodal boxes, RLE masks)."""
+        obj_ids = sorted(self.models()) or sorted({a["category_id"] for e in data["coco"].values()
+                                                   for a in e["annotations"]})
+        images, anns = [], []
+        for key in sorted(data["coco"], key=int):
+            e = data["coco"][key]
+            if e["image"] is not None:
+                images.append(e["image"])
+            for a in e["annotations"]:
+                anns.append({"id": len(anns) + 1, **a})
+        return {"info": {"description": f"DataPipe {self.split}", "url": "", "version": "0.1.0",
+                         "contributor": "DataPipe"},
+                "licenses": [],
+                "categories": [{"id": i, "name": str(i), "supercategory": "datapipe"} for i in obj_ids],
+                "images": images, "annotations": anns}
+
+    def _flush(self, chunks: Iterable[int]) -> None:
+        for c in sorted(set(chunks)):
+            data = self._chunk(c)
+            d = self.chunk_dir(c)
+            # datapipe.json last: it names what the BOP files hold
+            for name in ("scene_camera", "scene_gt", "scene_gt_info"):
+                write_json_lines_atomic(d / f"{name}.json", data[name])
+            write_json_lines_atomic(d / "scene_gt_coco.json", self._coco(data), compact=True)
+            write_json_lines_atomic(d / "datapipe.json", data["datapipe"])
+
+    # -- scenes -----------------------------------------------------------------------------------
+    def add_scene(self, native_scene_dir: str | os.PathLike, scene: dict | None = None) -> list[int]:
+        """Convert one complete native scene (its scene.json, or `scene` when given) and return the
+        global image ids added."""
+        scene_dir = Path(native_scene_dir)
+        scene = _complete_scene(scene_dir) if scene is None else scene
+        if not (self.models_dir / layout.MODELS_INFO).is_file():
+            self.set_models(scene_dir.parent / layout.MODELS_DIR)
+        models = self.models()
+        entries = [self._convert_render(scene_dir, scene, rd, models) for rd in scene.get("renders", [])]
+        for e in entries:
+            c = self._chunk(e.chunk)
+            key = str(e.im_id)
+            c["coco"][key] = e.coco
+            c["scene_camera"][key] = e.camera
+            c["scene_gt"][key] = e.gts
+            c["scene_gt_info"][key] = e.infos
+            c["datapipe"][key] = e.meta
+        touched = {e.chunk for e in entries}
+        self._flush(touched)
+        self._chunks_touched |= touched
+        # a long run would otherwise hold every chunk (RLE masks included) in memory; the next
+        # scene's images fall in the same chunk or a new one, and a dropped chunk is re-read from disk
+        self._chunks = {c: d for c, d in self._chunks.items() if c in touched}
+        self.images_written += len(entries)
+        return [e.image_id for e in entries]
+
+    def has_scene(self, native_scene_dir: str | os.PathLike, scene: dict | None = None) -> bool:
+        """True when every render of the scene is already in this BOP folder (e.g. before a resume)."""
+        scene = layout.read_scene(native_scene_dir) if scene is None else scene
+        if scene is None:
+            return False
+        for rd in scene.get("renders", []):
+            chunk, im_id = divmod(int(rd["image_id"]), self.chunk_size)
+            meta = self._chunk(chunk)["datapipe"].get(str(im_id))
+            if not meta or meta.get("image_id") != int(rd["image_id"]):
+                return False
+        return bool(scene.get("renders"))
+
+    def _convert_render(self, scene_dir: Path, scene: dict, rd: dict, models: dict[int, Model]) -> _ImageEntry:
+        """One native render -> its image files in the chunk and its JSON entries."""
+        image_id = int(rd["image_id"])
+        chunk, im_id = divmod(image_id, self.chunk_size)
+        cdir = self.chunk_dir(chunk)
+        W, H = (int(x) for x in rd["resolution"])
+        K = _mat(rd["K"], (3, 3))
+        for sub in ("rgb", "depth", "mask", "mask_visib"):
+            (cdir / sub).mkdir(parents=True, exist_ok=True)
+        stem = f"{im_id:06d}"
+        self._write_rgb(_required(scene_dir, rd, "rgb"), cdir / "rgb" / f"{stem}.png")
+        depth_valid = self._write_depth(_required(scene_dir, rd, "depth"), cdir / "depth" / f"{stem}.png", W, H)
+        sl_src = layout.render_file(scene_dir, rd, "sl_depth")
+        if sl_src.is_file():
+            (cdir / "depth_sl").mkdir(exist_ok=True)
+            imwrite_atomic(cdir / "depth_sl" / f"{stem}.png",
+                           encode_depth(read_depth(sl_src), self.depth_scale, what=str(sl_src)))
+        inst = read_mask(_required(scene_dir, rd, "mask"))
+        gts, infos, coco_anns = self._annotate_objects(scene_dir, rd, models, inst, depth_valid, K, cdir, stem)
+        if not self._camera_written:
+            write_json_lines_atomic(self.root / "camera.json", {
+                "cx": float(K[0, 2]), "cy": float(K[1, 2]), "fx": float(K[0, 0]), "fy": float(K[1, 1]),
+                "width": W, "height": H, "depth_scale": self.depth_scale})
+            self._camera_written = True
+        meta = {"image_id": image_id, "scene": scene_dir.name, "render": rd["name"],
+                "scene_id": int(scene.get("scene_id", -1)), "render_seed": rd.get("seed"),
+                "depth_sl": sl_src.is_file()}
+        coco = {"image": {"id": im_id, "file_name": f"rgb/{stem}.png", "width": W, "height": H},
+                "annotations": coco_anns}
+        return _ImageEntry(image_id, chunk, im_id, self._camera_entry(K, rd), gts, infos, meta, coco)
+
+    @staticmethod
+    def _write_rgb(src: Path, dst: Path) -> None:
+        """The native rgb.png as it is when it is 8-bit 3-channel (the pipeline's), else converted."""
+        rgb = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+        if rgb is None:
+            raise DataPipeError(f"{src}: not a readable image")
+        if rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8:
+            copy_atomic(src, dst)
+            return
+        if rgb.dtype == np.uint16:
+            rgb = (rgb.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
+        if rgb.ndim == 2:
+            rgb = cv2.cvtColor(rgb, cv2.COLOR_GRAY2BGR)
+        elif rgb.shape[2] == 4:
+            rgb = rgb[:, :, :3]
+        imwrite_atomic(dst, np.ascontiguousarray(rgb))
+
+    def _write_depth(self, src: Path, dst: Path, W: int, H: int) -> np.ndarray:
+        """Ground-truth z-buffer depth as BOP's uint16 PNG; returns where it has data."""
+        depth = read_depth(src)
+        if depth.shape != (H, W):
+            raise DataPipeError(f"{src}: shape {depth.shape} but scene.json says {W}x{H}")
+        imwrite_atomic(dst, encode_depth(depth, self.depth_scale, what=str(src)))
+        return np.isfinite(depth) & (depth > 0)
+
+    def _annotate_objects(self, scene_dir: Path, rd: dict, models: dict[int, Model], inst: np.ndarray,
+                          depth_valid: np.ndarray, K: np.ndarray, cdir: Path, stem: str):
+        """scene_gt, scene_gt_info and COCO entries of one render's objects; writes their masks."""
+        W, H = (int(x) for x in rd["resolution"])
+        gts, infos, coco_anns = [], [], []
+        for gt_id, o in enumerate(rd.get("objects", [])):
+            obj_id = int(o["obj_id"])
+            T = _mat(o["T_cam_obj"], (4, 4))
+            R, t_mm = T[:3, :3], T[:3, 3] * 1000.0
+            gts.append({"cam_R_m2c": [float(x) for x in R.reshape(-1)],
+                        "cam_t_m2c": [float(x) for x in t_mm], "obj_id": obj_id})
+            if obj_id not in models:
+                raise DataPipeError(f"{scene_dir.name}/{rd['name']}: object id {obj_id} has no model "
+                                    f"{model_filename(obj_id)} in {self.models_dir}")
+            m = models[obj_id]
+            sil, count, bbox = rasterize_silhouette(m.verts_mm, m.faces, K, R, t_mm, W, H)
+            visib = inst == int(o["mask_index"])
+            infos.append(gt_info(sil, count, bbox, visib, depth_valid))
+            if infos[-1]["px_count_visib"] > 0:
+                b = mask_bbox(sil | visib)
+                coco_anns.append({"image_id": int(rd["image_id"]) % self.chunk_size, "category_id": obj_id,
+                                  "iscrowd": 0, "area": infos[-1]["px_count_visib"],
+                                  "bbox": [b[0], b[1], b[2] + 1, b[3] + 1],
+                                  "segmentation": mask_to_rle(visib), "width": W, "height": H,
+                                  "ignore": bool(infos[-1]["visib_fract"] < COCO_VISIB_MIN)})
+            name = f"{stem}_{gt_id:06d}.png"
+            imwrite_atomic(cdir / "mask" / name, ((sil | visib).astype(np.uint8) * 255))
+            imwrite_atomic(cdir / "mask_visib" / name, visib.astype(np.uint8) * 255)
+        return gts, infos, coco_anns
+
+    def _camera_entry(self, K: np.ndarray, rd: dict) -> dict:
+        T_cw = np.linalg.inv(_mat(rd["T_world_cam"], (4, 4)))
+        return {"cam_K": [float(x) for x in K.reshape(-1)], "depth_scale": self.depth_scale,
+                "cam_R_w2c": [float(x) for x in T_cw[:3, :3].reshape(-1)],
+                "cam_t_w2c": [float(x) for x in T_cw[:3, 3] * 1000.0]}
+
+    def finish(self) -> dict:
+        """Flush everything (every add_scene already did) and return a summary."""
+        self._flush(self._chunks)
+        return {"bop_root": str(self.root), "images": self.images_written,
+                "chunks": sorted(self._chunks_touched | set(self._chunks)), "depth_scale": self.depth_scale}
+
+
+def _complete_scene(scene_dir: Path) -> dict:
+    if not (scene_dir / layout.SCENE_FILE).is_file():
+        raise DataPipeError(f"{scene_dir}: no scene.json (the scene is not complete); finish or resume the run")
+    scene = read_json(scene_dir / layout.SCENE_FILE)
+    if not scene.get("complete", False):
+        raise DataPipeError(f"{scene_dir}: scene.json says the scene is not complete (a cancelled run); "
+                            "resume the run to finish it")
+    return scene
+
+
+def _required(scene_dir: Path, rd: dict, kind: str) -> Path:
+    p = layout.render_file(scene_dir, rd, kind)
+    if not p.is_file():
+        raise DataPipeError(f"{p}: missing (BOP needs the {kind!r} output)")
+    return p
+
+
+# ------------------------------------------------------------------------------------------------
+# whole runs
+
+def export_bop(native_run_dir: str | os.PathLike, bop_root: str | os.PathLike, *, depth_scale: float = 0.1,
+               chunk_size: int = 1000, split: str = SPLIT) -> dict:
+    """Convert every complete scene of a native run (OUT/) into a BOP dataset at `bop_root`."""
+    run = Path(native_run_dir)
+    if not run.is_dir():
+        raise DataPipeError(f"{run}: no such run folder")
+    scenes = list(layout.iter_scenes(run))
+    if not scenes:
+        raise DataPipeError(f"{run}: no complete scene (scene.*/scene.json) to export")
+    writer = BopWriter(bop_root, depth_scale=depth_scale, chunk_size=chunk_size, split=split,
+                       models_dir=run / layout.MODELS_DIR)
+    for scene_dir, scene in scenes:
+        writer.add_scene(scene_dir, scene)
+    summary = writer.finish()
+    summary["scenes"] = len(scenes)
+    return summary

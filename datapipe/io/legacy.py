@@ -1,0 +1,90 @@
+"""The original DataPipe's output_dict.pickle (shared/design.md), plus the OpenCV-frame T_cam_obj:
+
+    {'scene.0001': {'render.0001': {'wrld2cam_pose': 4x4, 'objects_in_scene': [{'name', 'filename',
+     'mask_index', 'cam2obj_pose': 4x4 (Blender camera frame), 'T_cam_obj': 4x4 (OpenCV)}]}}}
+
+Re-written atomically after every scene, as the original did."""
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+
+from . import layout
+from .files import write_bytes_atomic
+
+
+def legacy_scene_entry(scene: dict) -> dict:
+    """One scene of the original's output_dict layout, plus T_cam_obj (OpenCV)."""
+    entry = {}
+    for r in scene["renders"]:
+        entry[r["name"]] = {
+            "wrld2cam_pose": np.asarray(r["T_world_blcam"], dtype=np.float64),
+            "objects_in_scene": [
+                {"name": o["name"], "filename": o["filename"], "mask_index": o["mask_index"],
+                 "cam2obj_pose": np.asarray(o["cam2obj_pose"], dtype=np.float64),
+                 "T_cam_obj": np.asarray(o["T_cam_obj"], dtype=np.float64)}
+                for o in r["objects"]],
+        }
+    return entry
+
+
+def write_legacy_output(path: Path, data: dict) -> None:
+    write_bytes_atomic(path, pickle.dumps(dict(sorted(data.items())), protocol=4))
+
+
+def update_legacy_pickle(out_dir: Path, scene: dict) -> None:
+    """Add one scene to output_dict.pickle (re-written atomically)."""
+    path = Path(out_dir) / layout.LEGACY_PICKLE
+    data = load_legacy_output(path) if path.is_file() else {}
+    data[scene["name"]] = legacy_scene_entry(scene)
+    write_legacy_output(path, data)
+
+
+def load_legacy_output(path: Path) -> dict:
+    """Our own output_dict.pickle: dicts, lists, strings, numbers and numpy float arrays only."""
+    with open(path, "rb") as f:
+        return _OutputUnpickler(f).load()
+
+
+class _OutputUnpickler(pickle.Unpickler):
+    _ALLOWED = {("numpy.core.multiarray", "_reconstruct"), ("numpy", "ndarray"), ("numpy", "dtype"),
+                ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "scalar")}
+
+    def find_class(self, module, name):
+        if (module, name) in self._ALLOWED:
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"output_dict.pickle holds an unexpected {module}.{name}; refusing to load it")
+
+
+class LegacyPickleWriter:
+    """output_dict.pickle. Per scene (a run: re-written after every scene, so a crash loses at most the
+    scene in progress) or, with batch=True, once at finish() from scratch (a merge of finished shards)."""
+
+    name = "legacy_pickle"
+
+    def __init__(self, out_dir: str | Path, *, batch: bool = False):
+        self.path = Path(out_dir) / layout.LEGACY_PICKLE
+        self.batch = batch
+        self._data: dict | None = None
+
+    def start(self) -> None:
+        self._data = {} if self.batch or not self.path.is_file() else load_legacy_output(self.path)
+
+    def has_scene(self, scene_dir: Path, scene: dict) -> bool:
+        if self._data is None:
+            self.start()
+        return scene["name"] in self._data
+
+    def add_scene(self, scene_dir: Path, scene: dict) -> None:
+        if self._data is None:
+            self.start()
+        self._data[scene["name"]] = legacy_scene_entry(scene)
+        if not self.batch:
+            write_legacy_output(self.path, self._data)
+
+    def finish(self) -> dict:
+        if self.batch and self._data is not None:
+            write_legacy_output(self.path, self._data)
+        return {}

@@ -1,0 +1,134 @@
+"""The house rules of the package layout (docs/ARCHITECTURE.md), checked on the source itself.
+
+- config, sl, io.*, show, distributed, geometry, seeds, exr import with bpy absent (a subprocess
+  whose import system refuses `bpy` and `mathutils`, so an installed bpy wheel cannot hide a slip);
+- no core module imports `show` (the run engine does not depend on the reporting module);
+- the native layout's file names are spelled in datapipe/io/layout.py only;
+- no function is longer than MAX_FUNCTION_LINES, except the ones listed (owned and being split
+  elsewhere).
+"""
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "datapipe"
+MAX_FUNCTION_LINES = 120
+# qualified name -> why it may be longer for now
+LONG_FUNCTION_EXCEPTIONS = {
+    "datapipe/sl/decode.py:decode": "issue #10 splits the decoder",
+    "datapipe/config.py:validate": "issue #12 restructures validation",
+}
+
+BPY_FREE = ["datapipe.config", "datapipe.sl", "datapipe.sl.scanner", "datapipe.geometry", "datapipe.seeds",
+            "datapipe.exr", "datapipe.errors", "datapipe.show", "datapipe.distributed", "datapipe.io",
+            "datapipe.io.layout", "datapipe.io.files", "datapipe.io.native", "datapipe.io.legacy",
+            "datapipe.io.models", "datapipe.io.silhouette", "datapipe.io.bop", "datapipe.io.writers"]
+
+_BLOCKER = """
+import importlib.abc, json, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('bpy', 'mathutils', 'bmesh'):
+            raise ImportError('bpy is absent here: ' + name)
+        return None
+sys.meta_path.insert(0, Block())
+bad = {}
+for m in json.loads(sys.argv[1]):
+    try:
+        __import__(m)
+    except Exception as e:
+        bad[m] = f'{type(e).__name__}: {e}'
+print(json.dumps(bad))
+"""
+
+
+def test_bpy_free_modules_import_without_bpy():
+    r = subprocess.run([sys.executable, "-c", _BLOCKER, json.dumps(BPY_FREE)], cwd=ROOT, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.strip().splitlines()[-1]) == {}
+
+
+def test_the_blocker_can_fail():
+    """The check above is real: a module that needs bpy is reported."""
+    r = subprocess.run([sys.executable, "-c", _BLOCKER, json.dumps(["datapipe.core.renderer"])], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert "datapipe.core.renderer" in json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def _sources(sub: str = ""):
+    return sorted((PKG / sub).rglob("*.py"))
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Absolute names of every module a file imports (relative imports resolved), lazy ones included."""
+    tree = ast.parse(path.read_text())
+    pkg = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = pkg.split(".")
+                parts = parts[:len(parts) - node.level + 1]
+                base = ".".join(parts + ([node.module] if node.module else []))
+            names.add(base)
+            names.update(f"{base}.{a.name}" for a in node.names)
+    return names
+
+
+def test_core_does_not_import_show():
+    offenders = [str(p.relative_to(ROOT)) for p in _sources("core") if "datapipe.show" in _imported_modules(p)]
+    assert offenders == []
+
+
+def test_geometry_and_sl_depend_one_way():
+    assert not any(m.startswith("datapipe.sl") for m in _imported_modules(PKG / "geometry.py"))
+
+
+NATIVE_NAMES = {"scene.json", "run.json", "output_dict.pickle", "models_info.json", "rgb.png", "depth.exr",
+                "normals.exr", "mask.exr", "sl_depth.exr", "sl_valid.png", "sl_debug.exr"}
+
+
+def test_native_file_names_spelled_in_one_module():
+    """As string constants in code; docstrings, messages and f-strings may mention them."""
+    spelled: dict[str, set[str]] = {}
+    for p in _sources():
+        tree = ast.parse(p.read_text())
+        docs = {id(n.body[0].value) for n in ast.walk(tree)
+                if isinstance(n, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))
+                and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        in_fstrings = {id(v) for n in ast.walk(tree) if isinstance(n, ast.JoinedStr) for v in n.values}
+        for n in ast.walk(tree):
+            if (isinstance(n, ast.Constant) and n.value in NATIVE_NAMES and id(n) not in docs
+                    and id(n) not in in_fstrings):
+                spelled.setdefault(n.value, set()).add(str(p.relative_to(ROOT)))
+    assert spelled == {name: {"datapipe/io/layout.py"} for name in NATIVE_NAMES}
+
+
+def _long_functions():
+    found = {}
+    for p in _sources():
+        tree = ast.parse(p.read_text())
+        for n in ast.walk(tree):
+            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                length = n.end_lineno - n.lineno + 1
+                if length > MAX_FUNCTION_LINES:
+                    found[f"{p.relative_to(ROOT)}:{n.name}"] = length
+    return found
+
+
+def test_no_function_over_the_limit():
+    long = _long_functions()
+    assert {k: v for k, v in long.items() if k not in LONG_FUNCTION_EXCEPTIONS} == {}
+
+
+def test_long_function_exceptions_are_still_needed():
+    """An exception whose function got short (or moved) is removed from the list."""
+    assert set(LONG_FUNCTION_EXCEPTIONS) <= set(_long_functions())
