@@ -35,6 +35,7 @@ FORMATS = ("native", "bop")
 COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "CONE")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency")
+SAMPLER_KINDS = ("pool", "bin_view")
 MAX_RESOLUTION = 8192
 
 
@@ -78,6 +79,19 @@ class CameraPose:
 
 
 @dataclass
+class CameraSamplerConfig:
+    """How each render's camera pose is chosen. "pool": drawn from `camera.poses` (without
+    replacement within a scene); "bin_view": a look-at pose around the bin floor's centre, drawn
+    per render from the ranges below (datapipe.camera_sampler explains the angles)."""
+    kind: str = "pool"
+    distance: list[float] = _vec(0.6, 0.85)        # m, camera centre to the look-at target
+    tilt_deg: list[float] = _vec(0.0, 25.0)        # optical axis from straight down
+    azimuth_deg: list[float] = _vec(0.0, 360.0)    # direction target -> camera, from world +X
+    roll_deg: list[float] = _vec(-180.0, 180.0)    # image rotation about the optical axis
+    target_jitter: float = 0.02                    # m, target = floor centre + a point of this disc
+
+
+@dataclass
 class CameraConfig:
     focal_length: float = 16.0         # mm
     sensor_width: float = 11.3         # mm (2/3" industrial sensor)
@@ -86,6 +100,7 @@ class CameraConfig:
     clip_start: float = 0.05           # m
     clip_end: float = 10.0             # m
     poses: list[CameraPose] = field(default_factory=lambda: [CameraPose()])
+    sampler: CameraSamplerConfig = field(default_factory=CameraSamplerConfig)
 
 
 @dataclass
@@ -113,6 +128,17 @@ class StructuredLightConfig:
     exposure: float = 0.5              # scales linear radiance before the sensor model (0.5: no
                                        # saturation on 0.8-albedo parts from ~0.65 m)
     debug: bool = False                # also write wrapped/absolute phase, modulation, reasons
+
+
+@dataclass
+class LightingConfig:
+    """Lighting drawn per scene (datapipe.lighting), each value uniform in its [min, max]. A config
+    without a `lighting` section (null) keeps the fixed key light of `render.light_power`."""
+    key_power: list[float] = _vec(25.0, 100.0)                  # W, the area light above the bin
+    key_color_temperature: list[float] = _vec(3000.0, 6500.0)   # K, blackbody colour of the key light
+    key_size: list[float] = _vec(0.5, 1.5)                      # m, side of the square area light
+    key_position_jitter: float = 0.5                            # m, horizontal offset (uniform in a disc)
+    ambient: list[float] = _vec(0.0, 0.2)                       # world (white) background strength
 
 
 @dataclass
@@ -159,6 +185,7 @@ class Config:
     projector: ProjectorConfig = field(default_factory=ProjectorConfig)
     structured_light: StructuredLightConfig = field(default_factory=StructuredLightConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
+    lighting: LightingConfig | None = None
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     schema_version: int = SCHEMA_VERSION
@@ -397,7 +424,8 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
     positive("camera.clip_start", c.clip_start)
     if c.clip_end <= c.clip_start:
         add("camera.clip_end", f"clip_end ({c.clip_end}) <= clip_start ({c.clip_start})", "make clip_end > clip_start")
-    if not c.poses:
+    pool = c.sampler.kind == "pool"
+    if not c.poses and pool:
         add("camera.poses", "no camera poses", "add at least one pose (location + quaternion wxyz)")
     for i, pose in enumerate(c.poses):
         vector(f"camera.poses[{i}].location", pose.location, 3)
@@ -405,11 +433,14 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
             norm = math.sqrt(sum(q * q for q in pose.rotation))
             if norm < 1e-6:
                 add(f"camera.poses[{i}].rotation", "zero quaternion", "give a unit quaternion (w, x, y, z)")
-    if c.poses and s.max_renders_per_scene > len(c.poses):
+    if pool and c.poses and s.max_renders_per_scene > len(c.poses):
         add("scene.max_renders_per_scene",
             f"{s.max_renders_per_scene} renders per scene but only {len(c.poses)} camera poses "
             "(poses are drawn without replacement within a scene)",
             "add camera poses or lower max_renders_per_scene")
+
+    P += _sampler_problems(cfg)
+    P += _lighting_problems(cfg.lighting)
 
     sl = cfg.structured_light
     pr = cfg.projector
@@ -496,6 +527,69 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
                 add("render.outputs", f"the BOP format needs the {need!r} output",
                     f"add {need!r} to render.outputs or drop 'bop' from output.formats")
     return P
+
+
+def _range_problems(path: str, v, *, lo_bound: float | None = None, hi_bound: float | None = None,
+                    unit: str = "") -> list[Problem]:
+    """A [min, max] range: two finite numbers, min <= max, within [lo_bound, hi_bound]."""
+    if len(v) != 2 or not all(math.isfinite(x) for x in v):
+        return [Problem(path, f"needs [min, max] as two finite numbers, got {v}", "give two numbers [min, max]")]
+    out = []
+    if v[0] > v[1]:
+        out.append(Problem(path, f"min {v[0]:g} > max {v[1]:g}", "give [min, max] with min <= max"))
+    if lo_bound is not None and min(v) < lo_bound:
+        out.append(Problem(path, f"values must be >= {lo_bound:g}{unit}, got {v}", f"keep the range at or above {lo_bound:g}{unit}"))
+    if hi_bound is not None and max(v) > hi_bound:
+        out.append(Problem(path, f"values must be <= {hi_bound:g}{unit}, got {v}", f"keep the range at or below {hi_bound:g}{unit}"))
+    return out
+
+
+def _sampler_problems(cfg: Config) -> list[Problem]:
+    """camera.sampler: kind, ranges, and ranges that can lose the bin from view."""
+    sm, c = cfg.camera.sampler, cfg.camera
+    if sm.kind not in SAMPLER_KINDS:
+        return [Problem("camera.sampler.kind", f"unknown value {sm.kind!r}", f"use one of {', '.join(SAMPLER_KINDS)}")]
+    if sm.kind == "pool":
+        return []
+    p = "camera.sampler"
+    out = _range_problems(f"{p}.distance", sm.distance, lo_bound=1e-3, unit=" m")
+    out += _range_problems(f"{p}.tilt_deg", sm.tilt_deg, lo_bound=0.0, hi_bound=89.0, unit=" deg")
+    out += _range_problems(f"{p}.azimuth_deg", sm.azimuth_deg)
+    out += _range_problems(f"{p}.roll_deg", sm.roll_deg)
+    if not (math.isfinite(sm.target_jitter) and sm.target_jitter >= 0):
+        out.append(Problem(f"{p}.target_jitter", f"must be >= 0, got {sm.target_jitter}", "give a jitter >= 0 m"))
+    if out:
+        return out
+    if min(sm.distance) <= c.clip_start or max(sm.distance) >= c.clip_end:
+        out.append(Problem(f"{p}.distance", f"{sm.distance} m reaches outside the clip range "
+                           f"({c.clip_start:g}..{c.clip_end:g} m): the target would be clipped",
+                           "keep the distances between camera.clip_start and camera.clip_end"))
+    res, fit = c.resolution, c.sensor_fit
+    if len(res) == 2 and min(res) >= 1 and c.focal_length > 0 and c.sensor_width > 0 and fit in SENSOR_FITS:
+        from .camera_sampler import view_problems
+        from .geometry import intrinsics_from_blender
+        K = intrinsics_from_blender(c.focal_length, c.sensor_width, res[0], res[1], fit)
+        half_fov = math.degrees(min(math.atan(res[0] / 2 / K[0, 0]), math.atan(res[1] / 2 / K[1, 1])))
+        s = cfg.scene
+        if len(s.drop_zone_scale) == 3:
+            walls = 2 * s.drop_zone_scale[2] if s.make_bin else 0.0
+            out += [Problem(*t) for t in view_problems(sm, s.drop_zone_scale[:2], walls, half_fov)]
+    return out
+
+
+def _lighting_problems(li: LightingConfig | None) -> list[Problem]:
+    if li is None:
+        return []
+    p = "lighting"
+    out = _range_problems(f"{p}.key_power", li.key_power, lo_bound=0.0, unit=" W")
+    out += _range_problems(f"{p}.key_color_temperature", li.key_color_temperature, lo_bound=1000.0,
+                           hi_bound=40000.0, unit=" K")
+    out += _range_problems(f"{p}.key_size", li.key_size, lo_bound=1e-3, unit=" m")
+    out += _range_problems(f"{p}.ambient", li.ambient, lo_bound=0.0)
+    if not (math.isfinite(li.key_position_jitter) and li.key_position_jitter >= 0):
+        out.append(Problem(f"{p}.key_position_jitter", f"must be >= 0, got {li.key_position_jitter}",
+                           "give a jitter >= 0 m"))
+    return out
 
 
 # ------------------------------------------------------------------------------------------------

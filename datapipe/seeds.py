@@ -11,6 +11,7 @@ import random
 import numpy as np
 
 _PLAN, _SCENE, _RENDER = 0x504C414E, 0x5343454E, 0x52454E44   # domain tags: 'PLAN', 'SCEN', 'REND'
+_CAMERA, _LIGHT = 0x43414D53, 0x4C494748                        # 'CAMS', 'LIGH'
 
 
 def _derive(*words: int) -> int:
@@ -29,6 +30,17 @@ def render_seed(base: int, scene: int, render: int) -> int:
 
 def scene_rng(base: int, scene: int) -> np.random.Generator:
     return np.random.default_rng(scene_seed(base, scene))
+
+
+def camera_rng(base: int, scene: int, render: int) -> np.random.Generator:
+    """The generator of one render's sampled camera pose: its own stream, so turning the sampler on
+    or off changes no other draw (placement, simulation, noise)."""
+    return np.random.default_rng(_derive(_CAMERA, base, scene, render))
+
+
+def lighting_rng(base: int, scene: int) -> np.random.Generator:
+    """The generator of one scene's drawn lighting (its own stream, like `camera_rng`)."""
+    return np.random.default_rng(_derive(_LIGHT, base, scene))
 
 
 def seed_python(base: int, scene: int) -> None:
