@@ -98,15 +98,27 @@ class BlendCamera:
         if not 0 <= pose_index < len(poses):
             raise DataPipeError(f"camera pose {pose_index} does not exist (camera.poses has {len(poses)})")
         p = poses[pose_index]
-        q = np.asarray(p.rotation, dtype=np.float64)
+        T = self._place(p.location, p.rotation)
+        self.pose_index = pose_index
+        return T
+
+    def set_view(self, view) -> np.ndarray:
+        """Move the camera to a sampled pose (`datapipe.camera_sampler.BinView`); returns T_world_cam.
+        The projector, parented to the camera, moves with it."""
+        self._require_setup()
+        T = self._place(*view.blender_pose())
+        self.pose_index = None
+        return T
+
+    def _place(self, location, quat_wxyz) -> np.ndarray:
+        q = np.asarray(quat_wxyz, dtype=np.float64)
         q = q / np.linalg.norm(q)
-        self.obj.location = [float(v) for v in p.location]
+        self.obj.location = [float(v) for v in location]
         self.obj.rotation_quaternion = [float(v) for v in q]
         # Evaluate so that matrix_world (and anything parented to the camera, e.g. the projector)
         # reflects the new pose now. This does not change the frame, so simulated parts stay put.
         self.scene.view_layers[0].update()
-        self.pose_index = pose_index
-        return geometry.camera_pose_from_config(p.location, q)
+        return geometry.camera_pose_from_config(location, q)
 
     def T_world_cam(self) -> np.ndarray:
         """The camera's current pose from its matrix_world: 4x4, OpenCV frame, scale removed."""

@@ -130,6 +130,11 @@ class BlendScene:
         return float(self.drop_zone_center[2] - self.drop_zone_half[2])
 
     @property
+    def floor_center(self) -> np.ndarray:
+        """Centre of the bin floor (world, m): what the bin_view camera sampler aims at."""
+        return np.array([self.drop_zone_center[0], self.drop_zone_center[1], self.floor_z])
+
+    @property
     def top_z(self) -> float:
         """Top of the drop zone (and of the walls)."""
         return float(self.drop_zone_center[2] + self.drop_zone_half[2])
@@ -287,10 +292,28 @@ class BlendScene:
         ld.shape = 'SQUARE'
         ld.size = LIGHT_SIZE
         obj = bpy.data.objects.new("datapipe_key_light", ld)
-        obj.location = (float(c[0]), float(c[1]), max(self.floor_z + LIGHT_HEIGHT, self.top_z + 0.5))  # looks down -Z
+        obj.location = self._key_light_home()     # looks down -Z
         obj.visible_camera = False           # lights the scene without showing up in the picture
         self.lights.objects.link(obj)
         self.key_light = obj
+
+    def _key_light_home(self) -> tuple[float, float, float]:
+        c = self.drop_zone_center
+        return float(c[0]), float(c[1]), max(self.floor_z + LIGHT_HEIGHT, self.top_z + 0.5)
+
+    def apply_lighting(self, draw: dict) -> None:
+        """Set the key light and the ambient world from one scene's `datapipe.lighting.draw_lighting`.
+        The ambient is a white world background (the fringe layers override it with a black world,
+        so the projector alone lights the patterns)."""
+        ld = self.key_light.data
+        ld.energy = float(draw["key_power"])
+        ld.color = tuple(float(v) for v in draw["key_color"])
+        ld.size = float(draw["key_size"])
+        self.key_light.location = tuple(h + float(o) for h, o in zip(self._key_light_home(), draw["key_offset"]))
+        bg = next(n for n in self.scene.world.node_tree.nodes if n.type == 'BACKGROUND')
+        bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+        bg.inputs["Strength"].default_value = float(draw["ambient"])
+        bpy.context.view_layer.update()
 
 
 def find_layer_collection(layer_collection, name: str):

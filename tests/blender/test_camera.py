@@ -116,3 +116,29 @@ def test_draw_poses_without_replacement(factory_scene):
     assert len(set(cam.draw_poses(np.random.default_rng(6), 2))) == 2
     with pytest.raises(DataPipeError):
         cam.draw_poses(np.random.default_rng(0), 4)
+
+
+def test_sampled_view_places_camera_and_parented_projector(factory_scene):
+    """A bin_view draw moves the camera object to the drawn look-at pose (Blender's matrix_world is
+    the ground truth) and the projector, parented to the camera, follows it (T_cam_proj fixed)."""
+    from datapipe.camera_sampler import draw_bin_view, pose_parameters
+    from datapipe.config import CameraSamplerConfig
+    from datapipe.core import projector as pj
+    from datapipe.seeds import camera_rng
+    cfg = make_cfg()
+    cam = BlendCamera(cfg, factory_scene).setup()
+    proj = pj.Projector(cfg, factory_scene, cam.obj)
+    proj.build(np.ones((1, 570, 912), np.float32))
+    sampler = CameraSamplerConfig(kind="bin_view", distance=[0.5, 0.9], tilt_deg=[10, 45], target_jitter=0.02)
+    for r in range(3):
+        view = draw_bin_view(sampler, [0.05, -0.02, 0.0], camera_rng(1, 0, r))
+        T = cam.set_view(view)
+        M = np.array(cam.obj.matrix_world)
+        np.testing.assert_allclose(geometry.blender_camera_to_opencv(M), T, atol=1e-6)
+        p = pose_parameters(cam.T_world_cam(), view.target)
+        assert p["distance"] == pytest.approx(view.distance, abs=1e-6)
+        assert p["tilt_deg"] == pytest.approx(view.tilt_deg, abs=1e-4) and p["miss"] < 1e-6
+        np.testing.assert_allclose(proj.T_world_proj_blender(0), T @ pj.T_cam_proj(cfg), atol=1e-6)
+        u, v, _ = world_to_camera_view(factory_scene, cam.obj, Vector(view.target))   # on the optical axis
+        assert (u, v) == (pytest.approx(0.5, abs=1e-6), pytest.approx(0.5, abs=1e-6))
+    proj.teardown()

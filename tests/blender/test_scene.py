@@ -160,3 +160,22 @@ def test_inside_bin():
     assert not bs.inside_bin([0.3, -0.2, 0.40])           # under the floor
     assert bs.inside_bin([0.3, -0.2, 0.418])              # within the default margin
     assert not bs.inside_bin([0.3, -0.2, 0.418], margin=0.0)
+
+
+def test_apply_lighting_sets_key_light_and_ambient():
+    from datapipe.lighting import blackbody_rgb
+    bs = BlendScene(_cfg()).setup()
+    home = np.array(bs.key_light.matrix_world.translation)
+    draw = {"key_power": 77.0, "key_color_temperature": 3200.0, "key_color": list(blackbody_rgb(3200.0)),
+            "key_size": 0.7, "key_offset": [0.1, -0.2, 0.0], "ambient": 0.15}
+    bs.apply_lighting(draw)
+    ld = bs.key_light.data
+    assert ld.energy == pytest.approx(77.0) and ld.size == pytest.approx(0.7)
+    assert np.allclose(tuple(ld.color), blackbody_rgb(3200.0), atol=1e-6)
+    assert np.allclose(np.array(bs.key_light.matrix_world.translation), home + [0.1, -0.2, 0.0], atol=1e-6)
+    bg = next(n for n in bs.scene.world.node_tree.nodes if n.type == 'BACKGROUND')
+    assert bg.inputs["Strength"].default_value == pytest.approx(0.15)
+    assert tuple(bg.inputs["Color"].default_value)[:3] == (1.0, 1.0, 1.0)
+    draw.update(key_offset=[0.0, 0.0, 0.0], ambient=0.0)         # offsets are from home, not cumulative
+    bs.apply_lighting(draw)
+    assert np.allclose(np.array(bs.key_light.matrix_world.translation), home, atol=1e-6)
