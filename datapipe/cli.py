@@ -45,6 +45,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", help="sheet folder (default: RUN_DIR/sheets)")
     s.add_argument("--max", type=int, default=None, help="at most this many per-render sheets")
     s.add_argument("--no-overview", action="store_true", help="skip overview.png")
+    s.add_argument("--grid", type=int, default=None, metavar="N",
+                   help="instead of per-render sheets: one grid.png of N random renders")
+    s.add_argument("--grid-seed", type=int, default=0, help="which renders --grid draws (default 0)")
     b = sub.add_parser("bop", help="export a finished native run as a BOP dataset")
     b.add_argument("run_dir")
     b.add_argument("--out", help="BOP folder (default: RUN_DIR/bop)")
@@ -75,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
             from . import show
             argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \
                 + (["--max", str(args.max)] if args.max is not None else []) \
-                + (["--no-overview"] if args.no_overview else [])
+                + (["--no-overview"] if args.no_overview else []) \
+                + (["--grid", str(args.grid), "--grid-seed", str(args.grid_seed)] if args.grid is not None else [])
             return show.main(argv2)
         if args.command == "bop":
             from .io.bop import export_bop

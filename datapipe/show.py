@@ -14,6 +14,9 @@ and one `overview.png` per run: histograms of the structured-light depth error (
 pixels where both are valid), of visib_fract over every instance (full silhouettes rasterised from
 OUT/models, as the BOP writer does), and of instances per render.
 
+`--grid N` writes instead one `grid.png`: N random renders' RGB side by side with their drawn
+camera and light values, to see a run's variety at a glance.
+
 Panel rectangles are public (`panel_rects`) so tests and tools can crop a panel.
 """
 from __future__ import annotations
@@ -494,14 +497,80 @@ def make_sheets(run_dir: str | Path, out_dir: str | Path | None = None, *, max_r
     return written
 
 
+# ------------------------------------------------------------------------------------------------
+# the grid: N random renders on one sheet, to see a run's variety at a glance
+
+GRID_TILE_W = 240
+
+
+def _grid_caption(scene_dir: Path, scene: dict, rd: dict) -> list[str]:
+    """Tile captions: where the render is, then the drawn camera and light values when recorded."""
+    lines = [f"{scene_dir.name}/{rd['name']}  {len(rd.get('objects', []))} obj"]
+    cam = rd.get("camera_sampler")
+    if cam:
+        lines.append(f"{cam['distance']:.2f} m, tilt {cam['tilt_deg']:.0f}, roll {cam['roll_deg']:.0f} deg")
+    light = scene.get("lighting")
+    if light:
+        lines.append(f"{light['key_power']:.0f} W {light['key_color_temperature']:.0f} K amb {light['ambient']:.2f}")
+    return lines
+
+
+def grid_image(run_dir: str | Path, n: int, *, seed: int = 0) -> np.ndarray:
+    """`n` renders drawn at random (numpy seed `seed`; all of them when the run has fewer) as RGB
+    tiles in a near-square grid, in scene/render order, each with its caption (BGR image)."""
+    run_dir = Path(run_dir)
+    if n < 1:
+        raise DataPipeError(f"--grid {n}: ask for at least one render (fix: --grid 16)")
+    scenes = scenes_of(run_dir)
+    renders = [(sd, sc, rd) for sd, sc in scenes for rd in sc.get("renders", [])]
+    if not renders:
+        raise DataPipeError(f"{run_dir}: no complete scene (scene.*/scene.json) to show "
+                            "(fix: give the --out folder of a run that finished at least one scene)")
+    pick = sorted(np.random.default_rng(seed).choice(len(renders), size=min(n, len(renders)), replace=False))
+    cols = math.ceil(math.sqrt(len(pick)))
+    rows = math.ceil(len(pick) / cols)
+    W, H = (int(x) for x in renders[pick[0]][2]["resolution"])
+    tw, th = GRID_TILE_W, max(1, round(GRID_TILE_W * H / W))
+    cap = 16 * 3 + 4
+    img = np.full((HEADER + rows * (th + cap + PAD), PAD + cols * (tw + PAD), 3), BG, np.uint8)
+    for k, idx in enumerate(pick):
+        sd, sc, rd = renders[idx]
+        p = _render_file(sd, rd, "rgb", "rgb.png")
+        rgb = cv2.imread(str(p), cv2.IMREAD_COLOR) if p.is_file() else None
+        tile = _fit(rgb, tw, th) if rgb is not None else _message_tile(tw, th, ["no rgb output"])
+        row, col = divmod(k, cols)
+        x, y = PAD + col * (tw + PAD), HEADER + row * (th + cap + PAD)
+        img[y:y + th, x:x + tw] = tile
+        for j, line in enumerate(_grid_caption(sd, sc, rd)):
+            _text(img, line, (x + 1, y + th + 14 + 16 * j), 0.38)
+    _text(img, f"{run_dir.name}: {len(pick)} of {len(renders)} renders (seed {seed})", (PAD, 22), 0.55)
+    return img
+
+
+def make_grid(run_dir: str | Path, n: int, out_path: str | Path | None = None, *, seed: int = 0) -> Path:
+    """Write the grid sheet (default RUN_DIR/sheets/grid.png) and return its path."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise DataPipeError(f"{run_dir}: no such run folder (fix: give the --out folder of a run)")
+    out_path = Path(out_path) if out_path else run_dir / "sheets" / "grid.png"
+    return _imwrite(out_path, grid_image(run_dir, n, seed=seed))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m datapipe show", description="contact sheets for a run folder")
     ap.add_argument("run_dir")
     ap.add_argument("--out", help="sheet folder (default: RUN_DIR/sheets)")
     ap.add_argument("--max", type=int, default=None, help="at most this many per-render sheets")
     ap.add_argument("--no-overview", action="store_true", help="skip overview.png")
+    ap.add_argument("--grid", type=int, default=None, metavar="N",
+                    help="instead of per-render sheets: one grid.png of N random renders")
+    ap.add_argument("--grid-seed", type=int, default=0, help="which renders --grid draws (default 0)")
     a = ap.parse_args(argv)
     try:
+        if a.grid is not None:
+            out = Path(a.out) / "grid.png" if a.out else None
+            print(f"grid written to {make_grid(a.run_dir, a.grid, out, seed=a.grid_seed)}")
+            return 0
         paths = make_sheets(a.run_dir, a.out, max_renders=a.max, overview=not a.no_overview)
     except DataPipeError as e:
         print(f"datapipe: error: {e}", file=sys.stderr)

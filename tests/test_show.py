@@ -102,3 +102,43 @@ def test_no_scene_is_a_clear_error(tmp_path):
     (tmp_path / "run").mkdir()
     with pytest.raises(DataPipeError, match="no complete scene"):
         show.make_sheets(tmp_path / "run")
+
+
+def test_grid_tiles_are_the_drawn_renders(runs, tmp_path, capsys):
+    run, _ = runs
+    rgbs = {f"{sd.name}/{rd.name}": cv2.imread(str(rd / "rgb.png"))
+            for sd in sorted(run.glob("scene.*")) for rd in sorted(sd.glob("render.*"))}
+    img = show.grid_image(run, 3, seed=1)
+    tw = show.GRID_TILE_W
+    th = round(tw * 240 / 320)
+    cap = 16 * 3 + 4
+    assert img.shape[1] == show.PAD + 2 * (tw + show.PAD)              # 3 tiles: 2 columns ...
+    assert img.shape[0] == show.HEADER + 2 * (th + cap + show.PAD)     # ... 2 rows
+    found = []
+    for k in range(3):
+        row, col = divmod(k, 2)
+        x, y = show.PAD + col * (tw + show.PAD), show.HEADER + row * (th + cap + show.PAD)
+        tile = img[y:y + th, x:x + tw].astype(int)
+        err = {name: np.abs(tile - cv2.resize(rgb, (tw, th), interpolation=cv2.INTER_AREA)).mean()
+               for name, rgb in rgbs.items()}
+        best = min(err, key=err.get)
+        assert err[best] < 0.5
+        found.append(best)
+    assert len(set(found)) == 3 and found == sorted(found)               # distinct, in scene/render order
+    assert np.array_equal(img, show.grid_image(run, 3, seed=1))          # the seed fixes the draw
+    assert show.grid_image(run, 50).shape == show.grid_image(run, 4).shape   # fewer renders: all of them
+    assert show.main([str(run), "--grid", "2", "--out", str(tmp_path / "g")]) == 0
+    assert (tmp_path / "g" / "grid.png").is_file() and "grid written" in capsys.readouterr().out
+    assert not (tmp_path / "g" / "overview.png").exists()
+    with pytest.raises(DataPipeError, match="at least one"):
+        show.grid_image(run, 0)
+
+
+def test_grid_captions_show_drawn_values():
+    sc = {"lighting": {"key_power": 61.2, "key_color_temperature": 4100.0, "ambient": 0.12}}
+    rd = {"name": "render.0002", "objects": [{}, {}],
+          "camera_sampler": {"distance": 0.712, "tilt_deg": 18.4, "roll_deg": -33.0}}
+    from pathlib import Path
+    assert show._grid_caption(Path("scene.0003"), sc, rd) == [
+        "scene.0003/render.0002  2 obj", "0.71 m, tilt 18, roll -33 deg", "61 W 4100 K amb 0.12"]
+    assert show._grid_caption(Path("scene.0001"), {}, {"name": "render.0001"}) == ["scene.0001/render.0001  0 obj"]
