@@ -2,7 +2,8 @@
 
 Fields map by name, section by section; the few that differ in shape are listed in `_SPECIAL`
 (periods as text, output/format sets, the optional blend file, the projector's Euler/quaternion
-rotation). Floats come back from Blender as float32; they are written as the shortest decimal that
+rotation); `camera.sampler` is a sub-group (`_NESTED`); the optional `lighting` section is the
+group `lighting` with its `enabled` switch (off = no section). Floats come back from Blender as float32; they are written as the shortest decimal that
 round-trips in float32 (0.06, not 0.05999999865889549), so a preset saved from the sidebar reads
 exactly like one written by hand, and save -> load -> save is a fixed point.
 """
@@ -22,6 +23,7 @@ from .props import INT_MAX, format_periods, parse_periods
 
 SECTIONS = ("scene", "camera", "projector", "structured_light", "render", "simulation", "output")
 _COLLECTIONS = {("camera", "poses")}          # handled with the object list
+_NESTED = {("camera", "sampler"): C.CameraSamplerConfig}    # a sub-group: fields map by name again
 
 
 def f32(value: float) -> float:
@@ -105,12 +107,16 @@ def props_to_config(props) -> C.Config:
             key = (section, f.name)
             if key in _COLLECTIONS:
                 continue
-            if key in _SPECIAL:
+            if key in _NESTED:
+                value = _NESTED[key](**_read_group(getattr(grp, f.name), _NESTED[key]))
+            elif key in _SPECIAL:
                 value = _SPECIAL[key][0](grp, f.name)
             else:
                 value = _read(grp, f.name, hints[f.name])
             setattr(dc, f.name, value)
     cfg.camera.poses = [C.CameraPose(**_read_group(p, C.CameraPose)) for p in props.camera.poses]
+    if props.lighting.enabled:        # off: no lighting section, the fixed key light
+        cfg.lighting = C.LightingConfig(**_read_group(props.lighting, C.LightingConfig))
     cfg.objects = [C.ObjectEntry(**_read_group(o, C.ObjectEntry)) for o in props.objects]
     return cfg
 
@@ -149,7 +155,7 @@ def _plan_group(obj, rna, dc_type, section: str, path: str, problems) -> list[tu
     plan = []
     for f in dataclasses.fields(dc_type):
         key = (section, f.name)
-        if key in _COLLECTIONS:
+        if key in _COLLECTIONS or key in _NESTED:
             continue
         value = getattr(obj, f.name)
         fpath = f"{path}.{f.name}"
@@ -194,6 +200,15 @@ def config_to_props(cfg: C.Config, props) -> None:
                for i, o in enumerate(cfg.objects)]
     poses = [_plan_group(p, P.DATAPIPE_PG_pose.bl_rna, C.CameraPose, "poses", f"camera.poses[{i}]", problems)
              for i, p in enumerate(cfg.camera.poses)]
+    for (section, name), dc in _NESTED.items():
+        grp = getattr(getattr(props, section), name)
+        plans.append((grp, _plan_group(getattr(getattr(cfg, section), name), grp.bl_rna, dc, name,
+                                       f"{section}.{name}", problems)))
+    lighting = [("enabled", cfg.lighting is not None)]
+    if cfg.lighting is not None:
+        lighting += _plan_group(cfg.lighting, props.lighting.bl_rna, C.LightingConfig, "lighting", "lighting",
+                                problems)
+    plans.append((props.lighting, lighting))
     if problems:
         raise ConfigError(problems)
 

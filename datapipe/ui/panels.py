@@ -104,6 +104,36 @@ class DATAPIPE_PT_scene(_DataPipePanel, Panel):
         layout.prop(s, "blend_file")
 
 
+def _draw_ranges(col, grp, names) -> None:
+    """[min, max] vector properties as two aligned rows each."""
+    for name, label in names:
+        sub = col.column(align=True)
+        sub.prop(grp, name, index=0, text=f"{label} Min")
+        sub.prop(grp, name, index=1, text="Max")
+
+
+class DATAPIPE_PT_lighting(_DataPipePanel, Panel):
+    bl_label = "Lighting"
+    bl_idname = "DATAPIPE_PT_lighting"
+    bl_parent_id = "DATAPIPE_PT_scene"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_header(self, context):
+        self.layout.prop(_props(context).lighting, "enabled", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        li = _props(context).lighting
+        col = layout.column()
+        col.active = li.enabled
+        _draw_ranges(col, li, (("key_power", "Key Power"), ("key_color_temperature", "Temperature (K)"),
+                               ("key_size", "Key Size")))
+        col.prop(li, "key_position_jitter")
+        _draw_ranges(col, li, (("ambient", "Ambient"),))
+
+
 class DATAPIPE_PT_simulation(_DataPipePanel, Panel):
     bl_label = "Simulation"
     bl_idname = "DATAPIPE_PT_simulation"
@@ -180,6 +210,16 @@ class DATAPIPE_PT_camera(_DataPipePanel, Panel):
         on = preview.is_on("camera")
         layout.operator("datapipe.camera_preview", text="Hide Camera" if on else "Preview Camera",
                         icon="HIDE_OFF" if on else "OUTLINER_OB_CAMERA", depress=on)
+        sm = cam.sampler
+        col = layout.column()
+        col.use_property_split = True
+        col.use_property_decorate = False
+        col.prop(sm, "kind")
+        if sm.kind == "bin_view":
+            _draw_ranges(col, sm, (("distance", "Distance"), ("tilt_deg", "Tilt (deg)"),
+                                   ("azimuth_deg", "Azimuth (deg)"), ("roll_deg", "Roll (deg)")))
+            col.prop(sm, "target_jitter")
+            return
         layout.label(text=f"Poses ({len(cam.poses)})")
         row = layout.row()
         row.template_list("DATAPIPE_UL_poses", "", cam, "poses", cam, "poses_index", rows=3)
@@ -313,6 +353,7 @@ CLASSES = (
     DATAPIPE_UL_poses,
     DATAPIPE_PT_initialize,
     DATAPIPE_PT_scene,
+    DATAPIPE_PT_lighting,
     DATAPIPE_PT_simulation,
     DATAPIPE_PT_objects,
     DATAPIPE_PT_camera,

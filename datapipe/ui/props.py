@@ -57,6 +57,27 @@ def _keep_order(lo: str, hi: str, *, strict: bool = False):
     return lo_changed, hi_changed
 
 
+def _keep_range(name: str):
+    """An update callback keeping a [min, max] vector property ordered (swaps an inverted pair)."""
+    def changed(self, context):
+        lo, hi = getattr(self, name)
+        if lo > hi:
+            setattr(self, name, (hi, lo))
+    return changed
+
+
+def _range(name: str, label: str, description: str, dc, *, unit="NONE", lo=None, hi=None, soft_max=None,
+           precision=3):
+    """A [min, max] FloatVectorProperty (size 2) for Config field `name` of dataclass `dc`."""
+    kw = {"min": lo} if lo is not None else {}
+    if hi is not None:
+        kw["max"] = hi
+    if soft_max is not None:
+        kw["soft_max"] = soft_max
+    return FloatVectorProperty(name=label, description=description + " (min, max)", size=2, unit=unit,
+                               default=default(dc, name), precision=precision, update=_keep_range(name), **kw)
+
+
 def _sync_previews(self, context):
     """Keep the viewport previews (camera, projector, object) in step with edited properties."""
     from . import preview
@@ -196,6 +217,29 @@ class DATAPIPE_PG_pose(PropertyGroup):
         "the camera looks down its local -Z", size=4, subtype="QUATERNION", default=default(_P, "rotation"))
 
 
+_CS = C.CameraSamplerConfig
+
+
+class DATAPIPE_PG_camera_sampler(PropertyGroup):
+    kind: EnumProperty(
+        name="Sampler", description="How each render's camera pose is chosen",
+        items=[("pool", "Pose Pool", "Draw from the pose list below (without replacement within a scene)"),
+               ("bin_view", "Bin View", "Draw a look-at pose around the bin floor's centre per render "
+                "from the ranges below (the projector moves with the camera)")],
+        default=default(_CS, "kind"))
+    distance: _range("distance", "Distance", "Camera centre to the look-at target", _CS, unit="LENGTH",
+                     lo=1e-3, soft_max=5.0)
+    tilt_deg: _range("tilt_deg", "Tilt", "Optical axis from straight down, degrees", _CS, lo=0.0, hi=89.0,
+                     precision=1)
+    azimuth_deg: _range("azimuth_deg", "Azimuth", "Direction from the target to the camera, degrees "
+                        "counter-clockwise from world +X", _CS, precision=1)
+    roll_deg: _range("roll_deg", "Roll", "Image rotation about the optical axis, degrees", _CS, precision=1)
+    target_jitter: FloatProperty(
+        name="Target Jitter", description="The look-at target is the bin floor's centre plus a random "
+        "horizontal offset up to this far", subtype="DISTANCE", unit="LENGTH", min=0.0, soft_max=0.5,
+        precision=3, default=default(_CS, "target_jitter"))
+
+
 class DATAPIPE_PG_camera(PropertyGroup):
     focal_length: FloatProperty(
         name="Focal Length", description="Lens focal length (millimetres, as Blender's camera)",
@@ -222,6 +266,8 @@ class DATAPIPE_PG_camera(PropertyGroup):
     poses: CollectionProperty(type=DATAPIPE_PG_pose, name="Poses",
                               description="Pool of camera poses; each scene draws its renders' poses from it")
     poses_index: IntProperty(name="Active Pose", description="Selected camera pose", min=0)
+    sampler: PointerProperty(type=DATAPIPE_PG_camera_sampler, name="Sampler",
+                             description="Pose pool or look-at poses drawn around the bin")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -375,6 +421,29 @@ class DATAPIPE_PG_render(PropertyGroup):
 
 
 # ------------------------------------------------------------------------------------------------
+# lighting
+
+_LI = C.LightingConfig
+
+
+class DATAPIPE_PG_lighting(PropertyGroup):
+    """`Config.lighting`: `enabled` off is a config without a lighting section (the fixed key light)."""
+    enabled: BoolProperty(name="Random Lighting", description="Draw the key light and ambient light per "
+                          "scene from the ranges below (off: the fixed Key Light of the render settings)",
+                          default=False)
+    key_power: _range("key_power", "Key Power", "Power of the area light above the bin", _LI, unit="POWER",
+                      lo=0.0, soft_max=1000.0, precision=1)
+    key_color_temperature: _range("key_color_temperature", "Temperature", "Blackbody colour temperature "
+                                  "of the key light, kelvin", _LI, lo=1000.0, hi=40000.0, precision=0)
+    key_size: _range("key_size", "Key Size", "Side of the square area light", _LI, unit="LENGTH", lo=1e-3,
+                     soft_max=5.0)
+    key_position_jitter: FloatProperty(
+        name="Key Jitter", description="Horizontal offset of the key light from above the bin, up to this far",
+        subtype="DISTANCE", unit="LENGTH", min=0.0, soft_max=2.0, default=default(_LI, "key_position_jitter"))
+    ambient: _range("ambient", "Ambient", "Strength of a white world background", _LI, lo=0.0, soft_max=2.0)
+
+
+# ------------------------------------------------------------------------------------------------
 # output
 
 _T = C.OutputConfig
@@ -419,6 +488,8 @@ class DATAPIPE_PG_root(PropertyGroup):
     structured_light: PointerProperty(type=DATAPIPE_PG_structured_light, name="Structured Light",
                                       description="Fringe patterns and decoding")
     render: PointerProperty(type=DATAPIPE_PG_render, name="Render", description="Cycles settings and outputs")
+    lighting: PointerProperty(type=DATAPIPE_PG_lighting, name="Lighting",
+                              description="Key and ambient light drawn per scene")
     simulation: PointerProperty(type=DATAPIPE_PG_simulation, name="Simulation",
                                 description="Rigid-body drop settings")
     output: PointerProperty(type=DATAPIPE_PG_output, name="Output", description="Output folder and formats")
@@ -442,10 +513,12 @@ CLASSES = (
     DATAPIPE_PG_simulation,
     DATAPIPE_PG_object,
     DATAPIPE_PG_pose,
+    DATAPIPE_PG_camera_sampler,
     DATAPIPE_PG_camera,
     DATAPIPE_PG_projector,
     DATAPIPE_PG_structured_light,
     DATAPIPE_PG_render,
+    DATAPIPE_PG_lighting,
     DATAPIPE_PG_output,
     DATAPIPE_PG_root,
 )

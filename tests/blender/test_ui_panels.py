@@ -149,7 +149,7 @@ def test_draw_filled_with_previews_and_status(d, mode):
     assert problems == []
     drawn = {(type(e[1]).__name__ if e[0] == "prop" else None, e[2]) for e in log if e[0] == "prop"}
     # every Config-facing property of each group is drawn somewhere
-    for group, skip in ((d.scene, set()), (d.camera, {"poses", "poses_index"}), (d.objects[0], set()),
+    for group, skip in ((d.scene, set()), (d.camera, {"poses", "poses_index", "sampler"}), (d.objects[0], set()),
                         (d.structured_light, {"periods_text"}), (d.render, set()), (d.simulation, set()),
                         (d.output, set()),
                         (d.projector, {"rotation_quaternion"} if mode == "XYZ" else {"rotation_euler"})):
@@ -164,3 +164,20 @@ def test_draw_filled_with_previews_and_status(d, mode):
             "datapipe.pose_add", "datapipe.pose_jump", "datapipe.drop_zone_place", "datapipe.drop_zone_read",
             "datapipe.initialize"} <= ops
     preview.remove_all()
+
+
+def test_sampler_and_lighting_ranges_drawn(d):
+    """bin_view shows every sampler range instead of the pose list; the Lighting sub-panel every
+    lighting range and its switch."""
+    bpy.ops.datapipe.initialize(preset="builtin:default")
+    d.camera.sampler.kind = "bin_view"
+    d.lighting.enabled = True
+    log, problems = draw_all(bpy.context)
+    assert problems == []
+    drawn = {(type(e[1]).__name__, e[2]) for e in log if e[0] == "prop"}
+    for group in (d.camera.sampler, d.lighting):
+        names = {p.identifier for p in group.bl_rna.properties} - {"rna_type", "name"}
+        assert {n for n in names if (type(group).__name__, n) not in drawn} == set()
+    assert ("template_list", "DATAPIPE_UL_poses", "poses") not in log
+    d.camera.sampler.tilt_deg = (30.0, 10.0)          # an inverted range is put in order
+    assert tuple(d.camera.sampler.tilt_deg) == (10.0, 30.0)

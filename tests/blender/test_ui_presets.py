@@ -58,6 +58,31 @@ def test_builtin_preset_round_trip(registered, name):
     assert a == b
 
 
+def test_sampler_and_lighting_round_trip(registered, tmp_path):
+    """bin_view ranges and a lighting section survive config -> sidebar -> config exactly; a config
+    without lighting comes back without it (the switch is off)."""
+    cfg = C.default_config()
+    cfg.projector.rotation = [0.0, -0.15, 0.0]        # radians(-8.5) is not a float32 (see above)
+    cfg.camera.sampler = C.CameraSamplerConfig(kind="bin_view", distance=[0.55, 0.8], tilt_deg=[5.0, 35.0],
+                                               azimuth_deg=[-90.0, 90.0], roll_deg=[-15.0, 15.0],
+                                               target_jitter=0.03)
+    cfg.lighting = C.LightingConfig(key_power=[30.0, 90.0], key_color_temperature=[2800.0, 7000.0],
+                                    key_size=[0.4, 1.25], key_position_jitter=0.25, ambient=[0.05, 0.3])
+    config_to_props(cfg, registered)
+    assert registered.lighting.enabled and registered.camera.sampler.kind == "bin_view"
+    assert props_to_config(registered).to_dict() == cfg.to_dict()
+    cfg.lighting = None
+    cfg.camera.sampler.kind = "pool"
+    config_to_props(cfg, registered)
+    back = props_to_config(registered)
+    assert not registered.lighting.enabled and back.lighting is None and back.to_dict() == cfg.to_dict()
+    bad = C.default_config()
+    bad.camera.sampler.tilt_deg = [0.0, 120.0]
+    with pytest.raises(ConfigError) as e:
+        config_to_props(bad, registered)
+    assert e.value.paths() == ["camera.sampler.tilt_deg"]
+
+
 def test_thesis_sensor_preset():
     cfg = C.load(presets.builtin_dir() / "thesis_sensor.json")
     default = C.load(presets.builtin_dir() / "default.json")
