@@ -53,6 +53,9 @@ class SceneConfig:
     drop_zone_scale: list[float] = _vec(0.15, 0.1, 0.1)  # half-extents, m
     make_bin: bool = True              # build a floor + walls around the drop zone (else: floor only)
     bin_wall_thickness: float = 0.01   # m
+    bin_size_scale: list[float] = _vec(1.0, 1.0)   # per scene: zone x and y half extents times a
+                                                   # factor from [min, max] (datapipe.bin_shape)
+    bin_wall_scale: list[float] = _vec(1.0, 1.0)   # per scene: wall height (the zone's) times [min, max]
     blend_file: str | None = None      # open this .blend first; its object "drop_zone" wins over the above
     seed: int = 0                      # base seed; scene i derives its own (see datapipe.seeds)
 
@@ -439,6 +442,8 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
             "(poses are drawn without replacement within a scene)",
             "add camera poses or lower max_renders_per_scene")
 
+    P += _range_problems("scene.bin_size_scale", s.bin_size_scale, lo_bound=0.05, hi_bound=20.0)
+    P += _range_problems("scene.bin_wall_scale", s.bin_wall_scale, lo_bound=0.05, hi_bound=20.0)
     P += _sampler_problems(cfg)
     P += _lighting_problems(cfg.lighting)
 
@@ -571,9 +576,10 @@ def _sampler_problems(cfg: Config) -> list[Problem]:
         K = intrinsics_from_blender(c.focal_length, c.sensor_width, res[0], res[1], fit)
         half_fov = math.degrees(min(math.atan(res[0] / 2 / K[0, 0]), math.atan(res[1] / 2 / K[1, 1])))
         s = cfg.scene
-        if len(s.drop_zone_scale) == 3:
-            walls = 2 * s.drop_zone_scale[2] if s.make_bin else 0.0
-            out += [Problem(*t) for t in view_problems(sm, s.drop_zone_scale[:2], walls, half_fov)]
+        if len(s.drop_zone_scale) == 3 and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2:
+            walls = 2 * s.drop_zone_scale[2] * max(s.bin_wall_scale) if s.make_bin else 0.0   # highest walls
+            floor = [h * min(s.bin_size_scale) for h in s.drop_zone_scale[:2]]              # smallest bin
+            out += [Problem(*t) for t in view_problems(sm, floor, walls, half_fov)]
     return out
 
 

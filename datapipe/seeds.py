@@ -11,7 +11,7 @@ import random
 import numpy as np
 
 _PLAN, _SCENE, _RENDER = 0x504C414E, 0x5343454E, 0x52454E44   # domain tags: 'PLAN', 'SCEN', 'REND'
-_CAMERA, _LIGHT = 0x43414D53, 0x4C494748                        # 'CAMS', 'LIGH'
+_CAMERA, _LIGHT, _BIN = 0x43414D53, 0x4C494748, 0x42494E53       # 'CAMS', 'LIGH', 'BINS'
 
 
 def _derive(*words: int) -> int:
@@ -41,6 +41,11 @@ def camera_rng(base: int, scene: int, render: int) -> np.random.Generator:
 def lighting_rng(base: int, scene: int) -> np.random.Generator:
     """The generator of one scene's drawn lighting (its own stream, like `camera_rng`)."""
     return np.random.default_rng(_derive(_LIGHT, base, scene))
+
+
+def bin_rng(base: int, scene: int) -> np.random.Generator:
+    """The generator of one scene's drawn bin size (its own stream, like `camera_rng`)."""
+    return np.random.default_rng(_derive(_BIN, base, scene))
 
 
 def seed_python(base: int, scene: int) -> None:

@@ -123,6 +123,7 @@ class BlendScene:
         self.walls: list[bpy.types.Object] = []
         self.occlusion_box: bpy.types.Object | None = None
         self.key_light: bpy.types.Object | None = None
+        self.wall_height: float | None = None  # None: as high as the drop zone (apply_bin draws it)
 
     # -- derived geometry -------------------------------------------------------------------------
     @property
@@ -138,6 +139,10 @@ class BlendScene:
     def top_z(self) -> float:
         """Top of the drop zone (and of the walls)."""
         return float(self.drop_zone_center[2] + self.drop_zone_half[2])
+
+    @property
+    def wall_top_z(self) -> float:
+        return self.top_z if self.wall_height is None else self.floor_z + self.wall_height
 
     def inside_footprint(self, location, margin: float = 0.0) -> bool:
         p = np.asarray(location, dtype=np.float64)
@@ -169,6 +174,7 @@ class BlendScene:
         us.length_unit = 'METERS'
         self._setup_world(scene)
         self._setup_drop_zone(scene)
+        self.base_half = self.drop_zone_half.copy()     # what per-scene bin draws scale
 
         self.static = _new_collection(scene, STATIC_COLLECTION)
         self.lights = _new_collection(scene, LIGHTS_COLLECTION)
@@ -258,7 +264,7 @@ class BlendScene:
     def _build_bin(self, scene) -> None:
         c, h = self.drop_zone_center, self.drop_zone_half
         t = float(self.cfg.scene.bin_wall_thickness)
-        fz, top = self.floor_z, self.top_z
+        fz = self.floor_z
         mat = self._material()
         # the floor is the ground the bin stands on: wide enough to fill any sensible camera view
         # (depth and structured light everywhere, parts that jump out land beside the bin)
@@ -276,7 +282,7 @@ class BlendScene:
                 "datapipe_wall_ypos": ([x0, y1], [x1, y1 + t]),
             }
             for name, (lo, hi) in spans.items():
-                self.walls.append(self._box(name, [*lo, fz], [*hi, top], mat))
+                self.walls.append(self._box(name, [*lo, fz], [*hi, self.wall_top_z], mat))
         # the occlusion box: thick, right under the floor, a collider that never renders
         depth = max(2.0 * float(h[2]), 0.05)
         self.occlusion_box = self._box("datapipe_occlusion_box", [*outer_lo, fz - t - depth], [*outer_hi, fz - t])
@@ -299,7 +305,23 @@ class BlendScene:
 
     def _key_light_home(self) -> tuple[float, float, float]:
         c = self.drop_zone_center
-        return float(c[0]), float(c[1]), max(self.floor_z + LIGHT_HEIGHT, self.top_z + 0.5)
+        return float(c[0]), float(c[1]), max(self.floor_z + LIGHT_HEIGHT, self.top_z + 0.5, self.wall_top_z + 0.5)
+
+    def apply_bin(self, draw: dict) -> None:
+        """Rebuild floor, walls and occlusion box for one scene's `datapipe.bin_shape.draw_bin`: the
+        zone's x, y half extents (placement and the "left the bin" test follow them) and the wall
+        height change; the floor and the zone's centre stay."""
+        for obj in [self.floor, *self.walls, self.occlusion_box]:
+            if obj is not None:
+                mesh = obj.data
+                bpy.data.objects.remove(obj, do_unlink=True)
+                if mesh is not None and mesh.users == 0:
+                    bpy.data.meshes.remove(mesh)
+        self.drop_zone_half = np.asarray(draw["half_size"], dtype=np.float64).copy()
+        self.wall_height = float(draw["wall_height"])
+        self._build_bin(self.scene)
+        self.key_light.location = self._key_light_home()
+        bpy.context.view_layer.update()
 
     def apply_lighting(self, draw: dict) -> None:
         """Set the key light and the ambient world from one scene's `datapipe.lighting.draw_lighting`.

@@ -101,6 +101,7 @@ class DATAPIPE_PT_scene(_DataPipePanel, Panel):
         sub = col.column()
         sub.active = s.make_bin
         sub.prop(s, "bin_wall_thickness")
+        _draw_ranges(sub, s, (("bin_size_scale", "Size Scale"), ("bin_wall_scale", "Wall Scale")))
         layout.prop(s, "blend_file")
 
 

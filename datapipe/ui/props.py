@@ -123,6 +123,10 @@ class DATAPIPE_PG_scene(PropertyGroup):
     bin_wall_thickness: FloatProperty(
         name="Wall Thickness", description="Thickness of the bin's floor and walls",
         subtype="DISTANCE", unit="LENGTH", min=1e-5, soft_max=0.1, default=default(_S, "bin_wall_thickness"))
+    bin_size_scale: _range("bin_size_scale", "Bin Size Scale", "Per scene, the drop zone's X and Y half "
+                           "extents are each multiplied by a factor drawn from this range", _S, lo=0.05, hi=20.0)
+    bin_wall_scale: _range("bin_wall_scale", "Wall Height Scale", "Per scene, the wall height (the drop "
+                           "zone's height) is multiplied by a factor drawn from this range", _S, lo=0.05, hi=20.0)
     blend_file: StringProperty(
         name="Blend File", description="Open this .blend as the base scene (empty: a fresh scene); its "
         "object 'drop_zone', when present, overrides the drop zone above",

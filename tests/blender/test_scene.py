@@ -179,3 +179,25 @@ def test_apply_lighting_sets_key_light_and_ambient():
     draw.update(key_offset=[0.0, 0.0, 0.0], ambient=0.0)         # offsets are from home, not cumulative
     bs.apply_lighting(draw)
     assert np.allclose(np.array(bs.key_light.matrix_world.translation), home, atol=1e-6)
+
+
+def test_apply_bin_rebuilds_to_the_drawn_size():
+    """After a drawn bin the boxes match the drawn half size and wall height analytically, old boxes
+    are gone (no duplicates, no orphan meshes), and the floor stays put."""
+    from datapipe.bin_shape import draw_bin
+    cfg = _cfg()
+    cfg.scene.bin_size_scale, cfg.scene.bin_wall_scale = [0.7, 1.3], [0.5, 1.5]
+    bs = BlendScene(cfg).setup()
+    floor_z, t = bs.floor_z, cfg.scene.bin_wall_thickness
+    n_meshes = len(bpy.data.meshes)
+    for k in range(2):
+        draw = draw_bin(cfg.scene, bs.base_half, np.random.default_rng(k))
+        bs.apply_bin(draw)
+        hx, hy = draw["half_size"][:2]
+        assert 0.7 * 0.2 <= hx <= 1.3 * 0.2 and 0.5 * 0.16 <= draw["wall_height"] <= 1.5 * 0.16
+        assert bs.floor_z == pytest.approx(floor_z)
+        lo, hi = _bounds(_static()["datapipe_wall_xpos"])
+        assert np.allclose(lo, [0.3 + hx, -0.2 - hy - t, floor_z], atol=TOL)
+        assert np.allclose(hi, [0.3 + hx + t, -0.2 + hy + t, floor_z + draw["wall_height"]], atol=TOL)
+        assert len(_static()) == 6 and len(bpy.data.meshes) == n_meshes
+        assert bs.inside_footprint([0.3 + hx - 1e-3, -0.2, 0.5]) and not bs.inside_footprint([0.3 + hx + 2e-3, -0.2, 0.5])

@@ -63,6 +63,7 @@ def test_sampler_and_lighting_round_trip(registered, tmp_path):
     without lighting comes back without it (the switch is off)."""
     cfg = C.default_config()
     cfg.projector.rotation = [0.0, -0.15, 0.0]        # radians(-8.5) is not a float32 (see above)
+    cfg.scene.bin_size_scale, cfg.scene.bin_wall_scale = [0.75, 1.25], [0.5, 1.5]
     cfg.camera.sampler = C.CameraSamplerConfig(kind="bin_view", distance=[0.55, 0.8], tilt_deg=[5.0, 35.0],
                                                azimuth_deg=[-90.0, 90.0], roll_deg=[-15.0, 15.0],
                                                target_jitter=0.03)
