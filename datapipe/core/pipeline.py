@@ -245,12 +245,14 @@ class _BlenderWorld:
         from .renderer import Renderer
         from .scene import BlendScene
         from .simulation import Simulation
+        from .variety import SceneVariety
 
         self.blend = BlendScene(self.cfg)
         self.blend.setup()
         bscene = self.blend.scene
         self.camera = BlendCamera(self.cfg, bscene)
         self.camera.setup()
+        self.variety = SceneVariety(self.cfg, self.blend, self.camera)
         self.objects = ObjectManager(self.cfg, self.blend)
         self.objects.load_sources()
         self.simulation = Simulation(self.cfg, self.blend)
@@ -270,18 +272,19 @@ class _BlenderWorld:
         seed_python(base, i)
         rng = scene_rng(base, i)
         t0 = time.perf_counter()
+        drawn = self.variety.apply_scene(base, i)      # bin and lights first: placement fits the bin
         instances = self.objects.populate(rng)
         t1 = time.perf_counter()
         sim = self.simulation.run(instances, rng)
         t2 = time.perf_counter()
-        pose_indices = self.camera.draw_poses(rng, n_renders)
+        pose_indices = self.variety.pose_plan(rng, n_renders)
         self.instances = sim.kept
         objects = [self._object_record(inst) for inst in sim.kept]
         scene = {
             "scene_id": i, "name": layout.scene_name(i), "seed": scene_seed(base, i),
             "simulation": {"frames": sim.frames, "settled": sim.settled,
                            "removed": [{"name": inst.name, "reason": why} for inst, why in sim.removed]},
-            "objects": objects, "renders": [],
+            **drawn, "objects": objects, "renders": [],
         }
         return scene, pose_indices, {"placement": t1 - t0, "simulation": t2 - t1}
 
@@ -292,19 +295,21 @@ class _BlenderWorld:
     def render(self, i: int, r: int, pose_index: int, sdir: Path, base: int, *, image_id: int):
         rdir = sdir / layout.render_name(r)
         rdir.mkdir(parents=True, exist_ok=True)
-        T_world_cam = self.camera.set_pose(pose_index)
+        T_world_cam, sampled = self.variety.place_camera(pose_index, base, i, r)
         T_world_blcam = np.array(self.camera.obj.matrix_world, dtype=np.float64)
         seed = render_seed(base, i, r)
         t0 = time.perf_counter()
         out = self.renderer.render(rdir, seed)
         t1 = time.perf_counter()
         rec = {
-            "render_id": r, "name": layout.render_name(r), "image_id": image_id, "pose_index": int(pose_index),
+            "render_id": r, "name": layout.render_name(r), "image_id": image_id, "pose_index": pose_index,
             "K": self.camera.K, "resolution": list(self.camera.resolution),
             "T_world_cam": T_world_cam, "T_world_blcam": T_world_blcam, "seed": seed,
             "files": {k: str(Path(p).relative_to(sdir)) for k, p in out.files.items()},
             "objects": [],
         }
+        if sampled is not None:
+            rec["camera_sampler"] = sampled
         T_cam_world = np.linalg.inv(T_world_cam)
         T_blcam_world = np.linalg.inv(T_world_blcam)
         for inst in self.instances:
