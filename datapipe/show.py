@@ -535,7 +535,7 @@ def grid_image(run_dir: str | Path, n: int, *, seed: int = 0) -> np.ndarray:
     img = np.full((HEADER + rows * (th + cap + PAD), PAD + cols * (tw + PAD), 3), BG, np.uint8)
     for k, idx in enumerate(pick):
         sd, sc, rd = renders[idx]
-        p = _render_file(sd, rd, "rgb", "rgb.png")
+        p = layout.render_file(sd, rd, "rgb")
         rgb = cv2.imread(str(p), cv2.IMREAD_COLOR) if p.is_file() else None
         tile = _fit(rgb, tw, th) if rgb is not None else _message_tile(tw, th, ["no rgb output"])
         row, col = divmod(k, cols)
@@ -552,7 +552,7 @@ def make_grid(run_dir: str | Path, n: int, out_path: str | Path | None = None, *
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise DataPipeError(f"{run_dir}: no such run folder (fix: give the --out folder of a run)")
-    out_path = Path(out_path) if out_path else run_dir / "sheets" / "grid.png"
+    out_path = Path(out_path) if out_path else run_dir / layout.SHEETS_DIR / layout.GRID_FILE
     return _imwrite(out_path, grid_image(run_dir, n, seed=seed))
 
 
@@ -568,7 +568,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     try:
         if a.grid is not None:
-            out = Path(a.out) / "grid.png" if a.out else None
+            out = Path(a.out) / layout.GRID_FILE if a.out else None
             print(f"grid written to {make_grid(a.run_dir, a.grid, out, seed=a.grid_seed)}")
             return 0
         paths = make_sheets(a.run_dir, a.out, max_renders=a.max, overview=not a.no_overview)

@@ -26,7 +26,8 @@ LONG_FUNCTION_EXCEPTIONS = {
 BPY_FREE = ["datapipe.config", "datapipe.sl", "datapipe.sl.scanner", "datapipe.geometry", "datapipe.seeds",
             "datapipe.exr", "datapipe.errors", "datapipe.show", "datapipe.distributed", "datapipe.io",
             "datapipe.io.layout", "datapipe.io.files", "datapipe.io.native", "datapipe.io.legacy",
-            "datapipe.io.models", "datapipe.io.silhouette", "datapipe.io.bop", "datapipe.io.writers"]
+            "datapipe.io.models", "datapipe.io.silhouette", "datapipe.io.bop", "datapipe.io.writers",
+            "datapipe.camera_sampler", "datapipe.lighting", "datapipe.bin_shape"]
 
 _BLOCKER = """
 import importlib.abc, json, sys

@@ -22,6 +22,7 @@ MODELS_INFO = "models_info.json"
 BOP_DIR = "bop"
 SHEETS_DIR = "sheets"
 OVERVIEW_FILE = "overview.png"
+GRID_FILE = "grid.png"              # `show --grid N`: N random renders on one sheet
 SCENE_PREFIX = "scene."
 RENDER_PREFIX = "render."
 
