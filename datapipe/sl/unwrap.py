@@ -14,14 +14,23 @@ Methods
     beat ``phi_1 - phi_2`` has ``K1 - K2`` periods and is absolute. With 3+ frequencies the beats
     of neighbouring frequencies are beaten again (``(K1-K2) - (K2-K3)`` ...) until one beat of at
     most one period remains; then every level is unwrapped top-down from the level above.
-``'auto'``: hierarchical when the coarsest frequency is ``<= 1`` period, else heterodyne when the
-    (chained) beat reaches one period, else ``ValueError`` with a valid suggestion.
+``'number-theoretic'``: any integer frequencies with gcd 1, e.g. (13, 7) or (9, 10, 11): the
+    closest point of the lattice of consistent order vectors (:mod:`.lattice`; maximum likelihood
+    for equal phase noise). Noise gain ``1/d_min``: ``sqrt(K1^2 + K2^2)`` for two frequencies
+    (identical to heterodyne for ``|K1 - K2| = 1``), 7.1 for (9, 10, 11), 11.8 for (70, 64, 59)
+    where the heterodyne chain's worst stage has 15.8.
+``'auto'``: hierarchical when the coarsest frequency is ``<= 1`` period, else number-theoretic for
+    integer sets with gcd 1, else heterodyne when the (chained) beat reaches one period, else
+    ``ValueError`` with a valid suggestion.
 
 Result: the projector coordinate combines all original frequencies weighted by ``K^2`` (inverse
 variance for equal phase noise), which lowers the noise below that of the finest frequency alone
 by ``K_max / sqrt(sum K^2)``. ``order_error`` is, per pixel, the largest distance of any rounded
-order estimate from its integer (0 = certain, 0.5 = a coin toss); threshold it (decode uses 0.25)
-to flag unreliable orders.
+order estimate from its integer (0 = certain, 0.5 = a coin toss). ``margins`` holds, per rounding
+stage, the evidence for its decision: ``1 - 2|r - round(r)|`` (a lattice stage: the squared
+distance to the second-closest point minus that to the closest), in the units of the stage's
+noise coefficients ``UnwrapPlan.stage_coefs()``; :mod:`.confidence` turns them into the
+probability that the orders are right.
 
 Edges: the coarse estimate is wrapped into the projector's lit range centred on the projector
 (``[-0.5, W-0.5)`` in pixels, when ``proj_width`` is given) and, for integer frequencies, the final
@@ -37,13 +46,14 @@ from typing import Sequence
 import numpy as np
 
 from ._errors import bad_value
+from .lattice import lattice_code
 from .patterns import _check_periods
 
 __all__ = ["UnwrapResult", "UnwrapPlan", "unwrap_phase", "unwrap_cycles", "plan_unwrap"]
 
 TWO_PI = 2.0 * np.pi
 _TOL = 1e-9
-METHODS = ("auto", "heterodyne", "multi-frequency")
+METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")
 
 
 @dataclass
@@ -56,6 +66,7 @@ class UnwrapResult:
     order_error: np.ndarray
     method: str
     periods: tuple
+    margins: list = None       # per rounding stage, see the module doc
 
 
 def _is_int(k: float) -> bool:
@@ -67,7 +78,8 @@ def _suggest(per: Sequence[float]) -> str:
     hier = (1,) + tuple(sorted(int(k) if _is_int(k) else k for k in per if k > 1))
     k = int(round(kmax)) if kmax >= 2 else 8
     return (f"add a one-period pattern for hierarchical unwrapping, e.g. periods={hier}, "
-            f"or use a heterodyne pair such as periods=({k}, {k - 1}); (1, 8, 64) is a robust default")
+            f"or use a heterodyne pair such as periods=({k}, {k - 1}) or integers without a common factor "
+            "such as (13, 7) or (9, 10, 11); (1, 8, 64) is a robust default")
 
 
 def _chain(per_desc: list[float]):
@@ -90,7 +102,7 @@ def _chain(per_desc: list[float]):
 
 @dataclass(frozen=True)
 class UnwrapPlan:
-    method: str                 # 'heterodyne' or 'multi-frequency'
+    method: str                 # 'heterodyne', 'multi-frequency' or 'number-theoretic'
     periods: tuple              # as given (stack order)
     order: tuple                # indices into periods: coarse -> fine (hierarchical) / desc (heterodyne)
     levels: tuple = ()          # heterodyne chain (see _chain), top level last
@@ -99,6 +111,10 @@ class UnwrapPlan:
     @property
     def finest(self) -> int:
         return int(np.argmax(self.periods))
+
+    @property
+    def lattice(self):
+        return lattice_code(tuple(self.periods)) if self.method == "number-theoretic" else None
 
     def noise_gain(self) -> float:
         """Largest noise gain of a rounding stage (see :meth:`stage_gains`)."""
@@ -115,22 +131,49 @@ class UnwrapPlan:
         ``sqrt(K1^2 + K2^2)`` for a heterodyne pair with K1 - K2 = 1 (sl-notes: 27.6 for 20/19).
         The order is then wrong with probability ``erfc(pi / (sqrt(2) * gain * sigma_phi))``.
         (For chains the estimate from the level above is taken as its best node: conservative.)
+        A number-theoretic plan has one stage of gain ``1/d_min`` (:mod:`.lattice`).
         """
+        if self.method == "number-theoretic":
+            return [self.lattice.gain]
+        return [float(np.linalg.norm(c)) for c in self.stage_coefs()]
+
+    def stage_coefs(self) -> list:
+        """Per rounding stage, its coefficients over the original phases (stack order): the stage's
+        noise variance is ``sum(coef_j^2 sigma_j^2)`` (sigma_j: phase noise of frequency j, in
+        cycles) in the units of its margin (module doc). None for a lattice stage of 3+ frequencies,
+        whose margin is in cycles^2 of the largest sigma_j."""
+        F = len(self.periods)
+        out = []
         if self.method == "multi-frequency":
-            ks = [self.periods[i] for i in self.order]
-            return [float(np.sqrt((ks[i] / ks[i - 1]) ** 2 + 1.0)) for i in range(1, len(ks))]
-        g2 = []
+            for a, b in zip(self.order[:-1], self.order[1:]):
+                c = np.zeros(F)
+                c[a], c[b] = self.periods[b] / self.periods[a], -1.0
+                out.append(c)
+            return out
+        if self.method == "number-theoretic":
+            lat = self.lattice
+            return [lat.V[0].astype(float)] if F == 2 else [None]
         above_k, above_c = self.levels[-1][0][0], np.asarray(self.levels[-1][0][1], float)
         for li in range(len(self.levels) - 2, -1, -1):
             best = None
             for k, c in self.levels[li]:
                 c = np.asarray(c, float)
-                g2.append(float(np.sum(((k / above_k) * above_c - c) ** 2)))
+                coef = (k / above_k) * above_c - c
+                full = np.zeros(F)
+                full[list(self.order)] = coef
+                out.append(full)
                 w = k * k / float(np.sum(c * c))
                 if best is None or w > best[0]:
                     best = (w, k, c)
             above_k, above_c = best[1], best[2]
-        return [float(np.sqrt(g)) for g in g2]
+        return out
+
+
+def _lattice_or_none(per):
+    try:
+        return lattice_code(tuple(per))
+    except ValueError as e:
+        return str(e)
 
 
 def plan_unwrap(periods, method: str = "auto") -> UnwrapPlan:
@@ -150,6 +193,13 @@ def plan_unwrap(periods, method: str = "auto") -> UnwrapPlan:
     if len(per) == 1:
         raise bad_value("periods", f"a single frequency of {per[0]:g} periods repeats {per[0]:g} times "
                         "across the projector, so the fringe order cannot be found", _suggest(per))
+    if method in ("auto", "number-theoretic"):
+        lat = _lattice_or_none(per)
+        if not isinstance(lat, str):
+            return UnwrapPlan("number-theoretic", per, asc, (), True)
+        if method == "number-theoretic":
+            raise bad_value("periods", f"{per} cannot be unwrapped number-theoretically: {lat}",
+                            "use integer periods without a common factor, e.g. (13, 7) or (9, 10, 11)")
     desc = tuple(int(i) for i in np.argsort(per)[::-1])
     levels = _chain([per[i] for i in desc])
     top_k = levels[-1][0][0]
@@ -160,6 +210,8 @@ def plan_unwrap(periods, method: str = "auto") -> UnwrapPlan:
         if len(per) == 2:
             why = (f"the heterodyne beat of {per[0]:g} and {per[1]:g} has {abs(per[0] - per[1]):g} periods "
                    "across the projector; it must be <= 1 (|K1-K2| <= 1) to be unambiguous")
+        if method == "auto" and integer:
+            why += f"; number-theoretic unwrapping does not apply either: {lat}"
         raise bad_value("periods", f"{per} cannot be unwrapped unambiguously: {why}", _suggest(per))
     return UnwrapPlan("heterodyne", per, desc, tuple(tuple(l) for l in levels), integer)
 
@@ -207,6 +259,7 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
     T = dt.type
     shape = cyc[0].shape
     err = None
+    margins = []
     tmp = np.empty(shape, dt)
     kk = np.empty(shape, dt)
 
@@ -218,11 +271,12 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
         np.subtract(tmp, c, out=tmp)
         np.rint(tmp, out=kk)
         np.subtract(tmp, kk, out=tmp)
+        np.abs(tmp, out=tmp)
         if err is None:
-            err = np.abs(tmp)
+            err = tmp.copy()
         else:
-            np.abs(tmp, out=tmp)
             np.maximum(err, tmp, out=err)
+        margins.append(np.subtract(T(1), np.multiply(tmp, T(2))))
         np.multiply(kk, T(per_px), out=out)
         np.multiply(c, T(per_px), out=tmp)
         np.add(out, tmp, out=out)
@@ -255,6 +309,8 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
         for i in plan.order[1:]:
             prev = stage(prev, per[i], cyc[i], np.empty(shape, dt))
             xs[i] = prev
+    elif plan.method == "number-theoretic":
+        err = _lattice_stage(cyc, plan, L, centre, xs, margins)
     else:
         levels = plan.levels
 
@@ -285,7 +341,36 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
     if plan.integer:
         fold(coord, L)
     phase = np.multiply(coord, T(TWO_PI * max(per) / L))
-    return UnwrapResult(phase=phase, x=coord, order_error=err, method=plan.method, periods=per)
+    return UnwrapResult(phase=phase, x=coord, order_error=err, method=plan.method, periods=per,
+                        margins=margins)
+
+
+def _lattice_stage(cyc, plan, L, centre, xs, margins):
+    """Number-theoretic orders (:mod:`.lattice`) -> per-frequency coordinates in ``xs``; returns the
+    order error (two frequencies: ``|m - round(m)|``; more: 0.5 * (1 - margin / largest margin))."""
+    lat = plan.lattice
+    per = plan.periods
+    dt = cyc[0].dtype
+    T = dt.type
+    if len(per) == 2:
+        v = lat.V[0]
+        m = T(v[0]) * cyc[0] + T(v[1]) * cyc[1]
+        z = np.rint(m)
+        err = np.abs(m - z)
+        margins.append(T(1) - T(2) * err)
+        orders = [-T(lat.R[i, 0]) * z for i in range(2)]
+    else:
+        orders, gap = lat.decode(cyc)
+        margins.append(gap)
+        err = (T(0.5) * np.clip(T(1) - gap / T(lat.d_min ** 2), 0, 1)).astype(dt)
+    # n + t K is equally consistent: pick t that puts the finest coordinate into the lit range
+    f = int(np.argmax(per))
+    lo = (centre - 0.5 * L) / L
+    t = np.floor((orders[f] + cyc[f]) * T(1.0 / per[f]) - T(lo))
+    for i, k in enumerate(per):
+        n = orders[i] - t * T(k)
+        xs[i] = (n + cyc[i]) * T(L / k)
+    return err
 
 
 def _combine(weighted, tmp, min_fraction=0.0):

@@ -21,8 +21,9 @@ def phases_for(x, periods, sigma=0.0, seed=0, dtype=np.float32):
 
 @pytest.mark.parametrize("periods, method", [
     ((1, 8, 64), "multi-frequency"), ((64, 8, 1), "multi-frequency"), ((1,), "multi-frequency"),
-    ((0.9, 8, 64), "multi-frequency"), ((64, 63), "heterodyne"), ((8, 7), "heterodyne"),
-    ((70, 64, 59), "heterodyne"), ((100, 93, 88, 84), "heterodyne"),
+    ((0.9, 8, 64), "multi-frequency"), ((64, 63), "number-theoretic"), ((8, 7), "number-theoretic"),
+    ((70, 64, 59), "number-theoretic"), ((100, 93, 88, 84), "number-theoretic"), ((13, 7), "number-theoretic"),
+    ((9, 10, 11), "number-theoretic"), ((8.5, 7.5), "heterodyne"), ((20.5, 19.75, 18.5), "heterodyne"),
 ])
 def test_auto_choice(periods, method):
     assert plan_unwrap(periods).method == method
@@ -30,7 +31,9 @@ def test_auto_choice(periods, method):
 
 @pytest.mark.parametrize("periods, method, msgs", [
     ((16, 64), "auto", ["cannot be unwrapped", "(1, 16, 64)"]),
-    ((8, 6), "auto", ["beat of 8 and 6 has 2 periods", "(8, 7)"]),
+    ((8, 6), "auto", ["beat of 8 and 6 has 2 periods", "share the factor 2", "(8, 7)"]),
+    ((8.5, 6), "auto", ["beat of 8.5 and 6", "(13, 7)"]),
+    ((8.5, 7.5), "number-theoretic", ["integer periods", "(13, 7)"]),
     ((64,), "auto", ["single frequency", "periods="]),
     ((8, 7), "multi-frequency", ["coarsest", "at most 1 period"]),
     ((1, 8, 64), "heterodyne", ["cannot be unwrapped"]),
@@ -44,13 +47,16 @@ def test_ambiguous_sets_raise_with_suggestion(periods, method, msgs):
         assert m in str(ei.value)
 
 
-@pytest.mark.parametrize("periods", [(1, 8, 64), (1, 4, 16, 64), (64, 63), (8, 7), (70, 64, 59),
-                                     (100, 93, 88, 84), (0.9, 8, 64)])
-def test_noise_free_exact_across_projector(periods):
+@pytest.mark.parametrize("periods, method", [
+    ((1, 8, 64), "auto"), ((1, 4, 16, 64), "auto"), ((64, 63), "heterodyne"), ((8, 7), "heterodyne"),
+    ((70, 64, 59), "heterodyne"), ((100, 93, 88, 84), "heterodyne"), ((0.9, 8, 64), "auto"),
+    ((64, 63), "auto"), ((70, 64, 59), "auto"), ((100, 93, 88, 84), "auto"), ((13, 7), "auto"),
+    ((9, 10, 11), "auto"), ((1, 16), "number-theoretic"), ((8.5, 7.5), "auto")])
+def test_noise_free_exact_across_projector(periods, method):
     """Every projector column from edge to edge (x in (-0.5, W-0.5)) comes back; float32
     phases carry ~4e-7 rad rounding, i.e. < 1e-4 px through the finest period (8 px)."""
     x = np.linspace(-0.5, W - 0.5, 20002)[1:-1]
-    r = unwrap_phase(phases_for(x, periods), periods, proj_width=W)
+    r = unwrap_phase(phases_for(x, periods), periods, method, proj_width=W)
     assert r.x.dtype == np.float32
     assert np.abs(r.x - x).max() < 2e-4
     assert r.order_error.max() < 1e-3
@@ -89,7 +95,7 @@ def test_projector_edges():
             assert not wrong.any()
 
 
-@pytest.mark.parametrize("periods", [(1, 8, 64), (20, 19), (8, 7)])
+@pytest.mark.parametrize("periods", [(1, 8, 64), (20, 19), (8, 7), (13, 7)])
 def test_order_error_follows_noise_gain(periods):
     """The order estimate's deviation r - round(r) is Gaussian with sigma = gain * sigma_phi/2pi
     (sl-notes: sqrt(r^2+1) for a hierarchical stage, sqrt(K1^2+K2^2) for a heterodyne pair);
@@ -123,3 +129,36 @@ def test_k2_weighting_lowers_noise(periods):
 def test_mismatched_inputs():
     with pytest.raises(ValueError, match="2 phase maps for 3 periods"):
         unwrap_phase([np.zeros(3), np.zeros(3)], (1, 8, 64))
+
+
+def test_number_theoretic_gains():
+    """d_min of the lattice of consistent orders (lattice module doc): for two coprime frequencies
+    the points lie on a line with spacing 1/|K| (gain sqrt(K1^2 + K2^2)); for (9, 10, 11) the
+    shortest difference is the projection of (1, 1, 1) off K: |(1,1,1) - 30/302 K| = 0.1410."""
+    assert plan_unwrap((13, 7)).noise_gain() == pytest.approx(np.hypot(13, 7), rel=1e-9)
+    k = np.array([9.0, 10, 11])
+    ones = np.ones(3)
+    assert plan_unwrap((9, 10, 11)).noise_gain() == pytest.approx(
+        1 / np.linalg.norm(ones - (ones @ k) / (k @ k) * k), rel=1e-9)
+
+
+@pytest.mark.parametrize("periods", [(13, 7), (9, 10, 11), (70, 64, 59)])
+def test_number_theoretic_noise_tolerance(periods):
+    """Stated tolerance: an order is lost when the noise projected on the direction to another
+    lattice point exceeds d_min/2, i.e. P(wrong) ~ n_min * Q(d_min / (2 sigma_c)). At
+    sigma_c = d_min / 12 (6 sigma margin, Q = 1e-9) not one of 2e5 pixels may be wrong; at
+    sigma_c = d_min / 4 (Q(2) = 2.3%) the wrong fraction must be between Q(2) and 6 Q(2)
+    (n_min <= 6 neighbours in 2D), i.e. the tolerance is neither better nor worse than stated."""
+    plan = plan_unwrap(periods)
+    d = 1 / plan.noise_gain()
+    x = np.random.default_rng(7).uniform(1, W - 2, 200_000)
+    from scipy.stats import norm
+    for frac, check in ((1 / 12, "none"), (1 / 4, "rate")):
+        sig = d * frac * TWO_PI           # radians
+        r = unwrap_phase(phases_for(x, periods, sig, seed=8, dtype=np.float64), periods, proj_width=W)
+        wrong = np.mean(np.abs(r.x - x) > W / max(periods) / 2)
+        q = norm.sf(1 / (2 * frac))
+        if check == "none":
+            assert wrong == 0
+        else:
+            assert q <= wrong <= 6 * q
