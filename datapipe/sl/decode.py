@@ -1,15 +1,18 @@
 """The structured-light decoder: fringe images -> projector coordinate -> depth, with a reason per pixel.
 
 Pipeline (row slabs of ~64k pixels so every intermediate stays in cache; the stack is never
-copied and never converted to float64 as a whole):
+copied and never converted to float64 as a whole), one named step each:
 
-1. N-step least-squares phase, offset A and modulation B per frequency (:mod:`.phase`), with
-   saturated samples excluded and non-finite samples flagged;
-2. validity: modulation above a floor derived from the noise (Rayleigh law, below), contrast
-   ``B/A`` above ``min_contrast``;
-3. temporal unwrapping (:mod:`.unwrap`) with a K^2-weighted combination of all frequencies and a
-   per-pixel order reliability;
-4. closed-form triangulation (:mod:`.triangulate`, coefficients cached per geometry).
+1. :func:`_decode_slab`: N-step least-squares phase, offset A and modulation B per frequency
+   (:mod:`.phase`), saturated samples excluded, non-finite samples flagged; optional projector
+   gamma correction (:mod:`.gamma`); NO_LIGHT: modulation below a floor derived from the noise
+   (Rayleigh law, below), contrast ``B/A`` below ``min_contrast``; temporal unwrapping
+   (:mod:`.unwrap`, K^2-weighted combination of all frequencies); the probability that the orders
+   are wrong from the agreement of all frequencies and the noise the sensor predicts
+   (:mod:`.confidence`); closed-form triangulation (:mod:`.triangulate`);
+2. :func:`_neighbour_pass`: uncertain pixels take (or confirm) their order from the coordinate
+   their confident neighbours predict (:mod:`.spatial`), and are triangulated again;
+3. :func:`_assemble`: reasons by priority, NaN fill.
 
 Every output pixel is finite and valid, or NaN with a :class:`Reason` code.
 
@@ -21,12 +24,12 @@ one frequency's test with probability ``p = false_valid_rate`` and all F frequen
 ``sigma(signal)`` such as :meth:`datapipe.sl.sensor.SensorModel.noise_sigma`, evaluated at each
 pixel's offset A); by default it is estimated from the least-squares residuals (N >= 4).
 
-Order floor. Each rounding stage of the unwrapping amplifies the phase noise by a gain g
-(:meth:`UnwrapPlan.noise_gain`, e.g. sqrt(r^2+1) for a hierarchical ratio r) and picks a wrong
-order with probability ``erfc(pi / (sqrt(2) g sigma_phi))``, ``sigma_phi = s / B``. Pixels whose
-modulation is below ``order_sigmas * g * s / pi`` in some frequency (default 5 sigmas: a wrong
-order with probability < 1e-6 per stage) are BAD_ORDER, as are pixels whose order estimate lies
-farther than ``max_order_error`` from an integer.
+Order decision. A pixel is BAD_ORDER when the probability that some order is wrong
+(:attr:`DecodeResult.confidence` is one minus it) exceeds ``max_wrong`` (default 1e-3) after the
+neighbour pass. The former worst-case rules stay available: ``order_sigmas`` (refuse pixels whose
+modulation is below ``order_sigmas * g * s / pi`` in some frequency, g the largest stage gain)
+and ``max_order_error`` (refuse order estimates farther than that from an integer); both are off
+by default because they threw away a fifth of the correctly decoded pixels (issue #10).
 """
 from __future__ import annotations
 
@@ -40,6 +43,9 @@ import scipy.stats
 from ._errors import bad_type, bad_value
 from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
+from .confidence import phase_var_cycles, wrong_probability
+from .gamma import correct_cycles, gamma_phase_lut
+from .spatial import correct_orders
 from .triangulate import Triangulator
 from .unwrap import plan_unwrap, unwrap_cycles
 
@@ -48,20 +54,22 @@ __all__ = ["Reason", "DecodeResult", "decode", "estimate_noise_sigma", "modulati
 
 class Reason(IntEnum):
     """Why a pixel has no depth (uint8 in :attr:`DecodeResult.reason`). When several apply, the
-    first of INVALID_INPUT, SATURATED, NO_LIGHT, BAD_ORDER, ILL_CONDITIONED, OUTSIDE_PROJECTOR
-    is reported (the more basic cause first)."""
+    first of INVALID_INPUT, SATURATED, NO_LIGHT, INCONSISTENT, BAD_ORDER, ILL_CONDITIONED,
+    OUTSIDE_PROJECTOR is reported (the more basic cause first)."""
     VALID = 0
     NO_LIGHT = 1            # modulation below the noise floor, or contrast B/A too low
     SATURATED = 2           # fewer than 3 unsaturated samples in some frequency
-    BAD_ORDER = 3           # order estimate too far from an integer, or too little SNR to round it
+    BAD_ORDER = 3           # probability of a wrong fringe order above max_wrong, even with the neighbours' help
     OUTSIDE_PROJECTOR = 4   # behind the projector or outside its other image axis
     ILL_CONDITIONED = 5     # camera ray (nearly) in a projector column plane: |dZ/dx| over the cap
     INVALID_INPUT = 6       # NaN or inf in a sample
     FILTERED = 7            # removed by a post-filter outside the decoder (the pipeline's edge/speckle filter)
+    # 8 is reserved for the reflection filter (sl/filters.py)
+    INCONSISTENT = 9        # the frequencies disagree by more than the noise allows (aliasing, mixed pixel,
+                            # inter-reflection, tone curve): see datapipe.sl.confidence
 
 
-_PRIORITY = (Reason.OUTSIDE_PROJECTOR, Reason.ILL_CONDITIONED, Reason.BAD_ORDER,
-             Reason.NO_LIGHT, Reason.SATURATED, Reason.INVALID_INPUT)   # later overrides earlier
+_NO_ORDER = (Reason.NO_LIGHT, Reason.SATURATED, Reason.INVALID_INPUT)   # no order decoded at all
 
 
 @dataclass
@@ -76,6 +84,8 @@ class DecodeResult:
     phase: np.ndarray                 # float32 absolute phase of the finest frequency
     reason: np.ndarray                # uint8, see Reason
     order_error: np.ndarray           # float32 in [0, 0.5]: distance of the order estimate from an integer
+    confidence: np.ndarray | None = None  # float32: probability that the fringe orders are right (0 where
+                                          # no order was decoded: NO_LIGHT, SATURATED, INVALID_INPUT)
     periods: tuple = ()
     steps: int = 0
     method: str = ""
@@ -94,7 +104,7 @@ class DecodeResult:
         return self._points
 
     def reason_counts(self) -> dict[str, int]:
-        counts = np.bincount(self.reason.ravel(), minlength=len(Reason))
+        counts = np.bincount(self.reason.ravel(), minlength=max(Reason) + 1)
         return {r.name: int(counts[r.value]) for r in Reason}
 
 
@@ -219,13 +229,315 @@ def _check_positive(name, v, allow_none=True, upper=None, strict=True):
     return x
 
 
+@dataclass
+class _Setup:
+    """Everything decided before the first pixel is touched."""
+    plan: object
+    frames: list
+    steps: int
+    kernel: PhaseKernel
+    tri: Triangulator
+    wcoded: int
+    work: np.dtype
+    is_float: bool
+    sat: float | None
+    min_contrast: float
+    max_depth_slope: float | None
+    check_other_axis: bool
+    max_wrong: float
+    max_order_error: float | None
+    spatial: bool
+    gamma_lut: tuple | None
+    factor: float
+    row_sigma: float
+    floor_scalar: float | None = None
+    sigma_scalar: float | None = None
+    sigma_map: np.ndarray | None = None
+    sigma_fn: Callable | None = None
+    order_factor: float = 0.0
+    order_floor: float | None = None
+
+    @property
+    def shape(self):
+        return self.frames[0].shape
+
+
+def _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis):
+    if axis not in ("x", "y"):
+        raise bad_value("axis", f"must be 'x' or 'y', got {axis!r}", "'x' when fringes code projector columns")
+    if triangulator is None:
+        return Triangulator.cached(P_cam, P_proj, (W, H), proj_size, axis=axis)
+    if triangulator.cam_size != (W, H):
+        raise bad_value("triangulator", f"was built for cam_size {triangulator.cam_size}, images are {(W, H)}",
+                        "build the Triangulator with the images' (width, height)")
+    if triangulator.axis != axis:
+        raise bad_value("triangulator", f"codes axis {triangulator.axis!r}, decode was asked for {axis!r}",
+                        "build it with the same axis")
+    return triangulator
+
+
+def _noise_setup(st: _Setup, noise_sigma, min_modulation, order_sigmas, shifts):
+    """Noise sigma (scalar / map / callable), modulation floor and the legacy order floor."""
+    H, W = st.shape
+    if min_modulation is not None and noise_sigma is None:
+        st.floor_scalar = min_modulation
+        st.sigma_scalar = estimate_noise_sigma(st.frames, st.steps, shifts=shifts, saturation=st.sat)
+    else:
+        if noise_sigma is None:
+            st.sigma_scalar = estimate_noise_sigma(st.frames, st.steps, shifts=shifts, saturation=st.sat)
+        elif callable(noise_sigma):
+            st.sigma_fn = noise_sigma
+        elif np.ndim(noise_sigma) == 0:
+            st.sigma_scalar = _check_positive("noise_sigma", noise_sigma, strict=False)
+        else:
+            sigma_map = np.asarray(noise_sigma, dtype=np.float32)
+            if sigma_map.shape != (H, W):
+                raise bad_value("noise_sigma", f"has shape {sigma_map.shape}, images are {(H, W)}",
+                                "pass a scalar, an (H, W) array or a callable sigma(signal)")
+            if not np.all(np.isfinite(sigma_map)) or np.any(sigma_map < 0):
+                raise bad_value("noise_sigma", "has negative or non-finite entries", "pass sigmas >= 0")
+            st.sigma_map = sigma_map
+        st.floor_scalar = None if st.sigma_scalar is None else st.sigma_scalar * st.factor
+        if min_modulation is not None:
+            st.floor_scalar = min_modulation
+    if order_sigmas:
+        st.order_factor = st.plan.noise_gain() * st.row_sigma * order_sigmas / np.pi
+        if st.sigma_scalar is not None:
+            st.order_floor = st.sigma_scalar * st.order_factor
+
+
+def _setup(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
+           min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
+           max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial, projector_gamma) -> _Setup:
+    steps = _check_steps(steps)
+    plan = plan_unwrap(periods, unwrap)
+    frames = _frames(images, len(plan.periods) * steps, plan.periods, steps)
+    H, W = frames[0].shape
+    if shifts is not None:
+        shifts = np.asarray(shifts, dtype=np.float64).ravel()
+        if shifts.size != steps:
+            raise bad_value("shifts", f"has {shifts.size} entries for steps={steps}", "give one shift per step")
+    else:
+        shifts = phase_shifts(steps)
+    kernel = PhaseKernel(shifts)
+    tri = _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis)
+    in_dtype = frames[0].dtype
+    if saturation is None:
+        sat = float(np.iinfo(in_dtype).max) if in_dtype.kind in "iu" else None
+    else:
+        sat = float(saturation)
+        if np.isnan(sat):
+            raise bad_value("saturation", "is NaN", "pass the saturation level in image units or None")
+        if np.isinf(sat):
+            sat = None
+    gamma = _check_positive("projector_gamma", projector_gamma, allow_none=False, upper=10.0)
+    false_valid_rate = _check_positive("false_valid_rate", false_valid_rate, upper=0.5)
+    st = _Setup(plan=plan, frames=frames, steps=steps, kernel=kernel, tri=tri,
+                wcoded=tri.proj_size[0] if axis == "x" else tri.proj_size[1],
+                work=work_dtype_for([f.dtype for f in frames]), is_float=any(f.dtype.kind == "f" for f in frames),
+                sat=sat, min_contrast=_check_positive("min_contrast", min_contrast, strict=False),
+                max_depth_slope=_check_positive("max_depth_slope", max_depth_slope),
+                check_other_axis=bool(check_other_axis),
+                max_wrong=_check_positive("max_wrong", max_wrong, allow_none=False, upper=1.0),
+                max_order_error=_check_positive("max_order_error", max_order_error, upper=0.5),
+                spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
+                factor=modulation_floor_factor(false_valid_rate=false_valid_rate, shifts=shifts),
+                row_sigma=_row_sigma(shifts=shifts))
+    _noise_setup(st, noise_sigma, _check_positive("min_modulation", min_modulation, strict=False),
+                 _check_positive("order_sigmas", order_sigmas, strict=False), shifts)
+    return st
+
+
+@dataclass
+class _Out:
+    depth: np.ndarray
+    proj_x: np.ndarray
+    phase: np.ndarray
+    reason: np.ndarray        # causes other than BAD_ORDER until _assemble
+    order_error: np.ndarray
+    p_wrong: np.ndarray       # NaN where no order was decoded
+    legacy_bad: np.ndarray    # legacy order rules (order_sigmas / max_order_error)
+    inconsistent: np.ndarray
+    modulation: np.ndarray
+    offset: np.ndarray
+    wrapped: list
+
+    @classmethod
+    def allocate(cls, H, W, F):
+        f32 = np.float32
+        return cls(depth=np.empty((H, W), f32), proj_x=np.empty((H, W), f32), phase=np.empty((H, W), f32),
+                   reason=np.zeros((H, W), np.uint8), order_error=np.empty((H, W), f32),
+                   p_wrong=np.empty((H, W), f32), legacy_bad=np.zeros((H, W), bool),
+                   inconsistent=np.zeros((H, W), bool),
+                   modulation=np.empty((F, H, W), f32), offset=np.empty((H, W), f32),
+                   wrapped=[np.empty((H, W), f32) for _ in range(F)])
+
+
+def _slab_sigma(st: _Setup, a, r0, r1):
+    """Per-pixel image noise sigma of a slab (None when scalar)."""
+    if st.sigma_fn is not None:
+        return np.asarray(st.sigma_fn(np.maximum(a * st.work.type(st.kernel.a_scale), 0)), dtype=st.work)
+    if st.sigma_map is not None:
+        return st.sigma_map[r0:r1]
+    return None
+
+
+def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
+    """Rows r0:r1: phases, NO_LIGHT / SATURATED / INVALID_INPUT, orders, p_wrong, depth."""
+    wt = st.work.type
+    F = len(st.plan.periods)
+    direct = st.work == np.float32
+    inv2pi = wt(1.0 / (2 * np.pi))
+    cycs, var_c = [], []
+    nolight = satflag = invalid = lowsnr = None
+    off = out.offset[r0:r1]
+    contrast_k = (1.0 / (st.min_contrast * st.kernel.a_scale)) if st.min_contrast else None
+    for i in range(F):
+        fr = [st.frames[i * st.steps + n][r0:r1] for n in range(st.steps)]
+        wout, mout = out.wrapped[i][r0:r1], out.modulation[i, r0:r1]
+        phi, a, b, sflag, inv = st.kernel.compute(
+            fr, st.work, st.sat, check_finite=st.is_float,
+            out_phase=wout if direct else None, out_mod=mout if direct else None)
+        if not direct:
+            wout[...] = phi
+            mout[...] = b
+        c = np.multiply(phi, inv2pi)
+        if st.gamma_lut is not None:
+            c = correct_cycles(c, st.gamma_lut)
+            np.multiply(c, wt(2 * np.pi), out=wout, casting="same_kind")
+        cycs.append(c)
+        if i == 0:
+            np.copyto(off, a, casting="same_kind")
+        else:
+            np.add(off, a, out=off, casting="same_kind")
+        if sflag is not None:
+            satflag = sflag if satflag is None else (satflag | sflag)
+        if inv is not None:
+            invalid = inv if invalid is None else (invalid | inv)
+        sig = _slab_sigma(st, a, r0, r1)
+        s = sig * wt(st.row_sigma) if sig is not None else st.sigma_scalar * st.row_sigma
+        var_c.append(phase_var_cycles(b, s))
+        nl = np.less_equal(b, wt(st.floor_scalar)) if st.floor_scalar is not None else \
+            np.less_equal(b, sig * wt(st.factor))
+        if st.order_factor:          # legacy worst-case order floor
+            ob = np.less(b, wt(st.order_floor)) if st.order_floor is not None else \
+                np.less(b, sig * wt(st.order_factor))
+            lowsnr = ob if lowsnr is None else np.logical_or(lowsnr, ob, out=lowsnr)
+        if contrast_k is not None:       # B < min_contrast * A
+            nl |= np.less(b * wt(contrast_k), a)
+        nolight = nl if nolight is None else np.logical_or(nolight, nl, out=nolight)
+    off *= np.float32(st.kernel.a_scale / F)
+    un = unwrap_cycles(cycs, st.plan, st.wcoded)
+    x = un.x if un.x.dtype == np.float32 else un.x.astype(np.float32)
+    out.proj_x[r0:r1] = x
+    out.order_error[r0:r1] = un.order_error
+    out.phase[r0:r1] = un.phase
+    dof = max(1, F - 1)
+    p, inc = wrong_probability(un.margins, coefs, var_c, un.residuals, dof_lattice=dof,
+                               out=out.p_wrong[r0:r1] if direct else None)
+    if not direct:
+        out.p_wrong[r0:r1] = p
+    out.inconsistent[r0:r1] = inc
+    legacy = out.legacy_bad[r0:r1]
+    if lowsnr is not None:
+        legacy |= lowsnr
+    if st.max_order_error is not None:
+        legacy |= np.greater(un.order_error, st.max_order_error)
+    z, ill, outside = st.tri.slab(x, r0, r1, max_depth_slope=st.max_depth_slope,
+                                  check_other_axis=st.check_other_axis, out_depth=out.depth[r0:r1])
+    rs = out.reason[r0:r1]
+    for r, m in ((Reason.OUTSIDE_PROJECTOR, outside), (Reason.ILL_CONDITIONED, ill), (Reason.NO_LIGHT, nolight),
+                 (Reason.SATURATED, satflag), (Reason.INVALID_INPUT, invalid)):
+        if m is not None and m.any():
+            rs[m] = r.value
+    basic = (rs == Reason.NO_LIGHT) | (rs == Reason.SATURATED) | (rs == Reason.INVALID_INPUT)
+    if basic.any():
+        out.p_wrong[r0:r1][basic] = np.nan
+
+
+def _neighbour_pass(st: _Setup, out: _Out):
+    """Uncertain pixels take / confirm their order from confident neighbours, then are
+    triangulated again (see :mod:`.spatial`)."""
+    reason = out.reason
+    geo_ok = (reason == 0) | (reason == Reason.OUTSIDE_PROJECTOR) | (reason == Reason.ILL_CONDITIONED)
+    with np.errstate(invalid="ignore"):
+        sure = out.p_wrong <= np.float32(st.max_wrong)
+        unsure = out.p_wrong > np.float32(st.max_wrong)
+    usable = geo_ok & ~out.legacy_bad & ~out.inconsistent
+    good = usable & sure
+    cand = usable & unsure
+    if not cand.any() or not good.any():
+        return
+    idx = np.flatnonzero(cand)
+    F = len(st.plan.periods)
+    cyc = [out.wrapped[i].ravel()[idx].astype(np.float64) / (2 * np.pi) for i in range(F)]
+    if st.sigma_fn is not None:
+        sig = np.asarray(st.sigma_fn(np.maximum(out.offset.ravel()[idx].astype(np.float64), 0)), np.float64)
+    elif st.sigma_map is not None:
+        sig = st.sigma_map.ravel()[idx].astype(np.float64)
+    else:
+        sig = st.sigma_scalar
+    s = sig * st.row_sigma
+    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx].astype(np.float64), s) for i in range(F)]
+    ia, xa, pa = correct_orders(out.proj_x, good, cand, cyc, var_c, st.plan.periods, st.wcoded,
+                                max_wrong=st.max_wrong)
+    if ia.size == 0:
+        return
+    out.proj_x.ravel()[ia] = xa
+    out.p_wrong.ravel()[ia] = pa
+    out.phase.ravel()[ia] = xa * (2 * np.pi * max(st.plan.periods) / st.wcoded)
+    H, W = st.shape
+    rows = np.unique(ia // W)
+    # re-triangulate the touched rows (contiguous runs), keep the result only for corrected pixels
+    hit = np.zeros((H, W), bool)
+    hit.ravel()[ia] = True
+    starts = rows[np.r_[True, np.diff(rows) > 1]]
+    ends = rows[np.r_[np.diff(rows) > 1, True]] + 1
+    for r0, r1 in zip(starts, ends):
+        z, ill, outside = st.tri.slab(out.proj_x[r0:r1], r0, r1, max_depth_slope=st.max_depth_slope,
+                                      check_other_axis=st.check_other_axis)
+        h = hit[r0:r1]
+        out.depth[r0:r1][h] = z[h]
+        rs = out.reason[r0:r1]
+        rs[h] = 0
+        rs[h & ill] = Reason.ILL_CONDITIONED
+        rs[h & outside] = Reason.OUTSIDE_PROJECTOR
+
+
+def _assemble(st: _Setup, out: _Out) -> DecodeResult:
+    """BAD_ORDER where the orders stayed uncertain (it outranks OUTSIDE / ILL, computed from a
+    possibly wrong coordinate), NaN fill, confidence."""
+    reason = out.reason
+    with np.errstate(invalid="ignore"):
+        bad = (out.p_wrong > np.float32(st.max_wrong)) | out.legacy_bad
+    ordered = ~np.isin(reason, [int(r) for r in _NO_ORDER])
+    reason[bad & ordered] = Reason.BAD_ORDER
+    reason[out.inconsistent & ordered] = Reason.INCONSISTENT
+    valid = reason == 0
+    nan = np.float32(np.nan)
+    inv = ~valid
+    for a in (out.depth, out.proj_x, out.phase):
+        np.copyto(a, nan, where=inv)
+    conf = np.subtract(np.float32(1), out.p_wrong)
+    np.copyto(conf, np.float32(0), where=np.isnan(conf))
+    plan = st.plan
+    return DecodeResult(depth=out.depth, valid=valid, proj_x=out.proj_x, modulation=out.modulation,
+                        offset=out.offset, wrapped=out.wrapped, phase=out.phase, reason=reason,
+                        order_error=out.order_error, confidence=conf, periods=plan.periods, steps=st.steps,
+                        method=plan.method, noise_sigma=st.sigma_scalar, modulation_floor=st.floor_scalar,
+                        extras={"order_floor": st.order_floor, "noise_gain": plan.noise_gain(),
+                                "max_wrong": st.max_wrong},
+                        triangulator=st.tri)
+
+
 def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "auto",
            noise_sigma: float | np.ndarray | Callable | None = None, saturation: float | None = None,
            min_modulation: float | None = None, min_contrast: float = 0.05,
-           false_valid_rate: float = 1e-3, max_order_error: float = 0.25, order_sigmas: float = 5.0,
-           max_depth_slope: float | None = None, shifts=None, axis: str = "x",
-           check_other_axis: bool = True, triangulator: Triangulator | None = None,
-           slab_pixels: int = 1 << 16) -> DecodeResult:
+           false_valid_rate: float = 1e-3, max_order_error: float | None = None,
+           order_sigmas: float | None = None, max_depth_slope: float | None = None, shifts=None,
+           axis: str = "x", check_other_axis: bool = True, triangulator: Triangulator | None = None,
+           slab_pixels: int = 1 << 16, max_wrong: float = 1e-3, spatial: bool = True,
+           projector_gamma: float = 1.0) -> DecodeResult:
     """Decode phase-shifted fringe images into depth (see the module doc).
 
     images: ``(F*N, H, W)`` frequency-major, ``(F, N, H, W)``, or a list of F*N ``(H, W)``
@@ -235,186 +547,35 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
         the uniform ``2*pi*n/N``.
     P_cam, P_proj: 3x4 world -> pixel matrices (``K @ inv(T_world_cam)[:3]``); depth and points
         are in the camera frame of P_cam. proj_size: projector (width, height) in pixels.
-    unwrap: 'auto' | 'heterodyne' | 'multi-frequency' (see :mod:`datapipe.sl.unwrap`).
+    unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`).
     noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = estimate.
     saturation: samples >= this are excluded (default: integer type max; none for floats).
     min_modulation: explicit modulation floor (image units), replaces the noise-derived floor.
     min_contrast: pixels with ``B < min_contrast * A`` are NO_LIGHT (washed-out fringes).
     false_valid_rate: per-frequency probability that a pure-noise pixel passes the floor.
-    max_order_error: orders whose estimate is farther than this from an integer are BAD_ORDER.
-    order_sigmas: noise margin required for rounding orders (see the module doc; 0 disables).
+    max_wrong: pixels whose orders are wrong with a probability above this are BAD_ORDER
+        (:mod:`datapipe.sl.confidence`); ``spatial``: let confident neighbours decide / confirm the
+        order of uncertain pixels first (:mod:`datapipe.sl.spatial`).
+    max_order_error, order_sigmas: the former worst-case order rules (module doc), off by default.
     max_depth_slope: cap on ``|dZ/dx|`` in metres per projector pixel (default: ``Z`` per pixel,
         i.e. relative 1.0); pixels above it are ILL_CONDITIONED.
     axis: 'x' when the fringes code projector columns, 'y' for rows.
     check_other_axis: flag points that fall outside the projector's other image axis.
     triangulator: reuse a :class:`Triangulator` (default: a cached one per geometry).
+    projector_gamma: the projector's response exponent (patterns ``a = b = 0.5`` emitted as
+        ``p ** gamma``); != 1 corrects the phase ripple it causes (:mod:`datapipe.sl.gamma`).
     """
-    steps = _check_steps(steps)
-    plan = plan_unwrap(periods, unwrap)
-    per = plan.periods
-    F = len(per)
-    frames = _frames(images, F * steps, per, steps)
-    H, W = frames[0].shape
-    if shifts is not None:
-        shifts = np.asarray(shifts, dtype=np.float64).ravel()
-        if shifts.size != steps:
-            raise bad_value("shifts", f"has {shifts.size} entries for steps={steps}", "give one shift per step")
-    else:
-        shifts = phase_shifts(steps)
-    kernel = PhaseKernel(shifts)
-    if axis not in ("x", "y"):
-        raise bad_value("axis", f"must be 'x' or 'y', got {axis!r}", "'x' when fringes code projector columns")
-    if triangulator is None:
-        tri = Triangulator.cached(P_cam, P_proj, (W, H), proj_size, axis=axis)
-    else:
-        tri = triangulator
-        if tri.cam_size != (W, H):
-            raise bad_value("triangulator", f"was built for cam_size {tri.cam_size}, images are {(W, H)}",
-                            "build the Triangulator with the images' (width, height)")
-        if tri.axis != axis:
-            raise bad_value("triangulator", f"codes axis {tri.axis!r}, decode was asked for {axis!r}",
-                            "build it with the same axis")
-    wcoded = tri.proj_size[0] if axis == "x" else tri.proj_size[1]
-
-    in_dtype = frames[0].dtype
-    is_float = any(f.dtype.kind == "f" for f in frames)
-    work = work_dtype_for([f.dtype for f in frames])
-    if saturation is None:
-        sat = float(np.iinfo(in_dtype).max) if in_dtype.kind in "iu" else None
-    else:
-        sat = float(saturation)
-        if np.isnan(sat):
-            raise bad_value("saturation", "is NaN", "pass the saturation level in image units or None")
-        if np.isinf(sat):
-            sat = None
-    min_contrast = _check_positive("min_contrast", min_contrast, strict=False)
-    false_valid_rate = _check_positive("false_valid_rate", false_valid_rate, upper=0.5)
-    max_order_error = _check_positive("max_order_error", max_order_error, upper=0.5)
-    max_depth_slope = _check_positive("max_depth_slope", max_depth_slope)
-    min_modulation = _check_positive("min_modulation", min_modulation, strict=False)
-    order_sigmas = _check_positive("order_sigmas", order_sigmas, strict=False)
-
-    # -- modulation floor -----------------------------------------------------------------
-    factor = modulation_floor_factor(false_valid_rate=false_valid_rate, shifts=shifts)
-    sigma_scalar = None
-    sigma_map = None
-    sigma_fn = None
-    if min_modulation is not None and noise_sigma is None:
-        floor_scalar = min_modulation
-    else:
-        if noise_sigma is None:
-            sigma_scalar = estimate_noise_sigma(frames, steps, shifts=shifts, saturation=sat)
-        elif callable(noise_sigma):
-            sigma_fn = noise_sigma
-        elif np.ndim(noise_sigma) == 0:
-            sigma_scalar = _check_positive("noise_sigma", noise_sigma, strict=False)
-        else:
-            sigma_map = np.asarray(noise_sigma, dtype=np.float32)
-            if sigma_map.shape != (H, W):
-                raise bad_value("noise_sigma", f"has shape {sigma_map.shape}, images are {(H, W)}",
-                                "pass a scalar, an (H, W) array or a callable sigma(signal)")
-            if not np.all(np.isfinite(sigma_map)) or np.any(sigma_map < 0):
-                raise bad_value("noise_sigma", "has negative or non-finite entries", "pass sigmas >= 0")
-        floor_scalar = None if sigma_scalar is None else sigma_scalar * factor
-        if min_modulation is not None:
-            floor_scalar = min_modulation
-    # modulation needed to round the fringe orders reliably (per unit of noise sigma)
-    order_factor = 0.0
-    if order_sigmas:
-        order_factor = plan.noise_gain() * _row_sigma(shifts=shifts) * order_sigmas / np.pi
-    order_floor = None
-    if order_factor and sigma_scalar is not None:
-        order_floor = sigma_scalar * order_factor
-
-    # -- outputs ----------------------------------------------------------------------------
-    f32 = np.float32
-    depth = np.empty((H, W), f32)
-    proj_x = np.empty((H, W), f32)
-    phase = np.empty((H, W), f32)
-    reason = np.empty((H, W), np.uint8)
-    order_error = np.empty((H, W), f32)
-    modulation = np.empty((F, H, W), f32)
-    offset = np.empty((H, W), f32)
-    wrapped = [np.empty((H, W), f32) for _ in range(F)]
-    nan = f32(np.nan)
-
+    st = _setup(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
+                min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
+                max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial, projector_gamma)
+    H, W = st.shape
+    out = _Out.allocate(H, W, len(st.plan.periods))
+    st.tri.coefficients  # compute (or reuse) the per-pixel coefficients before the loop
+    coefs = st.plan.stage_coefs()
     rows = max(1, int(slab_pixels) // W)
-    valid = np.empty((H, W), bool)
-    tri.coefficients  # compute (or reuse) the per-pixel coefficients before the loop
-    a_scale = kernel.a_scale
-    contrast_k = (1.0 / (min_contrast * a_scale)) if min_contrast else None
-    direct = work == np.float32
-    inv2pi = work.type(1.0 / (2 * np.pi))
     with np.errstate(all="ignore"):
         for r0 in range(0, H, rows):
-            r1 = min(H, r0 + rows)
-            cycs = []
-            nolight = satflag = invalid = lowsnr = None
-            off = offset[r0:r1]
-            for i in range(F):
-                fr = [frames[i * steps + n][r0:r1] for n in range(steps)]
-                wout, mout = wrapped[i][r0:r1], modulation[i, r0:r1]
-                phi, a, b, sflag, inv = kernel.compute(
-                    fr, work, sat, check_finite=is_float,
-                    out_phase=wout if direct else None, out_mod=mout if direct else None)
-                if not direct:
-                    wout[...] = phi
-                    mout[...] = b
-                cycs.append(np.multiply(phi, inv2pi))
-                if i == 0:
-                    np.copyto(off, a, casting="same_kind")
-                else:
-                    np.add(off, a, out=off, casting="same_kind")
-                if sflag is not None:
-                    satflag = sflag if satflag is None else (satflag | sflag)
-                if inv is not None:
-                    invalid = inv if invalid is None else (invalid | inv)
-                # noise floor (Rayleigh) and order floor, see the module doc
-                ob = None
-                sig = None
-                if sigma_fn is not None:
-                    sig = np.asarray(sigma_fn(np.maximum(a * work.type(a_scale), 0)), dtype=work)
-                elif sigma_map is not None:
-                    sig = sigma_map[r0:r1]
-                if floor_scalar is not None:
-                    nl = np.less_equal(b, work.type(floor_scalar))
-                else:
-                    nl = np.less_equal(b, sig * work.type(factor))
-                if order_floor is not None:
-                    ob = np.less(b, work.type(order_floor))
-                elif sig is not None and order_factor:
-                    ob = np.less(b, sig * work.type(order_factor))
-                if ob is not None:
-                    lowsnr = ob if lowsnr is None else np.logical_or(lowsnr, ob, out=lowsnr)
-                if contrast_k is not None:       # B < min_contrast * A
-                    nl |= np.less(b * work.type(contrast_k), a)
-                nolight = nl if nolight is None else np.logical_or(nolight, nl, out=nolight)
-            off *= f32(a_scale / F)
-            un = unwrap_cycles(cycs, plan, wcoded)
-            x = un.x if un.x.dtype == f32 else un.x.astype(f32)
-            proj_x[r0:r1] = x
-            order_error[r0:r1] = un.order_error
-            phase[r0:r1] = un.phase
-            z, ill, outside = tri.slab(x, r0, r1, max_depth_slope=max_depth_slope,
-                                       check_other_axis=check_other_axis, out_depth=depth[r0:r1])
-            rs = reason[r0:r1]
-            rs.fill(0)
-            badorder = np.greater(un.order_error, max_order_error)
-            if lowsnr is not None:
-                badorder |= lowsnr
-            masks = (outside, ill, badorder, nolight, satflag, invalid)
-            for r, m in zip(_PRIORITY, masks):
-                if m is not None and m.any():
-                    rs[m] = r.value
-            bad = np.not_equal(rs, 0)
-            np.logical_not(bad, out=valid[r0:r1])
-            if bad.any():
-                np.copyto(depth[r0:r1], nan, where=bad)
-                np.copyto(proj_x[r0:r1], nan, where=bad)
-                np.copyto(phase[r0:r1], nan, where=bad)
-    return DecodeResult(depth=depth, valid=valid, proj_x=proj_x, modulation=modulation,
-                        offset=offset, wrapped=wrapped, phase=phase, reason=reason,
-                        order_error=order_error, periods=per, steps=steps, method=plan.method,
-                        noise_sigma=sigma_scalar, modulation_floor=floor_scalar,
-                        extras={"order_floor": order_floor, "noise_gain": plan.noise_gain()},
-                        triangulator=tri)
+            _decode_slab(st, out, r0, min(H, r0 + rows), coefs)
+        if st.spatial:
+            _neighbour_pass(st, out)
+    return _assemble(st, out)

@@ -105,7 +105,7 @@ class LatticeCode:
         return 1.0 / self.d_min
 
     def decode(self, cyc):
-        """Phases in cycles (F arrays) -> (orders n (F arrays, float), margin): ``margin`` is
+        """Phases in cycles (F arrays) -> (orders n (F arrays, float), margin, d1^2): ``margin`` is
         ``d2^2 - d1^2`` (cycles^2), the squared distance to the second-closest lattice point minus
         that to the closest; with phase noise sigma_c (cycles) the log-odds that the chosen point is
         right are ``margin / (2 sigma_c^2)``."""
@@ -147,7 +147,7 @@ class LatticeCode:
                 if self.R[i, a]:
                     acc -= T(self.R[i, a]) * z[a]
             orders.append(acc)
-        return orders, second - best
+        return orders, second - best, best
 
 
 @lru_cache(maxsize=64)

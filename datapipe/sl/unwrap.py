@@ -67,6 +67,7 @@ class UnwrapResult:
     method: str
     periods: tuple
     margins: list = None       # per rounding stage, see the module doc
+    residuals: list = None     # per stage: squared distance to the chosen order (None: ((1-margin)/2)^2)
 
 
 def _is_int(k: float) -> bool:
@@ -260,6 +261,7 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
     shape = cyc[0].shape
     err = None
     margins = []
+    residuals = []
     tmp = np.empty(shape, dt)
     kk = np.empty(shape, dt)
 
@@ -277,6 +279,7 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
         else:
             np.maximum(err, tmp, out=err)
         margins.append(np.subtract(T(1), np.multiply(tmp, T(2))))
+        residuals.append(None)
         np.multiply(kk, T(per_px), out=out)
         np.multiply(c, T(per_px), out=tmp)
         np.add(out, tmp, out=out)
@@ -310,7 +313,7 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
             prev = stage(prev, per[i], cyc[i], np.empty(shape, dt))
             xs[i] = prev
     elif plan.method == "number-theoretic":
-        err = _lattice_stage(cyc, plan, L, centre, xs, margins)
+        err = _lattice_stage(cyc, plan, L, centre, xs, margins, residuals)
     else:
         levels = plan.levels
 
@@ -342,10 +345,10 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
         fold(coord, L)
     phase = np.multiply(coord, T(TWO_PI * max(per) / L))
     return UnwrapResult(phase=phase, x=coord, order_error=err, method=plan.method, periods=per,
-                        margins=margins)
+                        margins=margins, residuals=residuals)
 
 
-def _lattice_stage(cyc, plan, L, centre, xs, margins):
+def _lattice_stage(cyc, plan, L, centre, xs, margins, residuals):
     """Number-theoretic orders (:mod:`.lattice`) -> per-frequency coordinates in ``xs``; returns the
     order error (two frequencies: ``|m - round(m)|``; more: 0.5 * (1 - margin / largest margin))."""
     lat = plan.lattice
@@ -358,10 +361,12 @@ def _lattice_stage(cyc, plan, L, centre, xs, margins):
         z = np.rint(m)
         err = np.abs(m - z)
         margins.append(T(1) - T(2) * err)
+        residuals.append(None)
         orders = [-T(lat.R[i, 0]) * z for i in range(2)]
     else:
-        orders, gap = lat.decode(cyc)
+        orders, gap, d1 = lat.decode(cyc)
         margins.append(gap)
+        residuals.append(d1)
         err = (T(0.5) * np.clip(T(1) - gap / T(lat.d_min ** 2), 0, 1)).astype(dt)
     # n + t K is equally consistent: pick t that puts the finest coordinate into the lit range
     f = int(np.argmax(per))

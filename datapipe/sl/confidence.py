@@ -1,0 +1,99 @@
+"""Probability that a pixel's fringe orders are right, from all the evidence of its own samples.
+
+Phase noise per frequency. N-step least squares gives the cosine and sine coefficients with noise
+``s = sigma_I * row_sigma`` each (``sqrt(2/N) sigma_I`` for uniform shifts), so the phase has noise
+``s / B`` radians, ``sigma_c = s / (2 pi B)`` cycles. The measured modulation is Rician:
+``E[B_hat^2] = B^2 + 2 s^2``; ``B_eff^2 = max(B_hat^2 - 2 s^2, s^2 / 4)`` removes that bias (a dark
+pixel would otherwise look more certain than it is) and keeps pure noise at ``sigma_c ~ 0.3``.
+
+Posterior of a rounding stage. A stage rounds a value ``r = integer + e`` with Gaussian noise
+``e`` of variance ``v = sum(coef_j^2 sigma_c,j^2)`` (:meth:`UnwrapPlan.stage_coefs`). Given the
+observed deviation ``d = r - round(r)``, the chosen order is right with likelihood
+``exp(-d^2 / 2v)`` and the next order with ``exp(-(1 - |d|)^2 / 2v)``: with a flat prior over the
+orders the log-odds that it is right are ``(1 - 2|d|) / (2 v)`` = ``margin / (2 v)``. A lattice
+stage (:mod:`.lattice`) gives ``margin = d2^2 - d1^2`` (cycles^2) with ``v`` the largest
+``sigma_c,j^2``. This uses the actual agreement of the frequencies, not the worst case: a dark
+pixel whose frequencies agree well is kept, a bright one whose frequencies disagree is not.
+Farther orders (``|d| + 1`` ...) are negligible wherever the probability matters (< 1e-2).
+
+``p_wrong = sum over stages of 1 / (1 + exp(log-odds))`` (union bound: stages fail independently).
+The decoder keeps pixels with ``p_wrong <= max_wrong``, so the expected share of wrong orders among
+the kept pixels is at most ``max_wrong`` and in practice far below (most pixels have ~0).
+
+Consistency. The same numbers also test the model: under it the squared distance to the chosen
+order, divided by ``v``, is chi-square (1 dof per rounding stage, F-1 for a lattice stage). A pixel
+far beyond that (``p < 1e-8``: 5.7 sigma for one dof) has frequencies that disagree with each other more than the sensor's
+noise allows -- a phase biased by aliasing of fringes finer than the pixel, a mixed pixel at a depth
+step, inter-reflections, an uncorrected tone curve -- and is INCONSISTENT, whatever its margin.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+__all__ = ["phase_var_cycles", "wrong_probability"]
+
+INV_2PI_SQ = 1.0 / (2.0 * np.pi) ** 2
+CONSISTENCY_P = 1e-8
+
+
+def phase_var_cycles(b, s, out=None):
+    """Phase noise variance in cycles^2 of modulation ``b`` with coefficient noise ``s`` (scalar or
+    array, same units), Rician bias removed (module doc). float32 in -> float32 out."""
+    T = b.dtype.type
+    s2 = np.multiply(s, s, dtype=b.dtype) if np.ndim(s) else T(float(s) ** 2)
+    b2 = np.multiply(b, b, out=out)
+    b2 -= T(2) * s2
+    np.maximum(b2, T(0.25) * s2, out=b2)
+    np.maximum(b2, T(np.finfo(b.dtype).tiny), out=b2)       # s = 0 (noise-free): infinite certainty
+    np.divide(s2 * T(INV_2PI_SQ), b2, out=b2)
+    return b2
+
+
+def wrong_probability(margins, coefs, var_c, residuals=None, out=None, dof_lattice=2):
+    """Union-bound probability that some stage rounded to a wrong order, and the INCONSISTENT mask
+    (module doc). margins / residuals: per stage arrays (residual None: ``((1 - margin)/2)^2``);
+    coefs: per stage coefficient vectors (None for a lattice stage); var_c: per frequency phase
+    variances in cycles^2 (:func:`phase_var_cycles`). Returns ``(p, inconsistent)``."""
+    dt = var_c[0].dtype
+    T = dt.type
+    p = out if out is not None else np.empty(var_c[0].shape, dt)
+    p.fill(0)
+    inconsistent = np.zeros(p.shape, bool)
+    if not margins:
+        return p, inconsistent
+    residuals = residuals or [None] * len(margins)
+    v = np.empty(p.shape, dt)
+    q = np.empty(p.shape, dt)
+    vmax = None
+    for m, coef, res in zip(margins, coefs, residuals):
+        if coef is None:
+            if vmax is None:
+                vmax = var_c[0].copy()
+                for vc in var_c[1:]:
+                    np.maximum(vmax, vc, out=vmax)
+            np.copyto(v, vmax)
+            lim = chi2.isf(CONSISTENCY_P, dof_lattice)
+        else:
+            v.fill(0)
+            for c, vc in zip(coef, var_c):
+                if c:
+                    v += T(c * c) * vc
+            lim = chi2.isf(CONSISTENCY_P, 1)
+        if res is None:                  # |d| = (1 - margin) / 2
+            np.subtract(T(1), m, out=q)
+            q *= T(0.5)
+            np.multiply(q, q, out=q)
+        else:
+            np.copyto(q, res)
+        inconsistent |= q > v * T(lim)
+        # p += 1 / (1 + exp(m / 2v)); float32 exp overflows to inf for certain pixels -> 0
+        np.multiply(v, T(2), out=v)
+        np.divide(m, v, out=v)
+        np.minimum(v, T(80), out=v)
+        np.exp(v, out=v)
+        v += T(1)
+        np.reciprocal(v, out=v)
+        p += v
+    np.minimum(p, T(1), out=p)
+    return p, inconsistent
