@@ -18,11 +18,15 @@ Every output pixel is finite and valid, or NaN with a :class:`Reason` code.
 
 Modulation floor. For a pixel that sees no fringe (B = 0) the estimated modulation of N-step
 least squares follows a Rayleigh law with scale ``s = sigma_I * sqrt(2/N)`` (sl-notes), so
-``P(B_hat > t) = exp(-t^2 / (2 s^2))``. With ``t = s * sqrt(-2 ln p)`` a pure-noise pixel passes
-one frequency's test with probability ``p = false_valid_rate`` and all F frequencies with
-``p^F``. ``sigma_I`` is ``noise_sigma`` (a number in image units, an (H, W) array, or a callable
+``B_hat^2 / (2 s^2)`` is exponential with mean 1 and the sum over the F frequencies,
+``Q = sum_i B_hat_i^2 / (2 s_i^2)``, is Gamma(F, 1). A pixel is NO_LIGHT when ``Q`` is below the
+Gamma quantile that a pure-noise pixel exceeds with probability ``p = false_valid_rate``: all
+frequencies' evidence counts together (one frequency alone: ``B_hat <= s sqrt(-2 ln p)``), and a
+pure-noise pixel that passes still has to pass the order decision, where its frequencies disagree.
+``sigma_I`` is ``noise_sigma`` (a number in image units, an (H, W) array, or a callable
 ``sigma(signal)`` such as :meth:`datapipe.sl.sensor.SensorModel.noise_sigma`, evaluated at each
-pixel's offset A); by default it is estimated from the least-squares residuals (N >= 4).
+pixel's offset A); by default it is estimated from the least-squares residuals (N >= 4). An
+explicit ``min_modulation`` replaces the test by ``B_hat <= min_modulation`` in any frequency.
 
 Order decision. A pixel is BAD_ORDER when the probability that some order is wrong
 (:attr:`DecodeResult.confidence` is one minus it) exceeds ``max_wrong`` (default 1e-3) after the
@@ -39,6 +43,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import scipy.stats
+from scipy.special import gammainccinv
 
 from ._errors import bad_type, bad_value
 from .patterns import _check_steps, phase_shifts
@@ -250,6 +255,8 @@ class _Setup:
     gamma_lut: tuple | None
     factor: float
     row_sigma: float
+    joint_q2: float             # 2 * Gamma(F) quantile of the joint modulation test (module doc)
+    min_modulation: float | None = None
     floor_scalar: float | None = None
     sigma_scalar: float | None = None
     sigma_map: np.ndarray | None = None
@@ -279,6 +286,7 @@ def _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis):
 def _noise_setup(st: _Setup, noise_sigma, min_modulation, order_sigmas, shifts):
     """Noise sigma (scalar / map / callable), modulation floor and the legacy order floor."""
     H, W = st.shape
+    st.min_modulation = min_modulation
     if min_modulation is not None and noise_sigma is None:
         st.floor_scalar = min_modulation
         st.sigma_scalar = estimate_noise_sigma(st.frames, st.steps, shifts=shifts, saturation=st.sat)
@@ -332,6 +340,8 @@ def _setup(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma
             sat = None
     gamma = _check_positive("projector_gamma", projector_gamma, allow_none=False, upper=10.0)
     false_valid_rate = _check_positive("false_valid_rate", false_valid_rate, upper=0.5)
+    F = len(plan.periods)
+    q2 = 2.0 * float(gammainccinv(F, false_valid_rate))
     st = _Setup(plan=plan, frames=frames, steps=steps, kernel=kernel, tri=tri,
                 wcoded=tri.proj_size[0] if axis == "x" else tri.proj_size[1],
                 work=work_dtype_for([f.dtype for f in frames]), is_float=any(f.dtype.kind == "f" for f in frames),
@@ -341,8 +351,8 @@ def _setup(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma
                 max_wrong=_check_positive("max_wrong", max_wrong, allow_none=False, upper=1.0),
                 max_order_error=_check_positive("max_order_error", max_order_error, upper=0.5),
                 spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
-                factor=modulation_floor_factor(false_valid_rate=false_valid_rate, shifts=shifts),
-                row_sigma=_row_sigma(shifts=shifts))
+                factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
+                row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
     _noise_setup(st, noise_sigma, _check_positive("min_modulation", min_modulation, strict=False),
                  _check_positive("order_sigmas", order_sigmas, strict=False), shifts)
     return st
@@ -417,15 +427,24 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
         sig = _slab_sigma(st, a, r0, r1)
         s = sig * wt(st.row_sigma) if sig is not None else st.sigma_scalar * st.row_sigma
         var_c.append(phase_var_cycles(b, s))
-        nl = np.less_equal(b, wt(st.floor_scalar)) if st.floor_scalar is not None else \
-            np.less_equal(b, sig * wt(st.factor))
+        if st.min_modulation is not None:
+            nl = np.less_equal(b, wt(st.min_modulation))
+        else:                            # joint Gamma test: accumulate B^2 / s^2
+            nl = None
+            q = np.divide(np.multiply(b, b), np.multiply(s, s) if sig is not None else wt(s * s))
+            qsum = q if i == 0 else np.add(qsum, q, out=qsum)
         if st.order_factor:          # legacy worst-case order floor
             ob = np.less(b, wt(st.order_floor)) if st.order_floor is not None else \
                 np.less(b, sig * wt(st.order_factor))
             lowsnr = ob if lowsnr is None else np.logical_or(lowsnr, ob, out=lowsnr)
         if contrast_k is not None:       # B < min_contrast * A
-            nl |= np.less(b * wt(contrast_k), a)
-        nolight = nl if nolight is None else np.logical_or(nolight, nl, out=nolight)
+            low = np.less(b * wt(contrast_k), a)
+            nl = low if nl is None else (nl | low)
+        if nl is not None:
+            nolight = nl if nolight is None else np.logical_or(nolight, nl, out=nolight)
+    if st.min_modulation is None:
+        floor = np.less_equal(qsum, wt(st.joint_q2))
+        nolight = floor if nolight is None else np.logical_or(nolight, floor, out=nolight)
     off *= np.float32(st.kernel.a_scale / F)
     un = unwrap_cycles(cycs, st.plan, st.wcoded)
     x = un.x if un.x.dtype == np.float32 else un.x.astype(np.float32)
@@ -552,7 +571,7 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
     saturation: samples >= this are excluded (default: integer type max; none for floats).
     min_modulation: explicit modulation floor (image units), replaces the noise-derived floor.
     min_contrast: pixels with ``B < min_contrast * A`` are NO_LIGHT (washed-out fringes).
-    false_valid_rate: per-frequency probability that a pure-noise pixel passes the floor.
+    false_valid_rate: probability that a pure-noise pixel passes the (joint) modulation floor.
     max_wrong: pixels whose orders are wrong with a probability above this are BAD_ORDER
         (:mod:`datapipe.sl.confidence`); ``spatial``: let confident neighbours decide / confirm the
         order of uncertain pixels first (:mod:`datapipe.sl.spatial`).

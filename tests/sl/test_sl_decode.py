@@ -276,7 +276,10 @@ def test_projector_edges():
         check_contract(res)
         assert not (order_errors(res, r) & ~near).any()
         assert res.valid[edge & ~near].mean() > 0.99
-        assert np.all(res.reason[~r.lit] == Reason.NO_LIGHT)
+        # off the projector: never valid; pure noise passes the joint modulation floor with
+        # probability false_valid_rate = 1e-3 (then its frequencies disagree: BAD_ORDER)
+        assert not res.valid[~r.lit].any()
+        assert np.mean(res.reason[~r.lit] != Reason.NO_LIGHT) < 3e-3
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
