@@ -8,6 +8,8 @@ Convention (design.md): frequency ``K`` periods across the projector width ``Wp`
 ``x`` is the projector column with pixel centres at integers (``x = 0..Wp-1``). Stacks are
 frequency-major: all ``N`` steps of ``periods[0]``, then all of ``periods[1]``, ...
 With ``axis='y'`` the same formula runs along the projector rows (``y``, using the height).
+``gamma != 1`` models a projector whose emitted light is ``I(x) ** gamma`` (a non-linear
+response: harmonics that ripple the decoded phase; ``decode(projector_gamma=)`` corrects it).
 """
 from __future__ import annotations
 
@@ -57,13 +59,14 @@ def _check_periods(periods) -> tuple[float, ...]:
 
 def fringe_patterns(width: int, height: int, periods: Sequence[float], steps: int, *,
                     a: float = 0.5, b: float = 0.5, axis: str = "x",
-                    dtype=np.float32) -> np.ndarray:
+                    dtype=np.float32, gamma: float = 1.0) -> np.ndarray:
     """Fringe images ``(len(periods)*steps, height, width)``, frequency-major.
 
     Values are ``a + b*cos(2*pi*K*x/width + 2*pi*n/steps)`` (``axis='x'``) or the same along
     rows with ``height`` (``axis='y'``), evaluated in float64. Float dtypes get the values as
     they are; integer dtypes map ``[0, 1]`` to ``[0, max]`` of the type with rounding (so the
-    defaults ``a = b = 0.5`` span the full 8-bit range for ``np.uint8``).
+    defaults ``a = b = 0.5`` span the full 8-bit range for ``np.uint8``). ``gamma``: the
+    projector's response exponent, applied to the values in [0, 1] before the type conversion.
     """
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
@@ -73,6 +76,12 @@ def fringe_patterns(width: int, height: int, periods: Sequence[float], steps: in
     if axis not in ("x", "y"):
         raise bad_value("axis", f"must be 'x' or 'y', got {axis!r}",
                         "'x' codes projector columns (vertical fringes), 'y' codes rows")
+    try:
+        gamma = float(gamma)
+    except (TypeError, ValueError):
+        raise bad_type("gamma", f"must be a number, got {gamma!r}", "pass e.g. gamma=2.2") from None
+    if not np.isfinite(gamma) or not 0 < gamma <= 10:
+        raise bad_value("gamma", f"must be in (0, 10], got {gamma!r}", "1.0 is a linear projector")
     dtype = np.dtype(dtype)
     length = int(width) if axis == "x" else int(height)
     coord = np.arange(length, dtype=np.float64)
@@ -82,6 +91,8 @@ def fringe_patterns(width: int, height: int, periods: Sequence[float], steps: in
     for i, k in enumerate(per):
         for n in range(steps):
             prof = a + b * np.cos(2.0 * np.pi * k * coord / length + shifts[n])
+            if gamma != 1.0:
+                prof = np.clip(prof, 0.0, None) ** gamma
             if scale is not None:
                 prof = np.clip(np.rint(prof * scale), 0, scale)
             prof = prof.astype(dtype)

@@ -257,9 +257,10 @@ def _surface(scene, cam, proj, offset=(0.0, 0.0)):
 
 
 def render(scene, cam, proj, periods, steps, *, a=0.5, b=0.5, ambient=0.0, axis="x",
-           supersample=1, shifts=None, gamma=None):
+           supersample=1, shifts=None, gamma=None, projector_gamma=1.0):
     """Fringe images and ground truth. ``supersample`` s averages s x s point samples per pixel
-    (pixel area integration); ground truth is at the pixel centre."""
+    (pixel area integration); ground truth is at the pixel centre. ``gamma``: a camera tone curve
+    ``I ** (1/gamma)``; ``projector_gamma``: the projector emits ``pattern ** projector_gamma``."""
     w, h = proj.size
     length = w if axis == "x" else h
     shifts = TWO_PI * np.arange(steps) / steps if shifts is None else np.asarray(shifts, float)
@@ -278,7 +279,7 @@ def render(scene, cam, proj, periods, steps, *, a=0.5, b=0.5, ambient=0.0, axis=
         c = pxs[..., 0] if axis == "x" else pxs[..., 1]
         for i, k in enumerate(periods):
             for n in range(steps):
-                val = a + b * np.cos(TWO_PI * k * c / length + shifts[n])
+                val = (a + b * np.cos(TWO_PI * k * c / length + shifts[n])) ** projector_gamma
                 imgs[i * steps + n] += als * (np.where(ls, val, 0.0) + ambient * hs)
     imgs /= len(samples)
     if gamma is not None:

@@ -51,3 +51,11 @@ def test_bad_arguments(kw, exc, msg):
     with pytest.raises(exc, match=msg) as ei:
         fringe_patterns(**args)
     assert isinstance(ei.value, DataPipeError) and "fix:" in str(ei.value)
+
+
+def test_projector_gamma_in_patterns():
+    p1 = fringe_patterns(32, 2, (2,), 4, dtype=np.float64)
+    pg = fringe_patterns(32, 2, (2,), 4, dtype=np.float64, gamma=2.2)
+    np.testing.assert_allclose(pg, p1 ** 2.2, rtol=1e-12)
+    with pytest.raises(ValueError, match="gamma"):
+        fringe_patterns(32, 2, (2,), 4, gamma=0)
