@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-__all__ = ["phase_var_cycles", "wrong_probability"]
+__all__ = ["phase_var_cycles", "phase_var_from_snr", "wrong_probability", "consistency_limits"]
 
 INV_2PI_SQ = 1.0 / (2.0 * np.pi) ** 2
 CONSISTENCY_P = 1e-8
@@ -50,7 +50,22 @@ def phase_var_cycles(b, s, out=None):
     return b2
 
 
-def wrong_probability(margins, coefs, var_c, residuals=None, out=None, dof_lattice=2):
+def phase_var_from_snr(q):
+    """:func:`phase_var_cycles` from ``q = B_hat^2 / s^2`` (in place): ``1 / (4 pi^2 max(q - 2, 1/4))``."""
+    T = q.dtype.type
+    v = np.subtract(q, T(2))
+    np.maximum(v, T(0.25), out=v)
+    np.reciprocal(v, out=v)
+    v *= T(INV_2PI_SQ)
+    return v
+
+
+def consistency_limits(n_freq: int):
+    """Chi-square limits of the consistency test: (one dof, a lattice stage's n_freq - 1 dofs)."""
+    return float(chi2.isf(CONSISTENCY_P, 1)), float(chi2.isf(CONSISTENCY_P, max(1, n_freq - 1)))
+
+
+def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=None):
     """Union-bound probability that some stage rounded to a wrong order, and the INCONSISTENT mask
     (module doc). margins / residuals: per stage arrays (residual None: ``((1 - margin)/2)^2``);
     coefs: per stage coefficient vectors (None for a lattice stage); var_c: per frequency phase
@@ -63,6 +78,7 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, dof_latti
     if not margins:
         return p, inconsistent
     residuals = residuals or [None] * len(margins)
+    lim1, lim_lattice = limits if limits else consistency_limits(len(var_c))
     v = np.empty(p.shape, dt)
     q = np.empty(p.shape, dt)
     vmax = None
@@ -73,13 +89,13 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, dof_latti
                 for vc in var_c[1:]:
                     np.maximum(vmax, vc, out=vmax)
             np.copyto(v, vmax)
-            lim = chi2.isf(CONSISTENCY_P, dof_lattice)
+            lim = lim_lattice
         else:
             v.fill(0)
             for c, vc in zip(coef, var_c):
                 if c:
                     v += T(c * c) * vc
-            lim = chi2.isf(CONSISTENCY_P, 1)
+            lim = lim1
         if res is None:                  # |d| = (1 - margin) / 2
             np.subtract(T(1), m, out=q)
             q *= T(0.5)
@@ -90,8 +106,7 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, dof_latti
         # p += 1 / (1 + exp(m / 2v)); float32 exp overflows to inf for certain pixels -> 0
         np.multiply(v, T(2), out=v)
         np.divide(m, v, out=v)
-        np.minimum(v, T(80), out=v)
-        np.exp(v, out=v)
+        np.exp(v, out=v)                 # overflow to inf for certain pixels: p += 0
         v += T(1)
         np.reciprocal(v, out=v)
         p += v

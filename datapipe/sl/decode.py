@@ -48,7 +48,7 @@ from scipy.special import gammainccinv
 from ._errors import bad_type, bad_value
 from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
-from .confidence import phase_var_cycles, wrong_probability
+from .confidence import consistency_limits, phase_var_cycles, phase_var_from_snr, wrong_probability
 from .gamma import correct_cycles, gamma_phase_lut
 from .spatial import correct_orders
 from .triangulate import Triangulator
@@ -256,6 +256,7 @@ class _Setup:
     factor: float
     row_sigma: float
     joint_q2: float             # 2 * Gamma(F) quantile of the joint modulation test (module doc)
+    consistency_limits: tuple = ()
     min_modulation: float | None = None
     floor_scalar: float | None = None
     sigma_scalar: float | None = None
@@ -353,6 +354,7 @@ def _setup(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma
                 spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
                 factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
                 row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
+    st.consistency_limits = consistency_limits(F)
     _noise_setup(st, noise_sigma, _check_positive("min_modulation", min_modulation, strict=False),
                  _check_positive("order_sigmas", order_sigmas, strict=False), shifts)
     return st
@@ -424,15 +426,21 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
             satflag = sflag if satflag is None else (satflag | sflag)
         if inv is not None:
             invalid = inv if invalid is None else (invalid | inv)
-        sig = _slab_sigma(st, a, r0, r1)
-        s = sig * wt(st.row_sigma) if sig is not None else st.sigma_scalar * st.row_sigma
-        var_c.append(phase_var_cycles(b, s))
+        if i == 0:                       # noise of the slab (from the offset, alike in all frequencies)
+            sig = _slab_sigma(st, a, r0, r1)
+            if sig is not None:
+                s2 = np.multiply(sig, sig)
+                s2 *= wt(st.row_sigma ** 2)
+            else:
+                s2 = wt((st.sigma_scalar * st.row_sigma) ** 2)
+        q = np.multiply(b, b)
+        np.divide(q, s2, out=q)          # B^2 / s^2: Gamma evidence (floor) and phase SNR
+        var_c.append(phase_var_from_snr(q))
         if st.min_modulation is not None:
             nl = np.less_equal(b, wt(st.min_modulation))
         else:                            # joint Gamma test: accumulate B^2 / s^2
             nl = None
-            q = np.divide(np.multiply(b, b), np.multiply(s, s) if sig is not None else wt(s * s))
-            qsum = q if i == 0 else np.add(qsum, q, out=qsum)
+            qsum = q.copy() if i == 0 else np.add(qsum, q, out=qsum)
         if st.order_factor:          # legacy worst-case order floor
             ob = np.less(b, wt(st.order_floor)) if st.order_floor is not None else \
                 np.less(b, sig * wt(st.order_factor))
@@ -451,8 +459,7 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
     out.proj_x[r0:r1] = x
     out.order_error[r0:r1] = un.order_error
     out.phase[r0:r1] = un.phase
-    dof = max(1, F - 1)
-    p, inc = wrong_probability(un.margins, coefs, var_c, un.residuals, dof_lattice=dof,
+    p, inc = wrong_probability(un.margins, coefs, var_c, un.residuals, limits=st.consistency_limits,
                                out=out.p_wrong[r0:r1] if direct else None)
     if not direct:
         out.p_wrong[r0:r1] = p
@@ -470,8 +477,10 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
         if m is not None and m.any():
             rs[m] = r.value
     basic = (rs == Reason.NO_LIGHT) | (rs == Reason.SATURATED) | (rs == Reason.INVALID_INPUT)
-    if basic.any():
+    if basic.any():                      # no order decoded: no order verdict either
         out.p_wrong[r0:r1][basic] = np.nan
+        out.inconsistent[r0:r1][basic] = False
+        legacy[basic] = False
 
 
 def _neighbour_pass(st: _Setup, out: _Out):
@@ -528,17 +537,17 @@ def _assemble(st: _Setup, out: _Out) -> DecodeResult:
     possibly wrong coordinate), NaN fill, confidence."""
     reason = out.reason
     with np.errstate(invalid="ignore"):
-        bad = (out.p_wrong > np.float32(st.max_wrong)) | out.legacy_bad
-    ordered = ~np.isin(reason, [int(r) for r in _NO_ORDER])
-    reason[bad & ordered] = Reason.BAD_ORDER
-    reason[out.inconsistent & ordered] = Reason.INCONSISTENT
+        bad = np.greater(out.p_wrong, np.float32(st.max_wrong))      # NaN (no order) -> False
+    bad |= out.legacy_bad
+    reason[bad] = Reason.BAD_ORDER
+    reason[out.inconsistent] = Reason.INCONSISTENT
     valid = reason == 0
-    nan = np.float32(np.nan)
     inv = ~valid
+    nan = np.float32(np.nan)
     for a in (out.depth, out.proj_x, out.phase):
         np.copyto(a, nan, where=inv)
     conf = np.subtract(np.float32(1), out.p_wrong)
-    np.copyto(conf, np.float32(0), where=np.isnan(conf))
+    np.nan_to_num(conf, copy=False, nan=0.0)
     plan = st.plan
     return DecodeResult(depth=out.depth, valid=valid, proj_x=out.proj_x, modulation=out.modulation,
                         offset=out.offset, wrapped=out.wrapped, phase=out.phase, reason=reason,
