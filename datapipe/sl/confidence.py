@@ -105,10 +105,18 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=No
         inconsistent |= q > v * T(lim)
         # p += 1 / (1 + exp(m / 2v)); float32 exp overflows to inf for certain pixels -> 0
         np.multiply(v, T(2), out=v)
-        np.divide(m, v, out=v)
-        np.exp(v, out=v)                 # overflow to inf for certain pixels: p += 0
-        v += T(1)
-        np.reciprocal(v, out=v)
-        p += v
+        np.divide(m, v, out=v)           # log-odds that the stage is right
+        unsure = np.less(v, T(40))       # p > 4e-18: worth the exp (usually a small share)
+        n = np.count_nonzero(unsure)
+        if n * 4 < v.size:
+            if n:
+                i = np.flatnonzero(unsure)
+                lo = v.reshape(-1)[i]
+                p.reshape(-1)[i] += T(1) / (T(1) + np.exp(lo))
+        else:
+            np.exp(v, out=v)             # overflow to inf for certain pixels: p += 0
+            v += T(1)
+            np.reciprocal(v, out=v)
+            p += v
     np.minimum(p, T(1), out=p)
     return p, inconsistent

@@ -373,6 +373,7 @@ class _Out:
     modulation: np.ndarray
     offset: np.ndarray
     wrapped: list
+    n_unsure: int = 0          # pixels above max_wrong (before the neighbour pass)
 
     @classmethod
     def allocate(cls, H, W, F):
@@ -464,6 +465,7 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
     if not direct:
         out.p_wrong[r0:r1] = p
     out.inconsistent[r0:r1] = inc
+    out.n_unsure += int(np.count_nonzero(np.greater(p, wt(st.max_wrong))))
     legacy = out.legacy_bad[r0:r1]
     if lowsnr is not None:
         legacy |= lowsnr
@@ -486,6 +488,8 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
 def _neighbour_pass(st: _Setup, out: _Out):
     """Uncertain pixels take / confirm their order from confident neighbours, then are
     triangulated again (see :mod:`.spatial`)."""
+    if out.n_unsure == 0:
+        return
     reason = out.reason
     geo_ok = (reason == 0) | (reason == Reason.OUTSIDE_PROJECTOR) | (reason == Reason.ILL_CONDITIONED)
     with np.errstate(invalid="ignore"):
