@@ -34,7 +34,7 @@ FORMATS = ("native", "bop")
 # convex pieces (Blender's moving triangle meshes threw concave parts out; see core/collision.py)
 COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "CONE")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
-UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency")
+UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap
 SAMPLER_KINDS = ("pool", "bin_view")
 MAX_RESOLUTION = 8192
 
@@ -131,6 +131,8 @@ class StructuredLightConfig:
     exposure: float = 0.5              # scales linear radiance before the sensor model (0.5: no
                                        # saturation on 0.8-albedo parts from ~0.65 m)
     debug: bool = False                # also write wrapped/absolute phase, modulation, reasons
+    projector_gamma: float = 1.0       # projector response exponent (emits pattern ** gamma; 1 = linear);
+                                       # the decoder corrects the phase ripple it causes
 
 
 @dataclass
@@ -328,6 +330,27 @@ def _check_redraw(m: SimulationConfig, add) -> None:
             "give a small number of retries (each costs one more simulation)")
 
 
+def _check_sl_periods(sl, pr, add) -> None:
+    """structured_light.periods: what datapipe.sl.plan_unwrap decodes (hierarchical, heterodyne,
+    number-theoretic sets such as [13, 7] or [9, 10, 11]) with >= 3 projector px per fringe."""
+    if not sl.periods:
+        add("structured_light.periods", "empty", "give fringe periods, e.g. [1, 8, 64]")
+        return
+    if any(k < 1 for k in sl.periods):
+        add("structured_light.periods", f"periods must be >= 1, got {sl.periods}", "give positive periods")
+        return
+    if pr.resolution and len(pr.resolution) == 2 and max(sl.periods) * 3 > pr.resolution[0]:
+        add("structured_light.periods", f"{max(sl.periods)} periods across {pr.resolution[0]} px leave "
+            "fewer than 3 px per fringe", "lower the finest period count or raise the projector width")
+    if sl.unwrap in UNWRAP_METHODS:
+        from .sl import plan_unwrap      # pure numpy; the decoder owns the rules for period sets
+        try:
+            plan_unwrap(sl.periods, sl.unwrap)
+        except ValueError as e:
+            add("structured_light.periods", f"cannot be unwrapped: {e}", "use a set the message suggests, "
+                "e.g. [1, 8, 64] (hierarchical), [70, 64, 59] or [13, 7] (number-theoretic)")
+
+
 def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
     """Every problem at once, each with its field path and the fix. Empty list = valid."""
     P: list[Problem] = []
@@ -461,21 +484,11 @@ def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
         if sl.steps < 3:
             add("structured_light.steps", f"must be >= 3, got {sl.steps}", "use 3 or more phase steps (4 or more "
                 "avoids gamma errors)")
-        if not sl.periods:
-            add("structured_light.periods", "empty", "give fringe periods, e.g. [1, 8, 64]")
-        elif any(k < 1 for k in sl.periods):
-            add("structured_light.periods", f"periods must be >= 1, got {sl.periods}", "give positive periods")
-        elif pr.resolution and len(pr.resolution) == 2 and max(sl.periods) * 3 > pr.resolution[0]:
-            add("structured_light.periods", f"{max(sl.periods)} periods across {pr.resolution[0]} px leave "
-                "fewer than 3 px per fringe", "lower the finest period count or raise the projector width")
+        _check_sl_periods(sl, pr, add)
         choice("structured_light.unwrap", sl.unwrap, UNWRAP_METHODS)
-        if sl.periods and sl.unwrap in UNWRAP_METHODS:
-            from .sl import plan_unwrap      # pure numpy; the decoder owns the rules for period sets
-            try:
-                plan_unwrap(sl.periods, sl.unwrap)
-            except ValueError as e:
-                add("structured_light.periods", f"cannot be unwrapped: {e}", "use a set the message suggests, "
-                    "e.g. [1, 8, 64] (hierarchical) or [70, 64, 59] (heterodyne chain)")
+        if not (isinstance(sl.projector_gamma, (int, float)) and 0.2 <= sl.projector_gamma <= 5.0):
+            add("structured_light.projector_gamma", f"must be a number in [0.2, 5], got {sl.projector_gamma!r}",
+                "use 1.0 for a linear projector, ~2.2 for a typical DLP/LCD response")
         try:
             from .sl import SensorModel
             SensorModel.preset(sl.sensor)

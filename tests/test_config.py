@@ -141,6 +141,10 @@ CASES = [
      "projector.rotation", "needs 3"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "unwrap", "magic")),
      "structured_light.unwrap", "unknown value"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "projector_gamma", 0)),
+     "structured_light.projector_gamma", "[0.2, 5]"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "periods", [16, 64])),
+     "structured_light.periods", "share the factor 16"),
     (lambda c: setattr(c.render, "samples", 0), "render.samples", ">= 1"),
     (lambda c: setattr(c.render, "outputs", ["rgb", "thermal"]), "render.outputs[1]", "unknown value"),
     (lambda c: setattr(c.render, "engine", "BLENDER_EEVEE"), "render.engine", "unknown value"),
@@ -189,3 +193,13 @@ def test_schema_version_checked():
     d["schema_version"] = 99
     with pytest.raises(ConfigError, match="schema version"):
         C.Config.from_dict(d)
+
+
+@pytest.mark.parametrize("periods", [[13, 7], [9, 10, 11], [70, 64, 59], [1, 8, 64], [16, 15]])
+def test_period_sets_that_decode_are_accepted(periods):
+    """Every set the decoder unwraps (datapipe.sl.plan_unwrap) passes validation."""
+    c = C.Config()
+    c.structured_light.enabled = True
+    c.structured_light.periods = periods
+    c.structured_light.projector_gamma = 2.2
+    assert not [p for p in c.problems(check_files=False) if p.path.startswith("structured_light")]

@@ -258,6 +258,7 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         col.prop(sl, "samples")
         col.prop(sl, "sensor")
         col.prop(sl, "exposure")
+        col.prop(sl, "projector_gamma")
         col.prop(sl, "debug")
         box = layout.box()
         box.label(text="Projector", icon="LIGHT_SPOT")

@@ -376,7 +376,7 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
     periods_text: StringProperty(default=format_periods(default(_L, "periods")), options={"HIDDEN"})
     periods: StringProperty(
         name="Periods", description="Fringe periods across the projector width, coarse to fine, comma "
-        "separated (e.g. '1, 8, 64' hierarchical, or '8, 7' two-frequency heterodyne)",
+        "separated (e.g. '1, 8, 64' hierarchical, '8, 7' heterodyne, '13, 7' or '9, 10, 11' number-theoretic)",
         get=_get_periods, set=_set_periods)
     steps: IntProperty(name="Steps", description="Phase steps per period (4 or more avoids gamma errors)",
                        default=default(_L, "steps"), min=3, soft_max=16)
@@ -391,6 +391,9 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
                             min=1e-6, soft_max=10.0, default=default(_L, "exposure"))
     debug: BoolProperty(name="Debug Maps", description="Also write wrapped/absolute phase, modulation and "
                         "reason codes", default=default(_L, "debug"))
+    projector_gamma: FloatProperty(name="Projector Gamma", description="Projector response exponent (it emits "
+                                   "pattern ** gamma; 1 = linear); the decoder corrects the phase ripple",
+                                   min=0.2, max=5.0, default=default(_L, "projector_gamma"))
 
 
 # ------------------------------------------------------------------------------------------------
