@@ -100,7 +100,8 @@ class StructuredLightCamera:
 
         remove_leftovers(self.scene, self.renderer.tree)
         Wp, Hp = self.proj_size
-        patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps)
+        patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps,
+                                      gamma=self.cfg.structured_light.projector_gamma)
         self.projector = Projector(self.cfg, self.scene, self.camera.obj)
         self.projector.build(patterns)
         for i, ob in enumerate(self.projector.lights):

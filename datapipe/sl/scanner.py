@@ -68,7 +68,7 @@ class Scan:
         if debug:
             ch = {"phase": res.phase, "offset": res.offset, "proj_x": res.proj_x,
                   "reason": res.reason.astype(np.float32), "order_error": res.order_error,
-                  "sigma_z": self.sigma_z.astype(np.float32)}
+                  "confidence": res.confidence, "sigma_z": self.sigma_z.astype(np.float32)}
             for k, (w, m) in enumerate(zip(res.wrapped, res.modulation)):
                 ch[f"wrapped_{k}"], ch[f"modulation_{k}"] = w, m
             out["sl_debug"] = ch
@@ -76,7 +76,7 @@ class Scan:
 
     def summary(self) -> dict:
         res = self.result
-        counts = np.bincount(res.reason.ravel(), minlength=FILTERED + 1)
+        counts = np.bincount(res.reason.ravel(), minlength=max(REASON_NAMES) + 1)
         return {"unwrap": res.method, "valid_fraction": float(res.valid.mean()),
                 "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
                 "median_sigma_z": _nanmedian(self.sigma_z)}
@@ -90,7 +90,8 @@ class Scanner:
 
     def __init__(self, periods: Sequence[float], steps: int, proj_size: tuple[int, int], K_proj, T_cam_proj_, *,
                  unwrap: str = "auto", sensor: SensorModel | str = "industrial", exposure: float = 1.0,
-                 min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX, edge_filter: bool = True):
+                 min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX, edge_filter: bool = True,
+                 projector_gamma: float = 1.0):
         self.periods, self.steps = list(periods), int(steps)
         self.proj_size = tuple(int(v) for v in proj_size)
         self.K_proj = np.asarray(K_proj, dtype=np.float64)
@@ -101,13 +102,14 @@ class Scanner:
         self.min_contrast = float(min_contrast)
         self.border_px = float(border_px)
         self.edge_filter = bool(edge_filter)
+        self.projector_gamma = float(projector_gamma)     # the decoder corrects its phase ripple
         plan_unwrap(self.periods, unwrap)          # refuse an ambiguous period set before any render
 
     @classmethod
     def from_config(cls, cfg, **overrides) -> "Scanner":
         """The scanner a Config describes (structured_light + projector sections)."""
         s = cfg.structured_light
-        kw = dict(unwrap=s.unwrap, sensor=s.sensor, exposure=s.exposure)
+        kw = dict(unwrap=s.unwrap, sensor=s.sensor, exposure=s.exposure, projector_gamma=s.projector_gamma)
         kw.update(overrides)
         return cls(s.periods, s.steps, cfg.projector.resolution, projector_intrinsics(cfg), T_cam_proj(cfg), **kw)
 
@@ -126,7 +128,7 @@ class Scanner:
         P_proj = self.projector_matrix(T_world_cam)
         res = decode(dn, periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
                      proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=model.noise_sigma,
-                     saturation=saturation, min_contrast=self.min_contrast)
+                     saturation=saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma)
         sigma_z = pixel_depth_sigma(res, model.noise_sigma, self.proj_size[0], self.steps)
         filtered = np.zeros(res.valid.shape, bool)
         if self.edge_filter:

@@ -236,13 +236,15 @@ def test_debug_output_and_annotations(tmp_path):
     assert not list(rdir.glob(f"{SLM.FRINGE_BASENAME}*"))          # the scratch EXR is gone
     dbg = read_exr(rdir / "sl_debug.exr")
     F = len(cfg.structured_light.periods)
-    for name in ["phase", "offset", "proj_x", "reason", "order_error", "sigma_z",
+    for name in ["phase", "offset", "proj_x", "reason", "order_error", "sigma_z", "confidence",
                  *[f"wrapped_{k}" for k in range(F)], *[f"modulation_{k}" for k in range(F)]]:
         assert any(c == name or c.startswith(name + ".") for c in dbg), (name, sorted(dbg))
     ch = {c.split(".")[0]: v for c, v in dbg.items()}
     H, W = 120, 160
     reason = np.rint(ch["reason"]).astype(int)
     assert reason.shape == (H, W) and set(np.unique(reason)) <= set(REASON_NAMES)
+    conf = ch["confidence"]                       # P(orders right): >= 1 - max_wrong where valid
+    assert np.all(conf[reason == 0] >= 1 - 1e-3) and np.all((conf >= 0) & (conf <= 1))
     for k in range(F):
         w = ch[f"wrapped_{k}"]
         assert np.nanmin(w) >= 0 and np.nanmax(w) < 2 * np.pi + 1e-6
