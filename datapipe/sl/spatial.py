@@ -28,46 +28,33 @@ _AXES = ((0, 1), (1, 0), (1, 1), (1, -1))
 _DIRS = _AXES + tuple((-dy, -dx) for dy, dx in _AXES)
 
 
-def _gather(a, r, c, dy, dx, shape):
-    """a[r+dy, c+dx] (flat a) with a validity mask for out-of-image neighbours."""
-    H, W = shape
-    rr, cc = r + dy, c + dx
-    inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
-    idx = np.where(inside, rr * W + cc, 0)
-    return a[idx], inside
+PAD = 2      # border of NaN around the image: neighbour look-ups need no bounds checks
 
 
-def _predictions(x, good, r, c, shape):
+def _predictions(xg, p, Wp):
+    """(12, n) predictions for padded flat indices p from xg (padded, NaN where not confident)."""
     preds = []
     for dy, dx in _AXES:
-        xa, ia = _gather(x, r, c, dy, dx, shape)
-        ga = _gather(good, r, c, dy, dx, shape)[0] & ia
-        xb, ib = _gather(x, r, c, -dy, -dx, shape)
-        gb = _gather(good, r, c, -dy, -dx, shape)[0] & ib
-        preds.append(np.where(ga & gb, 0.5 * (xa + xb), np.nan))
+        o = dy * Wp + dx
+        preds.append(0.5 * (xg[p + o] + xg[p - o]))
     for dy, dx in _DIRS:
-        x1, i1 = _gather(x, r, c, dy, dx, shape)
-        g1 = _gather(good, r, c, dy, dx, shape)[0] & i1
-        x2, i2 = _gather(x, r, c, 2 * dy, 2 * dx, shape)
-        g2 = _gather(good, r, c, 2 * dy, 2 * dx, shape)[0] & i2
-        preds.append(np.where(g1 & g2, 2.0 * x1 - x2, np.nan))
+        o = dy * Wp + dx
+        preds.append(2.0 * xg[p + o] - xg[p + 2 * o])
     return np.stack(preds)
+
+
+def _nan_median(P):
+    """Median over axis 0 ignoring NaN (sort puts NaN last); NaN where all are NaN."""
+    S = np.sort(P, axis=0)
+    k = np.isfinite(S).sum(0)
+    lo = np.maximum(k - 1, 0) // 2
+    hi = k // 2
+    cols = np.arange(P.shape[1])
+    return 0.5 * (S[lo, cols] + S[np.minimum(hi, P.shape[0] - 1), cols]), k
 
 
 def _wrapd(t):
     return t - np.rint(t)
-
-
-def _neighbours(idx, shape):
-    """Flat indices of the 8-neighbours of flat indices idx (out-of-image ones dropped)."""
-    H, W = shape
-    r, c = np.divmod(idx, W)
-    out = []
-    for dy, dx in _DIRS:
-        rr, cc = r + dy, c + dx
-        ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
-        out.append((rr * W + cc)[ok])
-    return np.concatenate(out)
 
 
 def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, passes=1000,
@@ -77,47 +64,51 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good, cand:
     (H, W) bool; cyc, var_c: per frequency 1D arrays over ``flatnonzero(cand)`` (cycles,
     cycles^2). Returns (idx, x_new, p_wrong) of the accepted pixels (flat indices)."""
-    shape = x.shape
+    H, W = x.shape
     per = np.asarray(periods, np.float64)
     f = int(np.argmax(per))
     T = length / per[f]
     L = float(length)
-    xf = x.astype(np.float64).ravel().copy()
-    gf = good.ravel().copy()
+    Wp = W + 2 * PAD
+    xg = np.full((H + 2 * PAD, Wp), np.nan, np.float32)
+    xg[PAD:PAD + H, PAD:PAD + W] = np.where(good, x, np.float32(np.nan))
+    xg = xg.ravel()
     idx_all = np.flatnonzero(cand)
+    r_all, c_all = np.divmod(idx_all, W)
+    p_all = (r_all + PAD) * Wp + (c_all + PAD)
+    pos = np.full(xg.size, -1, np.int32)
+    pos[p_all] = np.arange(idx_all.size, dtype=np.int32)
+    offs = np.array([dy * Wp + dx for dy, dx in _DIRS])
     todo = np.ones(idx_all.size, bool)
-    pos = np.full(x.size, -1, np.int64)
-    pos[idx_all] = np.arange(idx_all.size)
-    near = pos[_neighbours(np.flatnonzero(gf), shape)]
     active = np.zeros(idx_all.size, bool)
-    active[near[near >= 0]] = True
+    for o in offs:
+        active |= np.isfinite(xg[p_all + o])
+    frontier = np.flatnonzero(active)
     chi_max = chi2.isf(1e-4, max(1, len(per) - 1))
     w = per * per
     keep = w >= weights_min * w.sum()
     out_idx, out_x, out_p = [], [], []
     for _ in range(passes):
-        sel = np.flatnonzero(active & todo)
-        active[:] = False
+        sel = frontier[todo[frontier]]
+        frontier = frontier[:0]
         if sel.size == 0:
             break
-        idx = idx_all[sel]
-        r, c = np.divmod(idx, shape[1])
-        P = _predictions(xf, gf, r, c, shape)
-        avail = np.isfinite(P).sum(0)
+        pp = p_all[sel]
+        P = _predictions(xg, pp, Wp).astype(np.float64)
+        xh, avail = _nan_median(P)
         has = avail >= min_support
         if not has.any():
             continue
-        sel, idx, P, avail = sel[has], idx[has], P[:, has], avail[has]
-        with np.errstate(invalid="ignore", all="ignore"):
-            xh = np.nanmedian(P, axis=0)
+        sel, pp, P, avail, xh = sel[has], pp[has], P[:, has], avail[has], xh[has]
+        with np.errstate(invalid="ignore"):
             dev = np.abs(P - xh)
             agree = dev < 0.25 * T
-            n_agree = agree.sum(0)
-            spread = np.sqrt(np.nansum(np.where(agree, dev * dev, 0.0), 0) / np.maximum(n_agree, 1))
+        n_agree = agree.sum(0)
+        spread = np.sqrt(np.sum(np.where(agree, dev * dev, 0.0), 0) / np.maximum(n_agree, 1))
         ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail)
         if not ok.any():
             continue
-        sel, idx, xh, spread = sel[ok], idx[ok], xh[ok], spread[ok]
+        sel, pp, xh, spread = sel[ok], pp[ok], xh[ok], spread[ok]
         cf = cyc[f][sel].astype(np.float64)
         vf = var_c[f][sel].astype(np.float64)
         var_sp = spread ** 2 + (0.05 * T) ** 2 + vf * T * T
@@ -149,13 +140,12 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         sel_a = sel[acc]
         xnew = _combine_from_fine(xbest, [cyc[i][sel_a].astype(np.float64) for i in range(len(per))],
                                   per, L, keep)
-        ia = idx[acc]
-        xf[ia] = xnew
-        gf[ia] = True
+        pa = pp[acc]
+        xg[pa] = xnew
         todo[sel_a] = False
-        near = pos[_neighbours(ia, shape)]
-        active[near[near >= 0]] = True
-        out_idx.append(ia)
+        near = pos[(pa[:, None] + offs[None, :]).ravel()]
+        frontier = np.unique(near[near >= 0])
+        out_idx.append(idx_all[sel_a])
         out_x.append(xnew)
         out_p.append(p[acc])
     if not out_idx:
