@@ -24,7 +24,10 @@ Consistency. The same numbers also test the model: under it the squared distance
 order, divided by ``v``, is chi-square (1 dof per rounding stage, F-1 for a lattice stage). A pixel
 far beyond that (``p < 1e-8``: 5.7 sigma for one dof) has frequencies that disagree with each other more than the sensor's
 noise allows -- a phase biased by aliasing of fringes finer than the pixel, a mixed pixel at a depth
-step, inter-reflections, an uncorrected tone curve -- and is INCONSISTENT, whatever its margin.
+step, inter-reflections, an uncorrected tone curve -- and is INCONSISTENT, whatever its margin,
+provided the disagreement also threatens the order: at least 0.15 of an order (0.3 ``d_min`` for a
+lattice stage). Smaller biases leave the order right (a real scanner keeps those pixels); they
+only bias the depth, which the per-pixel sigma does not cover.
 """
 from __future__ import annotations
 
@@ -35,6 +38,7 @@ __all__ = ["phase_var_cycles", "phase_var_from_snr", "wrong_probability", "consi
 
 INV_2PI_SQ = 1.0 / (2.0 * np.pi) ** 2
 CONSISTENCY_P = 1e-8
+MIN_INCONSISTENCY = 0.15      # of an order (rounding stage), or of d_min (lattice stage: 0.3 of it)
 
 
 def phase_var_cycles(b, s, out=None):
@@ -60,9 +64,11 @@ def phase_var_from_snr(q):
     return v
 
 
-def consistency_limits(n_freq: int):
-    """Chi-square limits of the consistency test: (one dof, a lattice stage's n_freq - 1 dofs)."""
-    return float(chi2.isf(CONSISTENCY_P, 1)), float(chi2.isf(CONSISTENCY_P, max(1, n_freq - 1)))
+def consistency_limits(n_freq: int, d_min: float = 1.0):
+    """Consistency test limits: chi-square for one dof and for a lattice stage's n_freq - 1 dofs,
+    and the smallest squared residual that counts (rounding stage, lattice stage of ``d_min``)."""
+    return (float(chi2.isf(CONSISTENCY_P, 1)), float(chi2.isf(CONSISTENCY_P, max(1, n_freq - 1))),
+            MIN_INCONSISTENCY ** 2, (2 * MIN_INCONSISTENCY * d_min) ** 2)
 
 
 def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=None):
@@ -78,7 +84,7 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=No
     if not margins:
         return p, inconsistent
     residuals = residuals or [None] * len(margins)
-    lim1, lim_lattice = limits if limits else consistency_limits(len(var_c))
+    lim1, lim_lattice, floor1, floor_lattice = limits if limits else consistency_limits(len(var_c))
     v = np.empty(p.shape, dt)
     q = np.empty(p.shape, dt)
     vmax = None
@@ -89,20 +95,20 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=No
                 for vc in var_c[1:]:
                     np.maximum(vmax, vc, out=vmax)
             np.copyto(v, vmax)
-            lim = lim_lattice
+            lim, floor = lim_lattice, floor_lattice
         else:
             v.fill(0)
             for c, vc in zip(coef, var_c):
                 if c:
                     v += T(c * c) * vc
-            lim = lim1
+            lim, floor = lim1, floor1
         if res is None:                  # |d| = (1 - margin) / 2
             np.subtract(T(1), m, out=q)
             q *= T(0.5)
             np.multiply(q, q, out=q)
         else:
             np.copyto(q, res)
-        inconsistent |= q > v * T(lim)
+        inconsistent |= (q > v * T(lim)) & (q > T(floor))
         # p += 1 / (1 + exp(m / 2v)); float32 exp overflows to inf for certain pixels -> 0
         np.multiply(v, T(2), out=v)
         np.divide(m, v, out=v)           # log-odds that the stage is right

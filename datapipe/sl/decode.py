@@ -354,7 +354,7 @@ def _setup(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma
                 spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
                 factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
                 row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
-    st.consistency_limits = consistency_limits(F)
+    st.consistency_limits = consistency_limits(F, plan.lattice.d_min if plan.lattice is not None else 1.0)
     _noise_setup(st, noise_sigma, _check_positive("min_modulation", min_modulation, strict=False),
                  _check_positive("order_sigmas", order_sigmas, strict=False), shifts)
     return st
