@@ -4,9 +4,10 @@ do), and may so get a *different* order than their temporal decoding gave.
 
 Per uncertain pixel and pass: predictions of its coordinate from confident 8-neighbours, two-sided
 ``(x[p-d] + x[p+d]) / 2`` (4 axes) and one-sided ``2 x[p+d] - x[p+2d]`` (8 directions), all exact on
-planes. Their median ``x_hat`` is trusted only when at least ``min_support`` predictions and 3/4 of
-those available agree with it within a quarter of the finest period ``T`` (at a depth step the two
-sides disagree and the pixel is left alone). Candidates are the finest phase's three coordinates
+planes. Each prediction votes for the order of the pixel's own finest phase it implies; the median
+``x_hat`` is trusted only when at least ``min_support`` predictions and 3/4 of those available vote
+for the order ``x_hat`` implies (at a depth step of more than half a period the two sides vote
+differently and the pixel is left alone). Candidates are the finest phase's three coordinates
 ``x_n = (n + c_f) T`` nearest ``x_hat``; each is scored with the spatial term
 ``(x_n - x_hat)^2 / (sigma_p^2 + sigma_f^2)`` (``sigma_p``: spread of the agreeing predictions plus
 ``0.05 T``; ``sigma_f``: the pixel's own fine-phase noise) plus the temporal term
@@ -100,9 +101,12 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         if not has.any():
             continue
         sel, pp, P, avail, xh = sel[has], pp[has], P[:, has], avail[has], xh[has]
+        # each prediction votes for the fine order it implies for this pixel's own fine phase
+        cf_all = cyc[f][sel].astype(np.float64)
         with np.errstate(invalid="ignore"):
+            votes = np.rint(P / T - cf_all)
+            agree = votes == np.rint(xh / T - cf_all)
             dev = np.abs(P - xh)
-            agree = dev < 0.25 * T
         n_agree = agree.sum(0)
         spread = np.sqrt(np.sum(np.where(agree, dev * dev, 0.0), 0) / np.maximum(n_agree, 1))
         ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail)
