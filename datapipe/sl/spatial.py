@@ -5,7 +5,7 @@ do), and may so get a *different* order than their temporal decoding gave.
 Per uncertain pixel and pass: predictions of its coordinate from confident 8-neighbours, two-sided
 ``(x[p-d] + x[p+d]) / 2`` (4 axes) and one-sided ``2 x[p+d] - x[p+2d]`` (8 directions), all exact on
 planes. Each prediction votes for the order of the pixel's own finest phase it implies; the median
-``x_hat`` is trusted only when at least ``min_support`` predictions and 3/4 of those available vote
+``x_hat`` is trusted only when at least ``min_support`` (2) predictions and 3/4 of those available vote
 for the order ``x_hat`` implies (at a depth step of more than half a period the two sides vote
 differently and the pixel is left alone). Candidates are the finest phase's three coordinates
 ``x_n = (n + c_f) T`` nearest ``x_hat``; each is scored with the spatial term
@@ -59,7 +59,7 @@ def _wrapd(t):
 
 
 def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, passes=1000,
-                   min_support=3, weights_min=0.01):
+                   min_support=2, weights_min=0.01):
     """Correct / confirm the orders of ``cand`` pixels from confident neighbours (module doc).
 
     x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good, cand:
