@@ -182,3 +182,54 @@ def check_scene(parts: list[Part], floor_z: float, walls: tuple[np.ndarray, np.n
             gap[i], gap[j] = min(gap[i], d), min(gap[j], d)
     res.floating = [(p.name, float(g)) for p, g in zip(parts, gap) if g > float_tol]
     return res
+
+
+def physics_line(sim: dict) -> str:
+    """Progress-line text of one scene's `simulation` record (scene.json), e.g. '9 parts, 3 removed
+    (left the bin), 1 unsettled, 64 frames x 13 substeps'. Older records (frames/settled/removed
+    only) read as well."""
+    removed = sim.get("removed", [])
+    bits = [f"{sim['parts']} parts" if "parts" in sim else None]
+    if removed:
+        why = sorted({r["reason"] for r in removed})
+        bits.append(f"{len(removed)} removed ({', '.join(why)})")
+    if not sim.get("settled", True):
+        bits.append(f"{len(sim.get('unsettled', []))} unsettled")
+    pairs = sim.get("interpenetrating_pairs", [])
+    if pairs:
+        bits.append(f"{len(pairs)} interpenetrating (max {sim.get('max_interpenetration_mm', 0):.1f} mm)")
+    for key, word in (("below_floor", "below the floor"), ("floating", "floating")):
+        if sim.get(key):
+            bits.append(f"{len(sim[key])} {word}")
+    sub = sim.get("substeps")
+    bits.append(f"{sim.get('frames', 0)} frames" + (f" x {sub} substeps" if sub else ""))
+    if sim.get("attempts", 1) > 1:
+        bits.append(f"drop {sim['attempts']}")
+    return ", ".join(b for b in bits if b)
+
+
+def add_to_totals(totals: dict, sim: dict) -> dict:
+    """Accumulate a scene's `simulation` record into the run's physics totals (run.json stats)."""
+    for key in ("parts", "scenes"):
+        totals.setdefault(key, 0)
+    totals["scenes"] += 1
+    totals["parts"] += int(sim.get("parts", 0))
+    for key in ("removed", "unsettled", "interpenetrating_pairs", "below_floor", "floating"):
+        totals[key] = totals.get(key, 0) + len(sim.get(key, []))
+    totals["unsettled_scenes"] = totals.get("unsettled_scenes", 0) + int(not sim.get("settled", True))
+    totals["redrawn_scenes"] = totals.get("redrawn_scenes", 0) + int(sim.get("attempts", 1) > 1)
+    totals["max_interpenetration_mm"] = max(totals.get("max_interpenetration_mm", 0.0),
+                                            float(sim.get("max_interpenetration_mm", 0.0)))
+    totals["max_substeps"] = max(totals.get("max_substeps", 0), int(sim.get("substeps") or 0))
+    return totals
+
+
+def totals_line(t: dict) -> str:
+    """The run summary's physics part, e.g. 'physics: 24 parts in 3 scenes, 0 removed, 0 unsettled,
+    0 interpenetrating pairs (max 0.0 mm), 0 floating'."""
+    if not t:
+        return "physics: no scene simulated"
+    return (f"physics: {t.get('parts', 0)} parts in {t.get('scenes', 0)} scenes, {t.get('removed', 0)} removed, "
+            f"{t.get('unsettled', 0)} unsettled, {t.get('interpenetrating_pairs', 0)} interpenetrating pairs "
+            f"(max {t.get('max_interpenetration_mm', 0.0):.1f} mm), {t.get('below_floor', 0)} below the floor, "
+            f"{t.get('floating', 0)} floating, {t.get('redrawn_scenes', 0)} scenes redrawn")

@@ -90,3 +90,18 @@ def test_part_fit_warns_for_a_part_larger_than_the_drop_zone(tmp_path):
     cfg.objects = [ObjectEntry(filepath=str(p), scale=1.0), ObjectEntry(filepath=str(stl), scale=5.0)]
     w = part_fit_warnings(cfg)                      # 0.2 x 0.1 x 0.05 m: sphere 0.229 m > 0.2 m
     assert len(w) == 1 and w[0].startswith("objects[1]:") and "drop_zone_scale" in w[0]
+
+
+def test_physics_line_and_totals_say_what_went_wrong():
+    from datapipe.physics_check import add_to_totals, physics_line, totals_line
+    sim = {"parts": 9, "frames": 200, "settled": False, "substeps": 13, "attempts": 2,
+           "removed": [{"name": "a", "reason": "left the bin"}, {"name": "b", "reason": "fell through the floor"}],
+           "unsettled": [{"name": "c", "speed": 0.3}], "interpenetrating_pairs": [{"a": "d", "b": "e", "depth_mm": 1.2}],
+           "max_interpenetration_mm": 1.2, "below_floor": [], "floating": [{"name": "f", "gap_mm": 3.0}]}
+    assert physics_line(sim) == ("9 parts, 2 removed (fell through the floor, left the bin), 1 unsettled, "
+                                 "1 interpenetrating (max 1.2 mm), 1 floating, 200 frames x 13 substeps, drop 2")
+    assert physics_line({"frames": 75, "settled": True, "removed": []}) == "75 frames"    # an older record
+    t = add_to_totals(add_to_totals({}, sim), {"parts": 3, "frames": 40, "settled": True, "removed": []})
+    assert t["parts"] == 12 and t["scenes"] == 2 and t["removed"] == 2 and t["unsettled_scenes"] == 1
+    assert t["redrawn_scenes"] == 1 and t["max_interpenetration_mm"] == 1.2
+    assert totals_line(t).startswith("physics: 12 parts in 2 scenes, 2 removed, 1 unsettled, 1 interpenetrating")

@@ -19,6 +19,7 @@ from ..config import Config
 from ..errors import DataPipeError
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from ..io import layout
+from ..physics_check import add_to_totals, physics_line, totals_line
 from ..io.files import read_json, write_json_atomic
 from ..io.models import write_models
 from ..io.native import write_scene
@@ -75,7 +76,7 @@ class Pipeline:
         self.first_image_id = np.concatenate([[0], np.cumsum(self.plan)]).astype(int)
         self.total = int(sum(self.plan[i] for i in self.scene_ids))
         self._cancel = False
-        self.stats: dict = {"imports": 0, "frames": {}, "seconds": {k: 0.0 for k in STAGES}}
+        self.stats: dict = {"imports": 0, "frames": {}, "seconds": {k: 0.0 for k in STAGES}, "physics": {}}
         self.stats["seconds"]["setup"] = 0.0
 
     # -- checks before any Blender work ----------------------------------------------------------
@@ -159,6 +160,7 @@ class Pipeline:
                 for k, v in sim_seconds.items():
                     self.stats["seconds"][k] += v
                 self.stats["frames"][scene["name"]] = scene["simulation"]["frames"]
+                add_to_totals(self.stats["physics"], scene["simulation"])
                 for r, pose_index in enumerate(pose_indices):
                     rec, secs = world.render(i, r, pose_index, sdir, self.cfg.scene.seed,
                                              image_id=int(self.first_image_id[i] + r))
@@ -187,7 +189,7 @@ class Pipeline:
                 if complete:
                     self._mark_scene_done(i)
                     yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - t_start,
-                                   message=f"{len(scene['objects'])} parts, {scene['simulation']['frames']} frames")
+                                   message=physics_line({"parts": len(scene["objects"]), **scene["simulation"]}))
                 if self._cancel:
                     yield from self._cancelled(done, i, t_start)
                     return
@@ -196,7 +198,8 @@ class Pipeline:
         writers.finish()
         self._write_run_file(status="complete")
         yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
-                       message=f"finished {made} render(s) in {_fmt_s(time.perf_counter() - t_start)}")
+                       message=f"finished {made} render(s) in {_fmt_s(time.perf_counter() - t_start)}; "
+                               f"{totals_line(self.stats['physics'])}")
 
     def _cancelled(self, done: int, scene: int, t_start: float) -> Iterator[Progress]:
         self._write_run_file(status="cancelled")
@@ -269,24 +272,25 @@ class _BlenderWorld:
         return {i + 1: self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
 
     def start_scene(self, i: int, base: int, n_renders: int):
+        from .simulation import drop_scene
         seed_python(base, i)
         rng = scene_rng(base, i)
         t0 = time.perf_counter()
         drawn = self.variety.apply_scene(base, i)      # bin and lights first: placement fits the bin
-        instances = self.objects.populate(rng)
         t1 = time.perf_counter()
-        sim = self.simulation.run(instances, rng)
+        # populate + simulate (again from a derived seed when too many parts were lost)
+        sim, rng = drop_scene(self.objects, self.simulation, rng, scene_seed(base, i))
         t2 = time.perf_counter()
         pose_indices = self.variety.pose_plan(rng, n_renders)
         self.instances = sim.kept
         objects = [self._object_record(inst) for inst in sim.kept]
         scene = {
             "scene_id": i, "name": layout.scene_name(i), "seed": scene_seed(base, i),
-            "simulation": {"frames": sim.frames, "settled": sim.settled,
-                           "removed": [{"name": inst.name, "reason": why} for inst, why in sim.removed]},
+            "simulation": sim.summary(),
             **drawn, "objects": objects, "renders": [],
         }
-        return scene, pose_indices, {"placement": t1 - t0, "simulation": t2 - t1}
+        return scene, pose_indices, {"placement": t1 - t0 + sim.placement_seconds,
+                                     "simulation": t2 - t1 - sim.placement_seconds}
 
     def _object_record(self, inst) -> dict:
         return {"name": inst.name, "filename": inst.filename, "obj_id": inst.entry_index + 1,

@@ -40,7 +40,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..config import Config
-from ..physics_check import Part, SceneCheck, check_scene
+from ..physics_check import Part, SceneCheck, check_scene, physics_line
 from .objects import COM_PROP, SIM_MESH_PROP, Instance, ObjectManager
 from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_body
 
@@ -75,18 +75,19 @@ class SimResult:
     check: SceneCheck | None = None               # independent check of the frozen result
     seconds: float = 0.0                          # wall time of the simulation (without the check)
     attempts: int = 1                             # drops made (> 1: redrawn, see drop_scene)
+    placement_seconds: float = 0.0                # drop_scene: time spent populating (all attempts)
 
     def summary(self) -> dict:
-        """What scene.json and the progress line report about the drop (lengths in mm)."""
+        """What scene.json and the progress line report about the drop (lengths in mm). No timings:
+        scene.json holds the dataset's content only (the run's timings are in run.json)."""
         c = self.check
         out = {
-            "frames": self.frames, "settled": self.settled,
+            "parts": len(self.kept), "frames": self.frames, "settled": self.settled,
             "substeps": self.plan.substeps if self.plan else None,
             "substeps_capped": bool(self.plan and self.plan.capped),
             "impact_speed": round(self.plan.impact_speed, 4) if self.plan else None,
             "removed": [{"name": inst.name, "reason": why} for inst, why in self.removed],
             "unsettled": [{"name": n, "speed": round(v, 5)} for n, v in self.unsettled],
-            "seconds": round(self.seconds, 3),
             "attempts": self.attempts,
         }
         if c is not None:
@@ -99,19 +100,8 @@ class SimResult:
         return out
 
     def short(self) -> str:
-        """One progress-line fragment: '9 parts, 3 removed (left the bin), 1 unsettled, 64 frames'."""
-        bits = [f"{len(self.kept)} parts"]
-        if self.removed:
-            why = sorted({w for _, w in self.removed})
-            bits.append(f"{len(self.removed)} removed ({', '.join(why)})")
-        if not self.settled:
-            bits.append(f"{len(self.unsettled)} unsettled")
-        if self.check is not None and self.check.pairs:
-            bits.append(f"{len(self.check.pairs)} interpenetrating (max {self.check.max_depth * 1000:.1f} mm)")
-        bits.append(f"{self.frames} frames x {self.plan.substeps if self.plan else '?'} substeps")
-        if self.attempts > 1:
-            bits.append(f"drop {self.attempts}")
-        return ", ".join(bits)
+        """One progress-line fragment: '9 parts, 3 removed (left the bin), 1 unsettled, 64 frames x 13 substeps'."""
+        return physics_line(self.summary())
 
 
 def redraw_rng(scene_seed: int, attempt: int) -> np.random.Generator:
@@ -126,11 +116,13 @@ def drop_scene(objects: ObjectManager, simulation: "Simulation", rng: np.random.
     draw the scene again from `redraw_rng(scene_seed, k)`, at most `simulation.redraw_attempts`
     times. Returns the last drop's result and the generator it used (the scene draws on from it)."""
     cfg = simulation.cfg.simulation
-    attempt = 0
+    attempt, placing = 0, 0.0
     while True:
+        t0 = time.perf_counter()
         insts = objects.populate(rng)
+        placing += time.perf_counter() - t0
         res = simulation.run(insts, rng)
-        res.attempts = attempt + 1
+        res.attempts, res.placement_seconds = attempt + 1, placing
         lost = len(res.removed) / max(1, len(insts))
         if lost <= cfg.redraw_lost_share or attempt >= cfg.redraw_attempts:
             return res, rng

@@ -57,10 +57,23 @@ def test_run_writes_every_output_and_annotation(tmp_path):
     run_rec = json.loads((out / "run.json").read_text())
     assert run_rec["status"] == "complete"
     assert run_rec["stats"]["imports"] == len(cfg.objects)          # each mesh file read once per run
-    n_renders = 0
+    n_renders, n_parts = 0, 0
     for sj in scenes(out):
         scene = json.loads(sj.read_text())
         assert scene["complete"]
+        sim = scene["simulation"]                                    # the drop, reported
+        assert sim["parts"] == len(scene["objects"]) and sim["substeps"] >= cfg.simulation.substeps
+        for key in ("removed", "unsettled", "interpenetrating_pairs", "below_floor", "floating"):
+            assert isinstance(sim[key], list), key
+        assert sim["max_interpenetration_mm"] >= 0 and sim["attempts"] == 1
+        n_parts += sim["parts"]
+        done = next(e for e in events if e.stage == "scene_done" and e.scene == scene["scene_id"])
+        assert done.line().endswith(f"{sim['frames']} frames x {sim['substeps']} substeps")
+    physics = run_rec["stats"]["physics"]                           # the run summary
+    assert physics["parts"] == n_parts and physics["scenes"] == len(scenes(out))
+    assert f"physics: {n_parts} parts in {physics['scenes']} scenes" in events[-1].line()
+    for sj in scenes(out):
+        scene = json.loads(sj.read_text())
         for r in scene["renders"]:
             n_renders += 1
             rdir = sj.parent / r["name"]
