@@ -47,21 +47,37 @@ def entry(path, mass, n, shape="AUTO", name=None, restitution=0.1, scale=1.0):
                        collision_shape=shape, restitution=restitution, scale=scale)
 
 
+# name -> [(part, mass kg, instances, collision shape, scale)]; the sizes of the issue's measurements
+# (30 parts a scene: several spawn layers, so drops of up to ~0.2 m). Parts: tests/physics_parts.py
+# names, or demo assets as "asset:peg".
+CASES = {
+    "thin plates 40x40x1 mm + washers": [("plate", 0.012, 15, "AUTO", 1.0), ("washer", 0.004, 15, "AUTO", 1.0)],
+    "5 mm pegs + 5 mm nuts": [("peg5", 0.001, 30, "AUTO", 1.0), ("nut5", 0.002, 30, "AUTO", 1.0)],
+    "concave U-channel + L-bracket, CONVEX_HULL": [("u_channel", 0.03, 15, "CONVEX_HULL", 1.0),
+                                                   ("l_bracket", 0.02, 15, "CONVEX_HULL", 1.0)],
+    "concave U-channel + L-bracket, MESH": [("u_channel", 0.03, 15, "MESH", 1.0), ("l_bracket", 0.02, 15, "MESH", 1.0)],
+    "concave U-channel + L-bracket, AUTO (= DECOMPOSED)": [("u_channel", 0.03, 15, "AUTO", 1.0),
+                                                           ("l_bracket", 0.02, 15, "AUTO", 1.0)],
+    "30 nuts, CONVEX_HULL": [("asset:nut", 0.02, 30, "CONVEX_HULL", 1.0)],
+    "30 nuts, MESH": [("asset:nut", 0.02, 30, "MESH", 1.0)],
+    "1000:1 mass mix (1 kg pegs, 1 g nuts)": [("asset:peg", 1.0, 6, "AUTO", 1.0), ("asset:nut", 0.001, 20, "AUTO", 1.0)],
+    "0.3 m part in the default bin": [("asset:peg", 2.0, 4, "AUTO", 6.0)],
+}
+SCENES = {"30 nuts, CONVEX_HULL": 1, "30 nuts, MESH": 1, "0.3 m part in the default bin": 1}
+BEFORE = [k for k in CASES if k not in ("30 nuts, MESH", "concave U-channel + L-bracket, AUTO (= DECOMPOSED)")]
+
+
+def part_path(parts: dict[str, str], key: str) -> str:
+    return str(ASSETS / f"{key[6:]}.obj") if key.startswith("asset:") else parts[key]
+
+
 def cases(parts: dict[str, str], quick: bool):
-    n_scenes = 1 if quick else 3
-    demo = default_config().objects
-    yield "demo (default preset)", demo, n_scenes, None
-    yield "thin plates 40x40x1 mm + washers", [entry(parts["plate"], 0.012, 6), entry(parts["washer"], 0.004, 6)], \
-        n_scenes, None
-    yield "5 mm pegs + 5 mm nuts", [entry(parts["peg5"], 0.001, 10), entry(parts["nut5"], 0.002, 10)], n_scenes, None
-    for shape in ("CONVEX_HULL", "MESH", "DECOMPOSED"):
-        yield f"concave U-channel + L-bracket, {shape}", [entry(parts["u_channel"], 0.03, 5, shape),
-                                                          entry(parts["l_bracket"], 0.02, 5, shape)], n_scenes, None
-    for shape in ("CONVEX_HULL", "MESH"):
-        yield f"30 nuts, {shape}", [entry(ASSETS / "nut.obj", 0.02, 30, shape)], max(1, n_scenes - 1), None
-    yield "1000:1 mass mix (1 kg pegs, 1 g nuts)", [entry(ASSETS / "peg.obj", 1.0, 4),
-                                                     entry(ASSETS / "nut.obj", 0.001, 8)], n_scenes, None
-    yield "0.3 m part in the default bin", [entry(ASSETS / "peg.obj", 2.0, 4, scale=6.0, name="bigpeg")], 1, None
+    n_scenes = 1 if quick else 2
+    yield "demo (default preset)", default_config().objects, 1 if quick else 3, None
+    for label, spec in CASES.items():
+        entries = [entry(part_path(parts, k), m, n, shape, name=f"{k.replace('asset:', '')}", scale=sc)
+                   for k, m, n, shape, sc in spec]
+        yield label, entries, SCENES.get(label, n_scenes), None
 
 
 def run_case(label, entries, n_scenes, writer):
@@ -147,6 +163,56 @@ print("BASELINE" + json.dumps(out))
     return json.loads(line[8:])
 
 
+BEFORE_CASES = r"""
+import importlib.util, json, sys, time, bpy, numpy as np
+checkout, check_file, parts_json, assets = sys.argv[1:5]
+sys.path.insert(0, checkout)
+spec = importlib.util.spec_from_file_location("physics_check", check_file)
+pc = importlib.util.module_from_spec(spec); sys.modules["physics_check"] = pc; spec.loader.exec_module(pc)
+from datapipe.config import ObjectEntry, default_config
+from datapipe.core.scene import BlendScene
+from datapipe.core.objects import ObjectManager
+from datapipe.core.simulation import Simulation
+from datapipe.seeds import scene_rng
+parts = json.loads(parts_json)
+specs = json.loads(sys.argv[6])
+def path(k):
+    return assets + "/" + k[6:] + ".obj" if k.startswith("asset:") else parts[k]
+cases = {label: [ObjectEntry(filepath=path(k), mass=m, min_instances=n, max_instances=n, scale=sc,
+                             collision_shape="CONVEX_HULL" if shape == "AUTO" else shape, name=k.replace("asset:", ""))
+                 for k, m, n, shape, sc in spec] for label, spec in specs.items()}
+out = []
+for label, entries in cases.items():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    cfg = default_config(); cfg.objects = entries
+    bs = BlendScene(cfg).setup(); om = ObjectManager(cfg, bs).load_sources(); sim = Simulation(cfg, bs)
+    for s in range(int(sys.argv[5])):
+        rng = scene_rng(0, s); insts = om.populate(rng)
+        t = time.perf_counter(); res = sim.run(insts, rng); dt = time.perf_counter() - t
+        ps = [pc.Part(i.name, *om.model_mesh(i.entry_index)[:2], res.poses[i.name]) for i in res.kept]
+        c = pc.check_scene(ps, bs.floor_z, (bs.drop_zone_center, bs.drop_zone_half))
+        out.append({"case": label, "scene": s, "parts": len(insts), "lost": len(res.removed),
+                    "pairs>0.5mm": len(c.pairs), "max_depth_mm": round(c.max_depth * 1000, 2),
+                    "below_floor": len(c.below_floor), "floating>2mm": len(c.floating), "frames": res.frames,
+                    "settled": res.settled, "unsettled": None, "substeps": cfg.simulation.substeps, "sim_s": round(dt, 3)})
+        om.clear()
+print("BEFORE" + json.dumps(out))
+"""
+
+
+def before_cases(checkout: str, parts: dict, n_scenes: int) -> list[dict]:
+    """The issue's cases with another checkout's simulation (e.g. main before this change), checked
+    by this checkout's physics_check."""
+    p = subprocess.run([sys.executable, "-c", BEFORE_CASES, checkout, str(ROOT / "datapipe" / "physics_check.py"),
+                        json.dumps(parts), str(ASSETS), str(n_scenes), json.dumps({k: CASES[k] for k in BEFORE})],
+                       capture_output=True, text=True,
+                       timeout=900, env={"PYTHONPATH": checkout, "PATH": "/usr/bin:/bin"})
+    line = next((x for x in p.stdout.splitlines() if x.startswith("BEFORE")), None)
+    if line is None:
+        raise RuntimeError(p.stderr[-2000:])
+    return json.loads(line[6:])
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
@@ -163,30 +229,42 @@ def main():
         for label, entries, n, _ in cases(parts, args.quick):
             r, loads[label] = run_case(label, entries, n, w)
             rows += r
+        before = before_cases(args.baseline, parts, 1) if args.baseline else []
     rest = restitution_case()
     base = baseline_demo(args.baseline, 3 if not args.quick else 1) if args.baseline else None
-    write_md(rows, loads, rest, base, time.perf_counter() - t_start)
+    write_md(rows, loads, rest, base, time.perf_counter() - t_start, before)
 
 
-def write_md(rows, loads, rest, base, total_s):
+def _table(rows, loads=None):
     by_case: dict[str, list[dict]] = {}
     for r in rows:
         by_case.setdefault(r["case"], []).append(r)
+    L = ["| case | scenes | parts | lost | pairs > 0.5 mm | max depth mm | below floor | floating > 2 mm | "
+         "max frames | settled | unsettled | substeps | sim s/scene |" + (" load s |" if loads else ""),
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if loads else "")]
+    for case, rs in by_case.items():
+        uns = "-" if rs[0]["unsettled"] is None else str(sum(r["unsettled"] for r in rs))
+        L.append(f"| {case} | {len(rs)} | {sum(r['parts'] for r in rs)} | {sum(r['lost'] for r in rs)} | "
+                 f"{sum(r['pairs>0.5mm'] for r in rs)} | {max(r['max_depth_mm'] for r in rs):.2f} | "
+                 f"{sum(r['below_floor'] for r in rs)} | {sum(r['floating>2mm'] for r in rs)} | "
+                 f"{max(r['frames'] for r in rs)} | {sum(bool(r['settled']) for r in rs)}/{len(rs)} | "
+                 f"{uns} | {max(r['substeps'] for r in rs)} | "
+                 f"{np.mean([r['sim_s'] for r in rs]):.2f} |" + (f" {loads[case]:.2f} |" if loads else ""))
+    return by_case, L
+
+
+def write_md(rows, loads, rest, base, total_s, before=()):
+    by_case, table = _table(rows, loads)
     L = ["# Physics on extreme parts", "",
          "`benchmarks/bench_physics.py` (defaults: substeps chosen per scene, AUTO collision shapes unless the case "
          "names one). Per case the sums over its scenes; depth, frames and substeps are the maxima; `sim s` is the "
          "mean simulation wall time per scene (2 shared CPU cores: +-30%). Measured independently of Bullet "
          "(`datapipe/physics_check.py`: model meshes at the final poses).", "",
-         "| case | scenes | parts | lost | pairs > 0.5 mm | max depth mm | below floor | floating > 2 mm | "
-         "max frames | settled | unsettled | substeps | sim s/scene | load s |",
-         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for case, rs in by_case.items():
-        L.append(f"| {case} | {len(rs)} | {sum(r['parts'] for r in rs)} | {sum(r['lost'] for r in rs)} | "
-                 f"{sum(r['pairs>0.5mm'] for r in rs)} | {max(r['max_depth_mm'] for r in rs):.2f} | "
-                 f"{sum(r['below_floor'] for r in rs)} | {sum(r['floating>2mm'] for r in rs)} | "
-                 f"{max(r['frames'] for r in rs)} | {sum(bool(r['settled']) for r in rs)}/{len(rs)} | "
-                 f"{sum(r['unsettled'] for r in rs)} | {max(r['substeps'] for r in rs)} | "
-                 f"{np.mean([r['sim_s'] for r in rs]):.2f} | {loads[case]:.2f} |")
+         ]
+    L += table
+    if before:
+        L += ["", "## The same cases before (baseline checkout: fixed 10 substeps, 0.5 mm margins, 5 frames under "
+              "5 mm/s = at rest, Blender's triangle-mesh shape for MESH)", ""] + _table(before)[1]
     L += ["", "## Restitution", "", "A demo nut dropped flat from 100 mm; highest rebound after the first contact.", "",
           "| restitution e | rebound mm |", "|---|---|"]
     L += [f"| {e} | {r * 1000:.1f} |" for e, r in rest]
