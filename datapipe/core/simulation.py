@@ -266,7 +266,7 @@ class Simulation:
         if c[2] < bs.floor_z - self.margin:
             return True
         return bool(self.cfg.scene.make_bin and not bs.inside_footprint(c, self.margin)
-                    and corners[:, 2].max() < bs.top_z)
+                    and corners[:, 2].max() < bs.wall_top_z)
 
     def check(self, kept: list[Instance], poses: dict[str, np.ndarray]) -> SceneCheck:
         """Independent check of the frozen result (model meshes at the final poses)."""
