@@ -37,6 +37,17 @@ SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap
 SAMPLER_KINDS = ("pool", "bin_view")
 MAX_RESOLUTION = 8192
+# Upper limits: beyond them a preset is a typo, not a dataset (validate() says so before any work).
+MAX_RENDERS = 1_000_000            # ~12 days of Cycles at 1 s per render (= seeds.MAX_PLAN_RENDERS)
+MAX_SAMPLES = 4096                 # Cycles paths per pixel of the RGB layer
+MAX_SL_SAMPLES = 1024              # fringe paths per camera pixel
+MAX_STEPS = 32                     # phase steps: noise falls as 1/sqrt(steps); 32 is 2.8x better than 4
+MAX_PERIODS = 8                    # fringe frequencies
+MAX_INSTANCES = 500                # instances of one object per scene
+MAX_FRINGE_BYTES = 16 * 2**30      # one render's fringe patterns + stack (see fringe_memory_bytes)
+MAX_FIELD_OF_VIEW_DEG = 150.0      # camera/projector full angle across the sensor width
+MIN_FRINGE_CAMERA_PX = 3.0         # finest fringe period on the camera sensor (sampling limit, > 2)
+FRINGE_SUPERSAMPLE = 2             # = core.structured_light.FRINGE_SUPERSAMPLE (this module has no bpy)
 
 
 def _vec(*values: float):
@@ -210,7 +221,7 @@ class Config:
                                       "write the preset as {\"scene\": {...}, \"objects\": [...], ...}"))
         version = data.get("schema_version", SCHEMA_VERSION)
         if version != SCHEMA_VERSION:
-            problems.append(Problem("schema_version", f"unsupported schema version {version!r}",
+            problems.append(Problem("schema_version", f"unsupported schema version {_short(version)}",
                                     f"use schema_version {SCHEMA_VERSION} (re-save the preset)"))
         cfg = _build(cls, data, "", problems)
         if base_dir is not None:
@@ -291,30 +302,51 @@ def _build(tp, value, path: str, problems: list[Problem]):
         return _build(non_none[0], value, path, problems)
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            problems.append(Problem(path, f"expected a number, got {value!r}", "give a number"))
+            problems.append(Problem(path, f"expected a number, got {_short(value)}", "give a number"))
             return 0.0
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:                  # an integer with hundreds of digits
+            problems.append(Problem(path, "number too large", "give a number below 1e308"))
+            return 0.0
     if tp is int:
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         if isinstance(value, bool) or not isinstance(value, int):
-            problems.append(Problem(path, f"expected an integer, got {value!r}", "give a whole number"))
+            problems.append(Problem(path, f"expected an integer, got {_short(value)}", "give a whole number"))
+            return 0
+        if not -2**63 <= value < 2**63:        # beyond every limit below; keeps messages printable
+            problems.append(Problem(path, "integer too large", "give a number of a sensible size"))
             return 0
         return value
     if tp is bool:
         if not isinstance(value, bool):
-            problems.append(Problem(path, f"expected true/false, got {value!r}", "give true or false"))
+            problems.append(Problem(path, f"expected true/false, got {_short(value)}", "give true or false"))
             return False
         return value
     if tp is str:
         if not isinstance(value, str):
-            problems.append(Problem(path, f"expected a string, got {value!r}", "give a string"))
+            problems.append(Problem(path, f"expected a string, got {_short(value)}", "give a string"))
             return ""
         return value
     raise TypeError(f"unsupported config type {_type_name(tp)} at {path}")
 
 
-def _join(path: str, key: str) -> str:
+def _short(value) -> str:
+    """A bad value for a message: scalars as written (cut at 80 characters), containers by type
+    (their repr may be huge or nested deeper than repr can go)."""
+    if value is None or isinstance(value, (bool, int, float, str, bytes)):
+        try:
+            text = repr(value)
+        except ValueError:                     # an int with more digits than repr allows
+            text = "a very long integer"
+        return text if len(text) <= 80 else text[:77] + "..."
+    return f"a {type(value).__name__}"
+
+
+def _join(path: str, key) -> str:
+    if not (isinstance(key, str) and key.isidentifier()):     # '', 'a b', 3: quoted, so the path is never empty
+        return f"{path}[{_short(key)}]"
     return f"{path}.{key}" if path else key
 
 
@@ -347,204 +379,391 @@ def _check_sl_periods(sl, pr, add) -> None:
         try:
             plan_unwrap(sl.periods, sl.unwrap)
         except ValueError as e:
-            add("structured_light.periods", f"cannot be unwrapped: {e}", "use a set the message suggests, "
-                "e.g. [1, 8, 64] (hierarchical), [70, 64, 59] or [13, 7] (number-theoretic)")
+            msg, fix = _split_fix(str(e))
+            add("structured_light.periods", f"cannot be unwrapped: {msg}", fix or "use a set the message "
+                "suggests, e.g. [1, 8, 64] (hierarchical), [70, 64, 59] or [13, 7] (number-theoretic)")
 
 
 def validate(cfg: Config, *, check_files: bool = True) -> list[Problem]:
-    """Every problem at once, each with its field path and the fix. Empty list = valid."""
-    P: list[Problem] = []
-    add = lambda path, msg, fix: P.append(Problem(path, msg, fix))  # noqa: E731
+    """Every problem at once, each with its field path and the fix. Empty list = valid.
 
-    def positive(path, v, fix="give a value > 0"):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            add(path, f"must be > 0, got {v!r}", fix)
+    Runs the named steps of `VALIDATION_STEPS` in order. A field that holds NaN or infinity is
+    reported once (by `_check_finite`); later steps do not repeat it with a second message."""
+    ck = _Checks()
+    _check_finite(ck, cfg, check_files)
+    non_finite = {p.path for p in ck.problems}
+    for step in VALIDATION_STEPS:
+        step(ck, cfg, check_files)
+    return [p for i, p in enumerate(ck.problems) if i < len(non_finite) or p.path not in non_finite]
 
-    def vector(path, v, n, *, pos=False):
-        if len(v) != n:
-            add(path, f"needs {n} numbers, got {len(v)}", f"give {n} numbers")
+
+class _Checks:
+    """The problem list and the small checks every validation step uses."""
+
+    def __init__(self):
+        self.problems: list[Problem] = []
+
+    def add(self, path: str, msg: str, fix: str) -> None:
+        self.problems.append(Problem(path, msg, fix))
+
+    def positive(self, path, v, fix="give a value > 0") -> bool:
+        if not (_is_number(v) and math.isfinite(v) and v > 0):
+            self.add(path, f"must be > 0, got {_short(v)}", fix)
             return False
-        if not all(math.isfinite(x) for x in v):
-            add(path, "contains NaN or infinity", "give finite numbers")
-            return False
-        if pos and not all(x > 0 for x in v):
-            add(path, f"all values must be > 0, got {v}", "give positive sizes")
         return True
 
-    def min_max(path, lo_name, hi_name, lo, hi, lo_bound=0):
-        if lo < lo_bound:
-            add(f"{path}.{lo_name}", f"must be >= {lo_bound}, got {lo}", f"set it to {lo_bound} or more")
-        if lo > hi:
-            add(f"{path}.{lo_name}", f"{lo_name} ({lo}) > {hi_name} ({hi})",
-                f"make {lo_name} <= {hi_name}")
+    def at_most(self, path, v, hi, why: str) -> bool:
+        if _is_number(v) and v > hi:
+            self.add(path, f"{v} is more than {hi} ({why})", f"give at most {hi}")
+            return False
+        return True
 
-    def resolution(path, res):
+    def int_range(self, path, v, lo, hi, what: str) -> bool:
+        if v < lo:
+            self.add(path, f"must be >= {lo}, got {v}", f"give at least {lo} {what}")
+            return False
+        return self.at_most(path, v, hi, f"more {what} than any useful run needs")
+
+    def vector(self, path, v, n, *, pos=False) -> bool:
+        if len(v) != n:
+            self.add(path, f"needs {n} numbers, got {len(v)}", f"give {n} numbers")
+            return False
+        if not all(_finite(x) for x in v):
+            self.add(path, "contains NaN or infinity", "give finite numbers")
+            return False
+        if pos and not all(x > 0 for x in v):
+            self.add(path, f"all values must be > 0, got {v}", "give positive sizes")
+            return False
+        return True
+
+    def min_max(self, path, lo_name, hi_name, lo, hi, lo_bound=0) -> bool:
+        ok = True
+        if lo < lo_bound:
+            self.add(f"{path}.{lo_name}", f"must be >= {lo_bound}, got {lo}", f"set it to {lo_bound} or more")
+            ok = False
+        if hi < lo_bound:
+            self.add(f"{path}.{hi_name}", f"must be >= {lo_bound}, got {hi}", f"set it to {lo_bound} or more")
+            ok = False
+        if lo > hi:
+            self.add(f"{path}.{lo_name}", f"{lo_name} ({lo}) > {hi_name} ({hi})", f"make {lo_name} <= {hi_name}")
+            ok = False
+        return ok
+
+    def resolution(self, path, res) -> bool:
         if len(res) != 2:
-            add(path, f"needs [width, height], got {res}", "give two integers [width, height]")
-            return
+            self.add(path, f"needs [width, height], got {res}", "give two integers [width, height]")
+            return False
+        ok = True
         for name, v in zip(("width", "height"), res):
             if not 1 <= v <= MAX_RESOLUTION:
-                add(path, f"{name} {v} outside 1..{MAX_RESOLUTION}", f"give a {name} between 1 and {MAX_RESOLUTION}")
+                self.add(path, f"{name} {v} outside 1..{MAX_RESOLUTION}",
+                         f"give a {name} between 1 and {MAX_RESOLUTION}")
+                ok = False
+        return ok
 
-    def choice(path, v, options):
+    def choice(self, path, v, options) -> bool:
         if v not in options:
-            add(path, f"unknown value {v!r}", f"use one of {', '.join(map(str, options))}")
+            self.add(path, f"unknown value {_short(v)}", f"use one of {', '.join(map(str, options))}")
+            return False
+        return True
 
+    def has(self, prefix: str) -> bool:
+        """Is there already a problem at `prefix` or below it?"""
+        return any(p.path == prefix or p.path.startswith((prefix + ".", prefix + "[")) for p in self.problems)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _finite(v) -> bool:
+    try:
+        return _is_number(v) and math.isfinite(v)
+    except OverflowError:            # an int too large for a float
+        return False
+
+
+def _check_finite(ck: _Checks, cfg: Config, check_files: bool) -> None:
+    """No NaN or infinity anywhere: one problem per field (a list is reported at its own path)."""
+    def walk(obj, path):
+        if dataclasses.is_dataclass(obj):
+            for f in dataclasses.fields(obj):
+                walk(getattr(obj, f.name), _join(path, f.name))
+        elif isinstance(obj, list):
+            if any(_is_number(x) and not _finite(x) for x in obj):
+                ck.add(path, "contains NaN or infinity", "give finite numbers")
+            else:
+                for i, x in enumerate(obj):
+                    if dataclasses.is_dataclass(x):
+                        walk(x, f"{path}[{i}]")
+        elif isinstance(obj, float) and not math.isfinite(obj):
+            ck.add(path, f"must be a finite number, got {obj!r}", "give a finite number")
+    walk(cfg, "")
+
+
+def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
     s = cfg.scene
-    if s.num_renders < 1:
-        add("scene.num_renders", f"must be >= 1, got {s.num_renders}", "ask for at least one render")
-    min_max("scene", "min_renders_per_scene", "max_renders_per_scene",
-            s.min_renders_per_scene, s.max_renders_per_scene, lo_bound=1)
-    vector("scene.drop_zone_loc", s.drop_zone_loc, 3)
-    vector("scene.drop_zone_scale", s.drop_zone_scale, 3, pos=True)
-    positive("scene.bin_wall_thickness", s.bin_wall_thickness)
+    ck.int_range("scene.num_renders", s.num_renders, 1, MAX_RENDERS, "renders")
+    if ck.min_max("scene", "min_renders_per_scene", "max_renders_per_scene",
+                  s.min_renders_per_scene, s.max_renders_per_scene, lo_bound=1):
+        ck.at_most("scene.max_renders_per_scene", s.max_renders_per_scene, MAX_RENDERS,
+                   "more renders per scene than the run may have")
+    ck.vector("scene.drop_zone_loc", s.drop_zone_loc, 3)
+    ck.vector("scene.drop_zone_scale", s.drop_zone_scale, 3, pos=True)
+    ck.positive("scene.bin_wall_thickness", s.bin_wall_thickness)
     if not 0 <= s.seed < 2**32:
-        add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
+        ck.add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
     if s.blend_file and check_files:
         if not os.path.isfile(s.blend_file):
-            add("scene.blend_file", f"file not found: {s.blend_file}", "give the path of an existing .blend")
+            ck.add("scene.blend_file", f"file not found: {s.blend_file}", "give the path of an existing .blend")
         elif not s.blend_file.lower().endswith(".blend"):
-            add("scene.blend_file", f"not a .blend file: {s.blend_file}", "give a .blend file")
+            ck.add("scene.blend_file", f"not a .blend file: {s.blend_file}", "give a .blend file")
 
+
+def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -> None:
+    if not filepath:
+        ck.add(path, "empty", "give the path of a mesh file (.obj, .ply, .stl, .glb, .gltf)")
+        return
+    suffix = Path(filepath).suffix.lower()
+    if check_files and os.path.isdir(filepath):
+        ck.add(path, f"is a folder, not a mesh file: {filepath}", "give the path of one mesh file inside it")
+    elif suffix not in MESH_SUFFIXES:
+        ck.add(path, f"not a mesh file: {filepath}", f"use one of {', '.join(MESH_SUFFIXES)}")
+    elif check_files and not os.path.isfile(filepath):
+        ck.add(path, f"file not found: {filepath}", "check the path (relative paths are resolved against the "
+               "preset's folder)")
+
+
+def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if not cfg.objects:
-        add("objects", "no objects to drop", "add at least one object entry (a mesh file)")
+        ck.add("objects", "no objects to drop", "add at least one object entry (a mesh file)")
     for i, o in enumerate(cfg.objects):
         p = f"objects[{i}]"
-        if not o.filepath:
-            add(f"{p}.filepath", "empty", "give the path of a mesh file (.obj, .ply, .stl, .glb, .gltf)")
-        else:
-            suffix = Path(o.filepath).suffix.lower()
-            if suffix not in MESH_SUFFIXES:
-                add(f"{p}.filepath", f"not a mesh file: {o.filepath}",
-                    f"use one of {', '.join(MESH_SUFFIXES)}")
-            elif check_files and not os.path.isfile(o.filepath):
-                add(f"{p}.filepath", f"file not found: {o.filepath}", "check the path (relative paths are "
-                    "resolved against the preset's folder)")
-        positive(f"{p}.scale", o.scale)
-        positive(f"{p}.mass", o.mass)
-        choice(f"{p}.collision_shape", o.collision_shape, COLLISION_SHAPES)
-        min_max(p, "min_instances", "max_instances", o.min_instances, o.max_instances)
-        if o.max_instances > 500:
-            add(f"{p}.max_instances", f"{o.max_instances} instances is beyond what one bin holds",
-                "use at most 500 instances per object")
+        _check_mesh_path(ck, f"{p}.filepath", o.filepath, check_files)
+        ck.positive(f"{p}.scale", o.scale)
+        ck.positive(f"{p}.mass", o.mass)
+        ck.choice(f"{p}.collision_shape", o.collision_shape, COLLISION_SHAPES)
+        ck.min_max(p, "min_instances", "max_instances", o.min_instances, o.max_instances)
+        if o.max_instances > MAX_INSTANCES:
+            ck.add(f"{p}.max_instances", f"{o.max_instances} instances is beyond what one bin holds",
+                   f"use at most {MAX_INSTANCES} instances per object")
         if not 0 <= o.friction:
-            add(f"{p}.friction", f"must be >= 0, got {o.friction}", "give a friction >= 0")
+            ck.add(f"{p}.friction", f"must be >= 0, got {o.friction}", "give a friction >= 0")
         if not 0 <= o.restitution <= 1:
-            add(f"{p}.restitution", f"must be in 0..1, got {o.restitution}", "give a restitution in 0..1")
+            ck.add(f"{p}.restitution", f"must be in 0..1, got {o.restitution}", "give a restitution in 0..1")
     seen: dict[str, int] = {}
     for i, o in enumerate(cfg.objects):
         name = o.name or Path(o.filepath).stem
         if name in seen:
-            add(f"objects[{i}].name", f"name {name!r} is already used by objects[{seen[name]}] (instance names "
-                "and annotations would collide)", "give this entry a unique name")
+            ck.add(f"objects[{i}].name", f"name {name!r} is already used by objects[{seen[name]}] (instance names "
+                   "and annotations would collide)", "give this entry a unique name")
         seen.setdefault(name, i)
     if cfg.objects and sum(o.max_instances for o in cfg.objects) < 1:
-        add("objects", "every entry has max_instances = 0, so scenes would be empty",
-            "give at least one entry max_instances >= 1")
+        ck.add("objects", "every entry has max_instances = 0, so scenes would be empty",
+               "give at least one entry max_instances >= 1")
 
-    c = cfg.camera
-    positive("camera.focal_length", c.focal_length)
-    positive("camera.sensor_width", c.sensor_width)
-    choice("camera.sensor_fit", c.sensor_fit, SENSOR_FITS)
-    resolution("camera.resolution", c.resolution)
-    positive("camera.clip_start", c.clip_start)
+
+def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
+    c, s = cfg.camera, cfg.scene
+    ck.positive("camera.focal_length", c.focal_length)
+    ck.positive("camera.sensor_width", c.sensor_width)
+    ck.choice("camera.sensor_fit", c.sensor_fit, SENSOR_FITS)
+    ck.resolution("camera.resolution", c.resolution)
+    ck.positive("camera.clip_start", c.clip_start)
     if c.clip_end <= c.clip_start:
-        add("camera.clip_end", f"clip_end ({c.clip_end}) <= clip_start ({c.clip_start})", "make clip_end > clip_start")
+        ck.add("camera.clip_end", f"clip_end ({c.clip_end}) <= clip_start ({c.clip_start})",
+               "make clip_end > clip_start")
+    if not ck.has("camera.focal_length") and not ck.has("camera.sensor_width"):
+        fov = 2 * math.degrees(math.atan(c.sensor_width / (2 * c.focal_length)))
+        if fov > MAX_FIELD_OF_VIEW_DEG:
+            ck.add("camera.focal_length", f"{c.focal_length} mm on a {c.sensor_width} mm sensor sees {fov:.1f} deg "
+                   f"across (more than {MAX_FIELD_OF_VIEW_DEG:g}: parts would be a few pixels or less)",
+                   "give a focal length of a real lens (industrial cameras: 4-50 mm)")
     pool = c.sampler.kind == "pool"
     if not c.poses and pool:
-        add("camera.poses", "no camera poses", "add at least one pose (location + quaternion wxyz)")
+        ck.add("camera.poses", "no camera poses", "add at least one pose (location + quaternion wxyz)")
     for i, pose in enumerate(c.poses):
-        vector(f"camera.poses[{i}].location", pose.location, 3)
-        if vector(f"camera.poses[{i}].rotation", pose.rotation, 4):
-            norm = math.sqrt(sum(q * q for q in pose.rotation))
-            if norm < 1e-6:
-                add(f"camera.poses[{i}].rotation", "zero quaternion", "give a unit quaternion (w, x, y, z)")
+        ck.vector(f"camera.poses[{i}].location", pose.location, 3)
+        if ck.vector(f"camera.poses[{i}].rotation", pose.rotation, 4):
+            if math.sqrt(sum(q * q for q in pose.rotation)) < 1e-6:
+                ck.add(f"camera.poses[{i}].rotation", "zero quaternion", "give a unit quaternion (w, x, y, z)")
     if pool and c.poses and s.max_renders_per_scene > len(c.poses):
-        add("scene.max_renders_per_scene",
-            f"{s.max_renders_per_scene} renders per scene but only {len(c.poses)} camera poses "
-            "(poses are drawn without replacement within a scene)",
-            "add camera poses or lower max_renders_per_scene")
+        ck.add("scene.max_renders_per_scene",
+               f"{s.max_renders_per_scene} renders per scene but only {len(c.poses)} camera poses "
+               "(poses are drawn without replacement within a scene)",
+               "add camera poses or lower max_renders_per_scene")
 
-    P += _range_problems("scene.bin_size_scale", s.bin_size_scale, lo_bound=0.05, hi_bound=20.0)
-    P += _range_problems("scene.bin_wall_scale", s.bin_wall_scale, lo_bound=0.05, hi_bound=20.0)
-    P += _sampler_problems(cfg)
-    P += _lighting_problems(cfg.lighting)
 
-    sl = cfg.structured_light
+def _split_fix(text: str) -> tuple[str, str | None]:
+    """'what (fix: how)' -> ('what', 'how'), so a wrapped message does not say "(fix:" twice."""
+    head, sep, tail = text.partition(" (fix: ")
+    return (head, tail[:-1] if tail.endswith(")") else tail) if sep else (text, None)
+
+
+def _check_projector(ck: _Checks, cfg: Config, check_files: bool) -> None:
+    if not cfg.structured_light.enabled:
+        return
     pr = cfg.projector
-    if sl.enabled:
-        positive("projector.focal_length", pr.focal_length)
-        positive("projector.sensor_width", pr.sensor_width)
-        resolution("projector.resolution", pr.resolution)
-        vector("projector.location", pr.location, 3)
-        if len(pr.rotation) not in (3, 4):
-            add("projector.rotation", f"needs 3 (XYZ Euler, rad) or 4 (quaternion wxyz) numbers, got {len(pr.rotation)}",
-                "give [rx, ry, rz] or [w, x, y, z]")
-        positive("projector.power", pr.power)
-        if sl.steps < 3:
-            add("structured_light.steps", f"must be >= 3, got {sl.steps}", "use 3 or more phase steps (4 or more "
-                "avoids gamma errors)")
-        _check_sl_periods(sl, pr, add)
-        choice("structured_light.unwrap", sl.unwrap, UNWRAP_METHODS)
-        if not (isinstance(sl.projector_gamma, (int, float)) and 0.2 <= sl.projector_gamma <= 5.0):
-            add("structured_light.projector_gamma", f"must be a number in [0.2, 5], got {sl.projector_gamma!r}",
-                "use 1.0 for a linear projector, ~2.2 for a typical DLP/LCD response")
-        try:
-            from .sl import SensorModel
-            SensorModel.preset(sl.sensor)
-        except ValueError:
-            from .sl.sensor import PRESETS
-            add("structured_light.sensor", f"unknown sensor preset {sl.sensor!r}", f"use one of {sorted(PRESETS)}")
-        if sl.samples < 1:
-            add("structured_light.samples", f"must be >= 1, got {sl.samples}", "give at least 1 sample")
-        positive("structured_light.exposure", sl.exposure)
+    ck.positive("projector.focal_length", pr.focal_length)
+    ck.positive("projector.sensor_width", pr.sensor_width)
+    ck.resolution("projector.resolution", pr.resolution)
+    ck.vector("projector.location", pr.location, 3)
+    if len(pr.rotation) not in (3, 4):
+        ck.add("projector.rotation", f"needs 3 (XYZ Euler, rad) or 4 (quaternion wxyz) numbers, got "
+               f"{len(pr.rotation)}", "give [rx, ry, rz] or [w, x, y, z]")
+    elif len(pr.rotation) == 4 and math.sqrt(sum(q * q for q in pr.rotation)) < 1e-6:
+        ck.add("projector.rotation", "zero quaternion", "give a unit quaternion (w, x, y, z)")
+    ck.positive("projector.power", pr.power)
+    if not ck.has("projector.focal_length") and not ck.has("projector.sensor_width"):
+        fov = 2 * math.degrees(math.atan(pr.sensor_width / (2 * pr.focal_length)))
+        if fov > MAX_FIELD_OF_VIEW_DEG:
+            ck.add("projector.focal_length", f"{pr.focal_length} mm on a {pr.sensor_width} mm DMD throws "
+                   f"{fov:.1f} deg across (more than {MAX_FIELD_OF_VIEW_DEG:g})",
+                   "give the focal length of a real projector lens (8-50 mm)")
 
+
+def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None:
+    sl, pr = cfg.structured_light, cfg.projector
+    if not sl.enabled:
+        return
+    if sl.steps < 3:
+        ck.add("structured_light.steps", f"must be >= 3, got {sl.steps}",
+               "use 3 or more phase steps (4 or more avoids gamma errors)")
+    ck.at_most("structured_light.steps", sl.steps, MAX_STEPS, "more steps than lower the phase noise usefully")
+    if len(sl.periods) > MAX_PERIODS:
+        ck.add("structured_light.periods", f"{len(sl.periods)} frequencies (more than {MAX_PERIODS})",
+               "three frequencies unwrap any useful range, e.g. [1, 8, 64]")
+    else:
+        _check_sl_periods(sl, pr, ck.add)
+    ck.choice("structured_light.unwrap", sl.unwrap, UNWRAP_METHODS)
+    if not (0.2 <= sl.projector_gamma <= 5.0):
+        ck.add("structured_light.projector_gamma", f"must be a number in [0.2, 5], got {sl.projector_gamma!r}",
+               "use 1.0 for a linear projector, ~2.2 for a typical DLP/LCD response")
+    from .sl.sensor import PRESETS
+    if sl.sensor not in PRESETS:
+        ck.add("structured_light.sensor", f"unknown sensor preset {sl.sensor!r}", f"use one of {sorted(PRESETS)}")
+    ck.int_range("structured_light.samples", sl.samples, 1, MAX_SL_SAMPLES, "samples")
+    ck.positive("structured_light.exposure", sl.exposure)
+    _check_fringe_memory(ck, cfg)
+    _check_fringe_size(ck, cfg)
+
+
+def _fringe_frames(cfg: Config) -> int:
+    return len(cfg.structured_light.periods) * cfg.structured_light.steps
+
+
+def fringe_memory_bytes(cfg: Config) -> int:
+    """Peak memory of one render's fringe work: every pattern as a float RGBA Blender image plus the
+    rendered stack read back at FRINGE_SUPERSAMPLE x the camera resolution (float32) and its mean."""
+    (Wp, Hp), (W, H) = cfg.projector.resolution, cfg.camera.resolution
+    ss = FRINGE_SUPERSAMPLE
+    return _fringe_frames(cfg) * (Wp * Hp * 16 + W * H * ss * ss * 4 + W * H * 4)
+
+
+def _check_fringe_memory(ck: _Checks, cfg: Config) -> None:
+    if ck.has("structured_light") or ck.has("projector.resolution") or ck.has("camera.resolution"):
+        return
+    need = fringe_memory_bytes(cfg)
+    if need > MAX_FRINGE_BYTES:
+        ck.add("structured_light.steps", f"{len(cfg.structured_light.periods)} frequencies x {cfg.structured_light.steps} "
+               f"steps need about {need / 2**30:.1f} GiB for the fringe stack (limit "
+               f"{MAX_FRINGE_BYTES / 2**30:.0f} GiB)", "use fewer steps or frequencies, or a smaller projector or "
+               "camera resolution")
+
+
+def fringe_period_camera_px(cfg: Config) -> float:
+    """Predicted finest fringe period in camera pixels, the worst camera pose.
+
+    One projector pixel at distance d is d * sensor_p / (f_p * W_p) metres wide; the camera sees a
+    length L at distance d' as L * fx_cam / d' pixels. In camera-object axes the camera looks down
+    -Z, so a projector at z_p > 0 sits behind the camera: d = d' + z_p for a part d' in front of
+    the camera. Distances d' are from each camera pose to the drop zone centre."""
+    from .sl.triangulate import intrinsics_from_blender
+    c, pr, sl = cfg.camera, cfg.projector, cfg.structured_light
+    fx_cam = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]),
+                                           int(c.resolution[1]), c.sensor_fit,
+                                           sensor_height_mm=c.sensor_width)[0, 0])
+    fringe_proj_px = pr.resolution[0] / max(sl.periods)
+    metres_per_proj_px = pr.sensor_width / (pr.focal_length * pr.resolution[0])   # at 1 m
+    worst = math.inf
+    for d in camera_distances(cfg):
+        d_cam = max(d, c.clip_start)
+        d_proj = max(d_cam + pr.location[2], c.clip_start)
+        worst = min(worst, fringe_proj_px * metres_per_proj_px * d_proj * fx_cam / d_cam)
+    return worst
+
+
+def camera_distances(cfg: Config) -> list[float]:
+    """Camera-to-bin distances a run can render from (m): each pool pose to the drop zone centre, or
+    the bin_view sampler's distance range."""
+    c = cfg.camera
+    if c.sampler.kind == "bin_view":
+        return [float(d) for d in c.sampler.distance]
+    return [math.dist(p.location, cfg.scene.drop_zone_loc) for p in c.poses] or [1.0]
+
+
+def _check_fringe_size(ck: _Checks, cfg: Config) -> None:
+    if any(ck.has(p) for p in ("structured_light.periods", "projector", "camera", "scene.drop_zone_loc")) or \
+            (cfg.camera.sampler.kind == "bin_view" and len(cfg.camera.sampler.distance) != 2):
+        return
+    px = fringe_period_camera_px(cfg)
+    if px < MIN_FRINGE_CAMERA_PX:
+        ck.add("structured_light.periods", f"the finest fringe ({max(cfg.structured_light.periods)} periods) is "
+               f"about {px:.2f} camera pixels wide at the working distance (need >= {MIN_FRINGE_CAMERA_PX:g}: the "
+               "camera cannot resolve it and the depth map would be empty)",
+               "lower the finest period count, raise camera.resolution or camera.focal_length, or raise "
+               "projector.focal_length")
+
+
+def _check_render(ck: _Checks, cfg: Config, check_files: bool) -> None:
     r = cfg.render
-    choice("render.engine", r.engine, ("CYCLES",))
-    choice("render.device", r.device, ("CPU", "GPU"))
-    if r.samples < 1:
-        add("render.samples", f"must be >= 1, got {r.samples}", "give at least 1 sample")
+    ck.choice("render.engine", r.engine, ("CYCLES",))
+    ck.choice("render.device", r.device, ("CPU", "GPU"))
+    ck.int_range("render.samples", r.samples, 1, MAX_SAMPLES, "samples")
     if r.threads < 0:
-        add("render.threads", f"must be >= 0, got {r.threads}", "use 0 for all cores")
-    if r.max_bounces < 0:
-        add("render.max_bounces", f"must be >= 0, got {r.max_bounces}", "give 0 or more bounces")
+        ck.add("render.threads", f"must be >= 0, got {r.threads}", "use 0 for all cores")
+    ck.at_most("render.threads", r.threads, 1024, "more threads than any machine has")
+    ck.int_range("render.max_bounces", r.max_bounces, 0, 1024, "bounces")
     if r.light_power < 0:
-        add("render.light_power", f"must be >= 0, got {r.light_power}", "give a power >= 0 W")
+        ck.add("render.light_power", f"must be >= 0, got {r.light_power}", "give a power >= 0 W")
+    if not r.outputs:
+        ck.add("render.outputs", "no outputs requested, so a run would write nothing",
+               f"list some of {', '.join(OUTPUT_KINDS)}")
     for i, k in enumerate(r.outputs):
-        choice(f"render.outputs[{i}]", k, OUTPUT_KINDS)
+        ck.choice(f"render.outputs[{i}]", k, OUTPUT_KINDS)
     if len(set(r.outputs)) != len(r.outputs):
-        add("render.outputs", f"duplicate entries in {r.outputs}", "list each output once")
+        ck.add("render.outputs", f"duplicate entries in {r.outputs}", "list each output once")
 
+
+def _check_simulation(ck: _Checks, cfg: Config, check_files: bool) -> None:
     m = cfg.simulation
-    if m.substeps < 1:
-        add("simulation.substeps", f"must be >= 1, got {m.substeps}", "give at least 1 substep")
+    ck.int_range("simulation.substeps", m.substeps, 1, 1000, "substeps")
     if m.max_substeps < m.substeps:
-        add("simulation.max_substeps", f"must be >= simulation.substeps ({m.substeps}), got {m.max_substeps}",
-            "give a maximum at least as large as the minimum")
-    if m.solver_iterations < 1:
-        add("simulation.solver_iterations", f"must be >= 1, got {m.solver_iterations}", "give at least 1 iteration")
-    if m.max_frames < 1:
-        add("simulation.max_frames", f"must be >= 1, got {m.max_frames}", "give at least 1 frame")
-    positive("simulation.settle_speed", m.settle_speed)
-    if m.settle_frames < 1:
-        add("simulation.settle_frames", f"must be >= 1, got {m.settle_frames}", "give at least 1 frame")
+        ck.add("simulation.max_substeps", f"must be >= simulation.substeps ({m.substeps}), got {m.max_substeps}",
+               "give a maximum at least as large as the minimum")
+    ck.at_most("simulation.max_substeps", m.max_substeps, 10_000, "more substeps than any scene needs")
+    ck.int_range("simulation.solver_iterations", m.solver_iterations, 1, 1000, "iterations")
+    ck.int_range("simulation.max_frames", m.max_frames, 1, 100_000, "frames")
+    ck.positive("simulation.settle_speed", m.settle_speed)
+    ck.int_range("simulation.settle_frames", m.settle_frames, 1, 100_000, "frames")
     if m.layer_gap < 0:
-        add("simulation.layer_gap", f"must be >= 0, got {m.layer_gap}", "give a gap >= 0 m")
-    _check_redraw(m, add)
+        ck.add("simulation.layer_gap", f"must be >= 0, got {m.layer_gap}", "give a gap >= 0 m")
+    _check_redraw(m, ck.add)
 
-    o = cfg.output
+
+def _check_output(ck: _Checks, cfg: Config, check_files: bool) -> None:
+    o, r = cfg.output, cfg.render
     if not o.path:
-        add("output.path", "empty", "give an output folder")
+        ck.add("output.path", "empty", "give an output folder")
     for i, f in enumerate(o.formats):
-        choice(f"output.formats[{i}]", f, FORMATS)
+        ck.choice(f"output.formats[{i}]", f, FORMATS)
     if not o.formats:
-        add("output.formats", "no output format", "use [\"native\"] and/or \"bop\"")
+        ck.add("output.formats", "no output format", "use [\"native\"] and/or \"bop\"")
     if "bop" in o.formats:
         for need in ("rgb", "depth", "mask"):
             if need not in r.outputs:
-                add("render.outputs", f"the BOP format needs the {need!r} output",
-                    f"add {need!r} to render.outputs or drop 'bop' from output.formats")
-    return P
+                ck.add("render.outputs", f"the BOP format needs the {need!r} output",
+                       f"add {need!r} to render.outputs or drop 'bop' from output.formats")
 
 
 def _range_problems(path: str, v, *, lo_bound: float | None = None, hi_bound: float | None = None,
@@ -611,6 +830,19 @@ def _lighting_problems(li: LightingConfig | None) -> list[Problem]:
     return out
 
 
+def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:
+    """Per-scene variety: bin shape ranges, the camera sampler, the lighting ranges."""
+    s = cfg.scene
+    ck.problems += _range_problems("scene.bin_size_scale", s.bin_size_scale, lo_bound=0.05, hi_bound=20.0)
+    ck.problems += _range_problems("scene.bin_wall_scale", s.bin_wall_scale, lo_bound=0.05, hi_bound=20.0)
+    ck.problems += _sampler_problems(cfg)
+    ck.problems += _lighting_problems(cfg.lighting)
+
+
+# The steps validate() runs, in order. A new field's checks go into a small step function here.
+VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_variety, _check_projector, _check_structured_light,
+                    _check_render, _check_simulation, _check_output)
+
 # ------------------------------------------------------------------------------------------------
 # files: JSON presets and the original DataPipe pickle
 
@@ -626,6 +858,9 @@ def loads(text: str, *, base_dir=None) -> Config:
         data = json.loads(text)
     except json.JSONDecodeError as e:
         raise ConfigError(Problem("<file>", f"not valid JSON: {e}", "fix the JSON syntax at the line shown")) from None
+    except RecursionError:
+        raise ConfigError(Problem("<file>", "JSON nested too deeply to be a preset",
+                                  "give a preset: a few levels of objects and lists")) from None
     return Config.from_dict(data, base_dir=base_dir)
 
 
@@ -634,7 +869,11 @@ def load(path: str | os.PathLike) -> Config:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(Problem("<file>", f"preset not found: {path}", "give the path of a .json preset or .pickle"))
-    raw = path.read_bytes()
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise ConfigError(Problem("<file>", f"cannot read {path}: {e.strerror or e}",
+                                  "check the file's permissions")) from None
     if raw[:1] == b"\x80" or path.suffix.lower() in (".pickle", ".pkl"):
         return load_legacy_pickle(raw, base_dir=path.parent)
     try:
@@ -671,71 +910,138 @@ _POSE_LIST_KEYS = ("world2cam_pose_list", "wrlld2cam_pose_list", "wrl2cam_pose_l
 
 
 def from_legacy_dict(d: dict) -> Config:
-    """Map the original DataPipe input dict (see design.md) onto a Config."""
-    P: list[Problem] = []
+    """Map the original DataPipe input dict (see design.md) onto a Config.
+
+    Every value is converted through `_Legacy`, so a wrong type anywhere is a ConfigError naming
+    the pickle's own key path, never a traceback."""
     if not isinstance(d, dict):
-        raise ConfigError(Problem("<pickle>", f"expected a dict, got {type(d).__name__}", "give an original DataPipe inputs pickle"))
+        raise ConfigError(Problem("<pickle>", f"expected a dict, got {type(d).__name__}",
+                                  "give an original DataPipe inputs pickle"))
+    lg = _Legacy()
     known = {"camera", "projector", "scene", "objects", "output"}
     for k in d:
         if k not in known:
-            P.append(Problem(k, "unknown section in the legacy pickle", f"known sections: {', '.join(sorted(known))}"))
+            lg.add(_join("", k), "unknown section in the legacy pickle", f"known sections: {', '.join(sorted(known))}")
     cfg = Config()
-    cam = d.get("camera", {}) or {}
+    cam = lg.section(d, "camera")
     pose_key = next((k for k in _POSE_LIST_KEYS if k in cam), None)
     if pose_key is not None:
         cfg.camera.poses = []
-        for i, pose in enumerate(cam[pose_key] or []):
-            try:
-                cfg.camera.poses.append(CameraPose(location=[float(v) for v in pose["location"]],
-                                                   rotation=[float(v) for v in pose["rotation"]]))
-            except (KeyError, TypeError, ValueError):
-                P.append(Problem(f"camera.{pose_key}[{i}]", "needs 'location' [x,y,z] and 'rotation' [w,x,y,z]",
-                                 "fix or remove this pose"))
+        for i, pose in enumerate(lg.items(cam, pose_key, f"camera.{pose_key}")):
+            loc = lg.numbers(pose, "location", f"camera.{pose_key}[{i}]", 3)
+            rot = lg.numbers(pose, "rotation", f"camera.{pose_key}[{i}]", 4)
+            if loc is not None and rot is not None:
+                cfg.camera.poses.append(CameraPose(location=loc, rotation=rot))
     for key in ("focal_length", "sensor_width"):
-        if key in cam:
-            setattr(cfg.camera, key, float(cam[key]))
+        lg.number(cam, key, "camera", cfg.camera, key)
     if "resolution" in cam:
-        h, w = cam["resolution"]               # the original stored [height, width]
-        cfg.camera.resolution = [int(w), int(h)]
+        hw = lg.numbers(cam, "resolution", "camera", 2, int)
+        if hw is not None:
+            cfg.camera.resolution = [hw[1], hw[0]]          # the original stored [height, width]
     if "is_structured_light" in cam:
         cfg.structured_light.enabled = bool(cam["is_structured_light"])
 
-    proj = d.get("projector", {}) or {}
-    pose = proj.get("proj2cam_pose")
+    proj = lg.section(d, "projector")
+    pose = lg.section(proj, "proj2cam_pose", "projector")
     if pose:
-        cfg.projector.location = [float(v) for v in pose.get("location", cfg.projector.location)]
-        cfg.projector.rotation = [float(v) for v in pose.get("rotation", cfg.projector.rotation)]
+        cfg.projector.location = lg.numbers(pose, "location", "projector.proj2cam_pose", 3) or cfg.projector.location
+        cfg.projector.rotation = lg.numbers(pose, "rotation", "projector.proj2cam_pose") or cfg.projector.rotation
     for key in ("focal_length", "sensor_width"):
-        if key in proj:
-            setattr(cfg.projector, key, float(proj[key]))
+        lg.number(proj, key, "projector", cfg.projector, key)
     if "resolution" in proj:
-        h, w = proj["resolution"]
-        cfg.projector.resolution = [int(w), int(h)]
+        hw = lg.numbers(proj, "resolution", "projector", 2, int)
+        if hw is not None:
+            cfg.projector.resolution = [hw[1], hw[0]]
 
-    sc = d.get("scene", {}) or {}
+    sc = lg.section(d, "scene")
     for key in ("num_renders", "max_renders_per_scene", "min_renders_per_scene"):
+        lg.number(sc, key, "scene", cfg.scene, key, int)
+    for key in ("drop_zone_loc", "drop_zone_scale"):
         if key in sc:
-            setattr(cfg.scene, key, int(sc[key]))
-    if "drop_zone_loc" in sc:
-        cfg.scene.drop_zone_loc = [float(v) for v in sc["drop_zone_loc"]]
-    if "drop_zone_scale" in sc:
-        cfg.scene.drop_zone_scale = [float(v) for v in sc["drop_zone_scale"]]
+            setattr(cfg.scene, key, lg.numbers(sc, key, "scene", 3) or getattr(cfg.scene, key))
 
-    objs = (d.get("objects", {}) or {}).get("objects_list", []) or []
-    for i, o in enumerate(objs):
-        try:
-            cfg.objects.append(ObjectEntry(
-                filepath=str(o["filepath"]), scale=float(o.get("scale", 1.0)), mass=float(o.get("mass", 0.05)),
-                collision_shape=str(o.get("collision_shape", "CONVEX_HULL")),
-                min_instances=int(o.get("min", 1)), max_instances=int(o.get("max", 1))))
-        except (KeyError, TypeError, ValueError):
-            P.append(Problem(f"objects.objects_list[{i}]", "needs at least 'filepath'", "fix or remove this entry"))
-    out = d.get("output", {}) or {}
+    objs = lg.section(d, "objects")
+    for i, o in enumerate(lg.items(objs, "objects_list", "objects.objects_list")):
+        p = f"objects.objects_list[{i}]"
+        if not isinstance(o, dict) or "filepath" not in o:
+            lg.add(p, "needs at least 'filepath'", "fix or remove this entry")
+            continue
+        if not isinstance(o["filepath"], str):
+            lg.add(f"{p}.filepath", f"expected a path string, got {_short(o['filepath'])}", "give the mesh's path")
+            continue
+        e = ObjectEntry(filepath=o["filepath"])
+        for src, dst, conv in (("scale", "scale", float), ("mass", "mass", float), ("min", "min_instances", int),
+                               ("max", "max_instances", int)):
+            lg.number(o, src, p, e, dst, conv)
+        e.collision_shape = o.get("collision_shape", e.collision_shape)
+        if not isinstance(e.collision_shape, str):
+            lg.add(f"{p}.collision_shape", f"expected a string, got {_short(e.collision_shape)}",
+                   f"use one of {', '.join(COLLISION_SHAPES)}")
+        if "max" not in o:
+            e.max_instances = 1                              # the original's default
+        cfg.objects.append(e)
+    out = lg.section(d, "output")
     if "path" in out:
-        cfg.output.path = str(out["path"])
-    if P:
-        raise ConfigError(P)
+        if isinstance(out["path"], str):
+            cfg.output.path = out["path"]
+        else:
+            lg.add("output.path", f"expected a folder path, got {_short(out['path'])}", "give the output folder")
+    if lg.problems:
+        raise ConfigError(lg.problems)
     return cfg
+
+
+class _Legacy:
+    """Typed reads from the original's dicts; each bad value becomes a Problem at its key path."""
+
+    def __init__(self):
+        self.problems: list[Problem] = []
+
+    def add(self, path, msg, fix) -> None:
+        self.problems.append(Problem(path, msg, fix))
+
+    def section(self, d: dict, key: str, parent: str = "") -> dict:
+        v = d.get(key) or {}
+        if not isinstance(v, dict):
+            self.add(_join(parent, key), f"expected a dict, got {type(v).__name__}", "give this section as a dict")
+            return {}
+        return v
+
+    def items(self, d: dict, key: str, path: str) -> list:
+        v = d.get(key) or []
+        if not isinstance(v, (list, tuple)):
+            self.add(path, f"expected a list, got {type(v).__name__}", "give a list")
+            return []
+        return list(v)
+
+    def _convert(self, v, conv, path):
+        try:
+            if isinstance(v, (bool, str, bytes)) or not isinstance(v, (int, float)):
+                raise TypeError
+            x = conv(v)
+            if conv is int and (x != v or not -2**63 <= x < 2**63):
+                raise ValueError
+            return x
+        except (TypeError, ValueError, OverflowError):
+            what = "a whole number" if conv is int else "a number"
+            self.add(path, f"expected {what}, got {_short(v)}", f"give {what}")
+            return None
+
+    def number(self, d: dict, key: str, parent: str, target, attr: str, conv=float) -> None:
+        if key in d:
+            x = self._convert(d[key], conv, _join(parent, key))
+            if x is not None:
+                setattr(target, attr, x)
+
+    def numbers(self, d, key: str, parent: str, n: int | None = None, conv=float) -> list | None:
+        path = _join(parent, key)
+        v = d.get(key) if isinstance(d, dict) else None
+        if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n):
+            self.add(path, f"expected {n or 'a list of'} numbers, got {_short(v)}",
+                     f"give {n or 'the'} numbers as a list")
+            return None
+        xs = [self._convert(x, conv, f"{path}[{i}]") for i, x in enumerate(v)]
+        return None if any(x is None for x in xs) else xs
 
 
 def to_legacy_dict(cfg: Config) -> dict:

@@ -55,17 +55,34 @@ def seed_python(base: int, scene: int) -> None:
     np.random.seed(s)
 
 
+MAX_PLAN_RENDERS = 1_000_000      # = config.MAX_RENDERS: a hard stop for callers that skip validate()
+
+
 def plan_scenes(num_renders: int, min_per_scene: int, max_per_scene: int, base: int) -> list[int]:
-    """Renders per scene, summing to `num_renders`; the last scene may be cut short."""
+    """Renders per scene, summing to `num_renders`; the last scene may be cut short.
+
+    Drawn in vectorised chunks (the same numbers as one draw per scene: NumPy's bounded integers
+    are a per-value stream), so a million renders plan in milliseconds. Bad bounds raise
+    ValueError instead of looping forever (min 0) or failing inside NumPy (min > max)."""
+    if not 1 <= min_per_scene <= max_per_scene:
+        raise ValueError(f"renders per scene: need 1 <= min ({min_per_scene}) <= max ({max_per_scene})")
+    if not 0 <= num_renders <= MAX_PLAN_RENDERS:
+        raise ValueError(f"num_renders {num_renders} outside 0..{MAX_PLAN_RENDERS}")
     rng = np.random.default_rng(_derive(_PLAN, base))
-    plan: list[int] = []
-    left = num_renders
-    while left > 0:
-        n = int(rng.integers(min_per_scene, max_per_scene + 1))
-        n = min(n, left)
-        plan.append(n)
-        left -= n
-    return plan
+    chunks, total = [], 0
+    while total < num_renders:
+        n = max(16, (num_renders - total) // min_per_scene + 1)     # at least enough, usually
+        draw = rng.integers(min_per_scene, max_per_scene + 1, size=n)
+        chunks.append(draw)
+        total += int(draw.sum())
+    if not chunks:
+        return []
+    sizes = np.concatenate(chunks)
+    ends = np.cumsum(sizes)
+    k = int(np.searchsorted(ends, num_renders))          # first scene that reaches the total
+    plan = sizes[:k + 1].astype(int)
+    plan[k] -= int(ends[k] - num_renders)
+    return plan.tolist()
 
 
 def parse_shard(text: str) -> tuple[int, int]:

@@ -152,6 +152,31 @@ CASES = [
      "render.outputs", "BOP format needs"),
     (lambda c: setattr(c.simulation, "max_frames", 0), "simulation.max_frames", ">= 1"),
     (lambda c: setattr(c.output, "path", ""), "output.path", "empty"),
+    # issue #12: limits, finiteness and useless-dataset checks
+    (lambda c: (setattr(c.scene, "min_renders_per_scene", 0), setattr(c.scene, "max_renders_per_scene", 0)),
+     "scene.min_renders_per_scene", ">= 1"),
+    (lambda c: setattr(c.scene, "num_renders", 10**9), "scene.num_renders", "more than 1000000"),
+    (lambda c: setattr(c.render, "samples", 10**7), "render.samples", "more than 4096"),
+    (lambda c: setattr(c.camera, "resolution", [10**12, 240]), "camera.resolution", "outside"),
+    (lambda c: setattr(c.render, "outputs", []), "render.outputs", "no outputs"),
+    (lambda c: setattr(c.render, "light_power", math.inf), "render.light_power", "finite"),
+    (lambda c: setattr(c.objects[0], "scale", math.nan), "objects[0].scale", "finite"),
+    (lambda c: setattr(c.camera, "focal_length", 1e-9), "camera.focal_length", "deg across"),
+    (lambda c: setattr(c.camera.poses[0], "location", [0, math.inf, 1]), "camera.poses[0].location", "NaN"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.projector, "rotation", [0, math.nan, 0])),
+     "projector.rotation", "NaN"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.projector, "power", math.inf)),
+     "projector.power", "finite"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "steps", 100000)),
+     "structured_light.steps", "more than 32"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "steps", 32),
+                setattr(c.structured_light, "periods", [1, 4, 16, 64]), setattr(c.camera, "resolution", [4096, 3072]),
+                setattr(c.projector, "resolution", [3840, 2160])), "structured_light.steps", "GiB"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "periods", [1, 300]),
+                setattr(c.camera, "resolution", [64, 48])), "structured_light.periods", "camera pixels"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "samples", 0)),
+     "structured_light.samples", ">= 1"),
+    (lambda c: setattr(c.objects[0], "filepath", os.path.dirname(__file__)), "objects[0].filepath", "is a folder"),
 ]
 
 
@@ -203,3 +228,23 @@ def test_period_sets_that_decode_are_accepted(periods):
     c.structured_light.periods = periods
     c.structured_light.projector_gamma = 2.2
     assert not [p for p in c.problems(check_files=False) if p.path.startswith("structured_light")]
+
+
+def test_wrapped_decoder_message_says_fix_once(cfg):
+    """Defect #10: the [1, 1] periods message printed "(fix:" twice."""
+    cfg.structured_light.enabled = True
+    cfg.structured_light.periods = [1, 1]
+    with pytest.raises(ConfigError) as ei:
+        cfg.validate()
+    line = next(x for x in str(ei.value).splitlines() if "structured_light.periods" in x)
+    assert line.count("(fix:") == 1, line
+
+
+def test_predicted_fringe_period_matches_the_default_comment(cfg):
+    """320 px wide camera, f 16 / 11.3 mm both, 912 px projector, 64 periods: 912/64 * 320/912 = 5 px."""
+    cfg.structured_light.enabled = True
+    cfg.projector.location = [-0.15, 0.0, 0.0]
+    assert C.fringe_period_camera_px(cfg) == pytest.approx(320 / 64, rel=1e-9)
+    cfg.projector.location = [-0.15, 0.0, 0.35]      # projector 0.35 m behind the camera: wider fringes
+    d = max(math.dist(p.location, cfg.scene.drop_zone_loc) for p in cfg.camera.poses)   # worst: farthest
+    assert C.fringe_period_camera_px(cfg) == pytest.approx(5 * (d + 0.35) / d, rel=1e-9)
