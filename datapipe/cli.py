@@ -2,17 +2,26 @@
 
 Works on the `bpy` wheel and inside Blender:
     blender -b scene.blend --python-expr "import datapipe.cli as c; c.main(['run', 'preset.json', '--out', 'out'])"
-User mistakes print one clear message and exit 2; nothing is written before the input is checked.
+Exit status: 0 done; 2 a mistake in the input or arguments (one message: field path + fix, nothing
+written); 1 the file system or an output folder's state stopped the run (path + fix; `--debug` shows
+the traceback); 130 stopped by Ctrl-C/SIGTERM (`--resume` continues).
 """
 from __future__ import annotations
 
 import argparse
+import errno
+import json
+import os
+import signal
 import sys
+import threading
 import time
+import traceback
 from pathlib import Path
 
 from . import config as config_mod
 from .errors import ConfigError, DataPipeError
+from .outdir import OutLock, OutputStateError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -25,21 +34,24 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--out", help="output folder (default: the preset's output.path)")
         sp.add_argument("--seed", type=int, help="base seed (default: the preset's scene.seed)")
         sp.add_argument("--resume", action="store_true", help="continue a killed run in --out")
-        sp.add_argument("--force", action="store_true", help="empty --out first if it holds an earlier DataPipe run")
+        sp.add_argument("--force", action="store_true", help="first remove the files an earlier run in --out "
+                        "wrote (as its manifest.json lists them; nothing else), after every check passed")
         sp.add_argument("--shard", default="0/1", help="i/n: make only the i-th of n scene ranges (0-based)")
         sp.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                         help="fan the run out over Ray (no address: a local Ray instance)")
         sp.add_argument("--shards", type=int, default=None, help="with --ray: number of shards")
         sp.add_argument("--retries", type=int, default=2, help="with --ray: retries of a failed shard")
         sp.add_argument("--quiet", action="store_true", help="no per-render progress lines")
+        sp.add_argument("--debug", action="store_true", help="show the traceback of a file-system error")
 
     run_args(sub.add_parser("run", help="make a dataset from a preset"), preset=True)
     demo = sub.add_parser("demo", help="make the embedded demo dataset (a bin with a few small parts)")
     run_args(demo, preset=False)
     demo.add_argument("--structured-light", choices=("on", "off"), default=None,
                       help="override the demo's structured-light switch")
-    v = sub.add_parser("validate", help="check a preset and list every problem")
+    v = sub.add_parser("validate", help="check a preset (mesh files imported too) and list every problem")
     v.add_argument("preset")
+    v.add_argument("--debug", action="store_true", help="show the traceback of a file-system error")
     s = sub.add_parser("show", help="contact sheets for a run folder")
     s.add_argument("run_dir")
     s.add_argument("--out", help="sheet folder (default: RUN_DIR/sheets)")
@@ -56,47 +68,87 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _err(msg: str) -> int:
+def _err(msg: str, code: int = 2) -> int:
     print(f"datapipe: error: {msg}", file=sys.stderr)
-    return 2
+    return code
+
+
+_OS_FIXES = {
+    errno.EACCES: "check the folder's permissions or choose another --out",
+    errno.EPERM: "check the folder's permissions or choose another --out",
+    errno.EROFS: "the file system is read-only: choose another --out",
+    errno.ENOSPC: "free disk space (or choose another --out), then run again with --resume",
+    errno.EDQUOT: "free disk space (or choose another --out), then run again with --resume",
+    errno.ENOENT: "check that the folder exists and was not removed during the run",
+    errno.ENOTDIR: "a part of the path is a file, not a folder: check the path",
+    errno.EISDIR: "the path is a folder where a file was expected: check the path",
+}
+
+
+def _os_error(e: OSError) -> int:
+    where = e.filename or "?"
+    fix = _OS_FIXES.get(e.errno, "check the path and the disk, then run again (with --resume for a run)")
+    return _err(f"{where}: {e.strerror or e} (fix: {fix})", 1)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    debug = getattr(args, "debug", False)
     try:
-        if args.command == "validate":
-            cfg = config_mod.load(args.preset)
-            cfg.validate()
-            from .part_fit import part_fit_warnings
-            for w in part_fit_warnings(cfg):
-                print(f"datapipe: warning: {w}", file=sys.stderr)
-            print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
-                  f"{len(cfg.camera.poses)} camera poses, structured light "
-                  f"{'on' if cfg.structured_light.enabled else 'off'})")
-            return 0
-        if args.command == "show":
-            from . import show
-            argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \
-                + (["--max", str(args.max)] if args.max is not None else []) \
-                + (["--no-overview"] if args.no_overview else []) \
-                + (["--grid", str(args.grid), "--grid-seed", str(args.grid_seed)] if args.grid is not None else [])
-            return show.main(argv2)
-        if args.command == "bop":
-            from .io.bop import export_bop
-            from .io.layout import BOP_DIR
-            out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
-            export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size)
-            print(f"BOP dataset written to {out}")
-            return 0
-        if args.command == "demo":
-            cfg = config_mod.default_config()
-            if args.structured_light is not None:
-                cfg.structured_light.enabled = args.structured_light == "on"
-            return _run(cfg, args, preset_path=None)
-        cfg = config_mod.load(args.preset)
-        return _run(cfg, args, preset_path=args.preset)
+        return _command(args)
+    except OutputStateError as e:
+        return _err(str(e), 1)
     except (ConfigError, DataPipeError) as e:
         return _err(str(e))
+    except OSError as e:
+        if debug:
+            traceback.print_exc()
+        return _os_error(e)
+    except KeyboardInterrupt:
+        print("datapipe: interrupted (nothing half-written is kept as complete; --resume continues a run)",
+              file=sys.stderr)
+        return 130
+    except MemoryError:
+        if debug:
+            traceback.print_exc()
+        return _err("out of memory (fix: lower the resolution, samples or structured_light.steps)", 1)
+
+
+def _command(args) -> int:
+    if args.command == "validate":
+        cfg = config_mod.load(args.preset)
+        cfg.validate()             # every field problem, before Blender is even imported
+        _prepare_blender()
+        from .core.preflight import preflight
+        preflight(cfg)
+        from .part_fit import part_fit_warnings
+        for w in part_fit_warnings(cfg):
+            print(f"datapipe: warning: {w}", file=sys.stderr)
+        print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
+              f"{len(cfg.camera.poses)} camera poses, structured light "
+              f"{'on' if cfg.structured_light.enabled else 'off'})")
+        return 0
+    if args.command == "show":
+        from . import show
+        argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \
+            + (["--max", str(args.max)] if args.max is not None else []) \
+            + (["--no-overview"] if args.no_overview else []) \
+            + (["--grid", str(args.grid), "--grid-seed", str(args.grid_seed)] if args.grid is not None else [])
+        return show.main(argv2)
+    if args.command == "bop":
+        from .io.bop import export_bop
+        from .io.layout import BOP_DIR
+        out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
+        export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size)
+        print(f"BOP dataset written to {out}")
+        return 0
+    if args.command == "demo":
+        cfg = config_mod.default_config()
+        if args.structured_light is not None:
+            cfg.structured_light.enabled = args.structured_light == "on"
+        return _run(cfg, args, preset_path=None)
+    cfg = config_mod.load(args.preset)
+    return _run(cfg, args, preset_path=args.preset)
 
 
 def _run(cfg, args, preset_path) -> int:
@@ -105,6 +157,12 @@ def _run(cfg, args, preset_path) -> int:
         shard = parse_shard(args.shard)
     except ValueError as e:
         return _err(str(e))
+    if args.out is not None and not args.out.strip():
+        raise DataPipeError("--out: empty folder name (fix: give the output folder, e.g. --out out; "
+                            "nothing was written)")
+    if args.seed is not None:
+        cfg.scene.seed = args.seed
+    cfg.validate()                  # before the scene plan is drawn: its bounds are checked here
     if args.ray is not None:
         from .distributed import run_distributed
         if preset_path is None:
@@ -117,18 +175,90 @@ def _run(cfg, args, preset_path) -> int:
         return 0
     from .core.pipeline import Pipeline
     pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed)
-    pipe.check()            # every input problem before any Blender work
+    pipe.check()                    # the output folder: refusals before anything is written
     _prepare_blender()
+    from .core.preflight import preflight
+    preflight(pipe.cfg)             # mesh files imported and measured; still nothing written
     t0 = time.perf_counter()
     last = None
-    for last in pipe.run():
-        if not args.quiet or last.stage in ("done", "cancelled"):
-            print(last.line(), file=sys.stderr, flush=True)
-    if last is not None and last.stage == "done":
-        from .show import overview_after_run
-        overview_after_run(pipe.out, pipe.cfg.output)
+    with OutLock(pipe.out), _StopOnSignal(pipe):
+        pipe.check()                # again, under the lock: another run may have started meanwhile
+        for last in pipe.run():
+            if not args.quiet or last.stage in ("done", "cancelled"):
+                print(last.line(), file=sys.stderr, flush=True)
+        if last is not None and last.stage == "done":
+            from .show import overview_after_run
+            overview_after_run(pipe.out, pipe.cfg.output)
+            pipe.manifest.update()  # the sheets are the run's files too
+    if last is not None and last.stage == "cancelled":
+        return 130
     print(f"dataset: {pipe.out} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
     return 0
+
+
+class _StopOnSignal:
+    """SIGINT/SIGTERM during a run: the first asks the pipeline to stop at its next safe point (after
+    the render in progress); the second stops the process at once (run.json says "cancelled", every
+    file is written atomically, so --resume continues either way).
+
+    A Python signal handler runs only between bytecodes, and a Cycles render is one long C call, so
+    the signals are read from `signal.set_wakeup_fd` by a thread (Blender releases the GIL while it
+    renders) instead."""
+
+    def __init__(self, pipe):
+        self.pipe = pipe
+        self.count = 0
+
+    def __enter__(self):
+        if threading.current_thread() is not threading.main_thread():
+            return self                     # signals can only be set up in the main thread
+        self.rfd, self.wfd = os.pipe()
+        os.set_blocking(self.wfd, False)
+        self.saved = {s: signal.signal(s, lambda *a: None) for s in (signal.SIGINT, signal.SIGTERM)}
+        self.saved_fd = signal.set_wakeup_fd(self.wfd, warn_on_full_buffer=False)
+        threading.Thread(target=self._watch, name="datapipe-signals", daemon=True).start()
+        return self
+
+    def _watch(self) -> None:
+        while True:
+            try:
+                data = os.read(self.rfd, 16)
+            except OSError:
+                return
+            if not data:
+                return
+            for _ in data:
+                self.count += 1
+                if self.count == 1:
+                    print("datapipe: stopping after the render in progress (press Ctrl-C again to stop at "
+                          "once; --resume continues)", file=sys.stderr, flush=True)
+                    self.pipe.cancel()
+                else:
+                    self._stop_now()
+
+    def _stop_now(self) -> None:
+        from .io import layout
+        from .io.files import read_json
+        try:
+            path = self.pipe.out / layout.RUN_FILE
+            rec = read_json(path)
+            rec["status"] = "cancelled"
+            tmp = path.with_name(f"{path.name}.{os.getpid()}.stop.tmp")   # not the main thread's tmp name
+            tmp.write_text(json.dumps(rec, indent=1) + "\n")
+            os.replace(tmp, path)
+        except Exception:                   # best effort: a resumable run needs no status
+            pass
+        print("datapipe: stopped at once; --resume continues", file=sys.stderr, flush=True)
+        os._exit(130)
+
+    def __exit__(self, *exc):
+        if not hasattr(self, "saved"):
+            return
+        signal.set_wakeup_fd(self.saved_fd)
+        for s, h in self.saved.items():
+            signal.signal(s, h)
+        os.close(self.wfd)                  # the watcher's read returns: it ends
+        os.close(self.rfd)
 
 
 def _prepare_blender() -> None:

@@ -35,6 +35,7 @@ from .io import layout
 from .io.files import imwrite_atomic, read_json
 from .io.models import load_models
 from .io.silhouette import rasterize_silhouette
+from .outdir import OutputStateError
 
 PANELS = ("rgb", "depth", "sl_depth", "diff", "mask", "poses")
 PAD = 8
@@ -160,8 +161,21 @@ def _message_tile(tw, th, lines) -> np.ndarray:
 # reading a run
 
 def scenes_of(run_dir: Path) -> list[tuple[Path, dict]]:
-    """(scene folder, scene.json) of every complete scene, in order."""
-    return list(layout.iter_scenes(run_dir))
+    """(scene folder, scene.json) of every complete scene, in order; a foreign scene.json is refused."""
+    scenes = list(layout.iter_scenes(run_dir))
+    for sd, scene in scenes:
+        if not _is_datapipe_scene(scene):
+            raise OutputStateError(f"{sd / layout.SCENE_FILE}: not a DataPipe scene.json (no 'renders' with name, "
+                                   "resolution, K) (fix: give the --out folder of a DataPipe run, or move the "
+                                   "foreign file away)")
+    return scenes
+
+
+def _is_datapipe_scene(scene) -> bool:
+    renders = scene.get("renders") if isinstance(scene, dict) else None
+    return isinstance(renders, list) and all(
+        isinstance(r, dict) and isinstance(r.get("name"), str) and isinstance(r.get("resolution"), list)
+        and "K" in r for r in renders)
 
 
 def _load_render(scene_dir: Path, rd: dict) -> dict:
@@ -574,7 +588,7 @@ def main(argv: list[str] | None = None) -> int:
         paths = make_sheets(a.run_dir, a.out, max_renders=a.max, overview=not a.no_overview)
     except DataPipeError as e:
         print(f"datapipe: error: {e}", file=sys.stderr)
-        return 2
+        return 1 if isinstance(e, OutputStateError) else 2
     print(f"{len(paths)} sheet(s) written to {paths[0].parent if paths else a.out}")
     return 0
 

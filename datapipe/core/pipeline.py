@@ -14,7 +14,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, outdir
 from ..config import Config
 from ..errors import DataPipeError
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
@@ -85,20 +85,18 @@ class Pipeline:
         self.cfg.validate()
         if self.out.exists() and not self.out.is_dir():
             raise DataPipeError(f"output: {self.out} exists and is not a folder (fix: choose a folder path)")
-        if self.out.is_dir() and any(self.out.iterdir()):
+        if self.out.is_dir() and outdir.meaningful_entries(self.out):
             run_file = self.out / layout.RUN_FILE
             if self.resume:
                 if not run_file.is_file():
                     raise DataPipeError(f"output: cannot resume {self.out}: it has no {layout.RUN_FILE} "
                                         "(fix: choose the folder of an earlier DataPipe run, or an empty folder)")
-                prev = read_json(run_file)
+                prev = outdir.read_record(run_file, "run record")
                 if prev.get("config_identity") != _config_identity(self.cfg):
                     raise DataPipeError(f"output: {self.out} holds a run of a different preset or seed "
                                         "(fix: resume with the same preset and --seed, or choose another folder)")
             elif self.force:
-                if not run_file.is_file():
-                    raise DataPipeError(f"output: refusing to empty {self.out}: it does not look like a DataPipe "
-                                        f"run (no {layout.RUN_FILE}) (fix: choose another folder)")
+                outdir.check_force(self.out)
             else:
                 raise DataPipeError(f"output: {self.out} is not empty (fix: pass --resume to continue that run, "
                                     "or choose an empty folder; nothing was written)")
@@ -111,10 +109,12 @@ class Pipeline:
     def run(self) -> Iterator[Progress]:
         self.check()
         t_start = time.perf_counter()
-        if self.force and self.out.is_dir() and not self.resume:
-            shutil.rmtree(self.out)
+        if self.force and self.out.is_dir() and not self.resume and outdir.meaningful_entries(self.out):
+            outdir.check_force(self.out).remove_listed()      # only the earlier run's own files
         self.out.mkdir(parents=True, exist_ok=True)
+        self.manifest = outdir.Manifest.start(self.out, resume=self.resume)
         self._write_run_file(status="running")
+        self.manifest.update()
         writers = open_writers(self.cfg.output, self.out)
         writers.start()
 
@@ -132,6 +132,7 @@ class Pipeline:
         if not todo:
             writers.finish()
             self._write_run_file(status="complete")
+            self.manifest.update()
             yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
                            message="nothing to do: every scene is complete")
             return
@@ -186,6 +187,7 @@ class Pipeline:
                     write_scene(sdir, scene)        # the record of a cancelled scene (not complete)
                 world.finish_scene()
                 self.stats["seconds"]["write"] += time.perf_counter() - t0
+                self.manifest.update()
                 if complete:
                     self._mark_scene_done(i)
                     yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - t_start,
@@ -197,12 +199,14 @@ class Pipeline:
             world.close()
         writers.finish()
         self._write_run_file(status="complete")
+        self.manifest.update()
         yield Progress("done", done, self.total, elapsed=time.perf_counter() - t_start,
                        message=f"finished {made} render(s) in {_fmt_s(time.perf_counter() - t_start)}; "
                                f"{totals_line(self.stats['physics'])}")
 
     def _cancelled(self, done: int, scene: int, t_start: float) -> Iterator[Progress]:
         self._write_run_file(status="cancelled")
+        self.manifest.update()
         yield Progress("cancelled", done, self.total, scene=scene, elapsed=time.perf_counter() - t_start,
                        message="cancelled: everything written so far is kept; --resume continues")
 

@@ -59,9 +59,10 @@ def read_scene(scene_dir: str | os.PathLike) -> dict | None:
     """scene.json of a scene folder; None when it is missing or unreadable (a scene killed mid-way)."""
     try:
         with open(Path(scene_dir) / SCENE_FILE) as f:
-            return json.load(f)
-    except (OSError, json.JSONDecodeError):
+            scene = json.load(f)
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, RecursionError):
         return None
+    return scene if isinstance(scene, dict) else None      # a foreign file: not a scene of ours
 
 
 def scene_complete(scene_dir: str | os.PathLike) -> bool:

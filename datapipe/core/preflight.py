@@ -1,0 +1,105 @@
+"""Mesh checks that need Blender's importers, run before the output folder is touched.
+
+`check_meshes(cfg)` imports every distinct mesh file once, measures it and removes everything the
+import added, so `datapipe validate` and `datapipe run` refuse the same broken part files (no
+faces, NaN vertices, a part bigger than the bin or too small to see) before anything is written.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import bpy
+import numpy as np
+
+from ..config import Config
+from ..errors import ConfigError, Problem
+from ..sl.triangulate import intrinsics_from_blender
+from .objects import _IMPORTERS, _remove_id, _run_importer
+
+MIN_PART_PX = 2.0        # a part narrower than this on the camera image is not in the dataset
+
+
+def _import_measure(path: str) -> tuple[int, int, np.ndarray]:
+    """(vertex count, face count, (V, 3) world vertices) of every mesh in the file; leaves no data."""
+    before_objs, before_meshes = set(bpy.data.objects), set(bpy.data.meshes)
+    before_colls = set(bpy.data.collections)
+    try:
+        _run_importer(_IMPORTERS[os.path.splitext(path)[1].lower()], path)
+        new = [o for o in bpy.data.objects if o not in before_objs]
+        pts, n_faces = [], 0
+        for o in new:
+            if o.type == "MESH" and o.data is not None:
+                me = o.data
+                v = np.empty(len(me.vertices) * 3, np.float64)
+                me.vertices.foreach_get("co", v)
+                mw = np.array(o.matrix_world, dtype=np.float64)
+                pts.append(v.reshape(-1, 3) @ mw[:3, :3].T + mw[:3, 3])
+                n_faces += len(me.polygons)
+        allpts = np.concatenate(pts) if pts else np.zeros((0, 3))
+        return len(allpts), n_faces, allpts
+    finally:
+        for o in [o for o in bpy.data.objects if o not in before_objs]:
+            data = o.data
+            bpy.data.objects.remove(o, do_unlink=True)
+            if data is not None and data.users == 0:
+                _remove_id(data)
+        for m in set(bpy.data.meshes) - before_meshes:
+            if m.users == 0:
+                bpy.data.meshes.remove(m)
+        for c in set(bpy.data.collections) - before_colls:
+            bpy.data.collections.remove(c)
+
+
+def check_meshes(cfg: Config) -> list[Problem]:
+    """Problems of the part files themselves (call after Config.validate() passed)."""
+    problems: list[Problem] = []
+    measured: dict[str, tuple] = {}
+    zone = np.asarray(cfg.scene.drop_zone_scale, dtype=np.float64) * 2        # full extents, m
+    c = cfg.camera
+    fx = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
+                                       c.sensor_fit, sensor_height_mm=c.sensor_width)[0, 0])
+    far = max((math.dist(p.location, cfg.scene.drop_zone_loc) for p in c.poses), default=1.0)
+    for i, o in enumerate(cfg.objects):
+        field = f"objects[{i}].filepath"
+        path = os.path.abspath(o.filepath)
+        if path not in measured:
+            try:
+                measured[path] = _import_measure(path)
+            except RuntimeError as e:
+                measured[path] = str(e).strip().splitlines()[-1] if str(e).strip() else "importer failed"
+        m = measured[path]
+        if isinstance(m, str):
+            problems.append(Problem(field, f"cannot import {path}: {m}", "check that the file is a valid mesh "
+                                    "file of that format"))
+            continue
+        n_verts, n_faces, pts = m
+        if n_verts == 0 or n_faces == 0:
+            problems.append(Problem(field, f"{path} holds {n_verts} vertices and {n_faces} faces: nothing to "
+                                    "render or simulate", "export the part as a polygon mesh (OBJ: 'v' and 'f' "
+                                    "lines)"))
+            continue
+        if not np.isfinite(pts).all():
+            problems.append(Problem(field, f"{path} has NaN or infinite vertex coordinates",
+                                    "repair the mesh in a modeller and export it again"))
+            continue
+        size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
+        longest = float(size.max())
+        if cfg.scene.blend_file is None and longest > float(np.linalg.norm(zone)):
+            problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}, "
+                                    f"longer than the drop zone's diagonal ({np.linalg.norm(zone):.3g} m)",
+                                    "check the scale (file units -> metres: mm files need 0.001) or enlarge "
+                                    "scene.drop_zone_scale"))
+        elif longest * fx / far < MIN_PART_PX:
+            problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}: "
+                                    f"{longest * fx / far:.2g} px on the camera image from {far:.2f} m",
+                                    "check the scale (file units -> metres), or move the camera closer"))
+    return problems
+
+
+def preflight(cfg: Config) -> None:
+    """Every input check, Blender's included: ConfigError when anything would fail or be useless."""
+    cfg.validate()
+    problems = check_meshes(cfg)
+    if problems:
+        raise ConfigError(problems)
