@@ -210,6 +210,7 @@ def tiny_real_preset(path: Path) -> Path:
     cfg.scene.num_renders = 4
     cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1     # 4 scenes
     cfg.camera.resolution = [96, 72]
+    cfg.structured_light.periods = [1, 4, 16]      # finest fringe 6 camera px (>= 3, or validate refuses)
     cfg.render.samples = 2
     cfg.simulation.max_frames = 60
     for o in cfg.objects:

@@ -17,7 +17,8 @@ from ..errors import ConfigError, Problem
 from ..sl.triangulate import intrinsics_from_blender
 from .objects import _IMPORTERS, _remove_id, _run_importer
 
-MIN_PART_PX = 2.0        # a part narrower than this on the camera image is not in the dataset
+MIN_PART_PX = 0.25       # a part narrower than this on the camera image is not in the dataset (tiny
+                         # test renders go down to ~1 px parts; a wrong scale is orders of magnitude off)
 
 
 def _import_measure(path: str) -> tuple[int, int, np.ndarray]:

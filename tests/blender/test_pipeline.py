@@ -31,6 +31,8 @@ def tiny_config(num_renders=3, res=(96, 72), samples=2):
     cfg.simulation.max_frames = 120
     for o in cfg.objects:
         o.min_instances, o.max_instances = 1, 2
+    # finest fringe >= 3 camera px (config validation refuses finer ones: the camera cannot resolve them)
+    cfg.structured_light.periods = [1, 4] if res[0] < 32 else ([1, 8] if res[0] < 96 else [1, 4, 16])
     return cfg
 
 
@@ -214,3 +216,58 @@ def test_cancel_keeps_what_was_written(tmp_path):
     assert (tmp_path / "o" / "scene.0001" / "scene.json").is_file()
     rec = json.loads((tmp_path / "o" / "run.json").read_text())
     assert rec["status"] == "cancelled" and rec["scenes_done"] == ["scene.0001"]
+
+
+def _start(cmd):
+    return subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+
+def test_7_ctrl_c_stops_at_a_safe_point_and_resumes(tmp_path):
+    """Defect #7: Ctrl-C printed a KeyboardInterrupt traceback and left run.json "running"."""
+    cfg = tiny_config(num_renders=3, res=(32, 24), samples=1)
+    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1     # 3 scenes
+    C.save(cfg, tmp_path / "p.json")
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "datapipe", "run", str(tmp_path / "p.json"), "--out", str(out)]
+    proc = _start(cmd)
+    err = []
+    for line in proc.stderr:
+        err.append(line)
+        if "render.0001 rendered" in line:
+            proc.send_signal(signal.SIGINT)
+            break
+    err += proc.stderr.readlines()
+    assert proc.wait(timeout=120) == 130, "".join(err)
+    text = "".join(err)
+    assert "Traceback" not in text and "cancelled" in text
+    rec = json.loads((out / "run.json").read_text())
+    assert rec["status"] == "cancelled" and len(rec["scenes_done"]) < 3
+    r = subprocess.run(cmd + ["--resume", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert json.loads((out / "run.json").read_text())["status"] == "complete"
+    assert all(json.loads(p.read_text())["complete"] for p in scenes(out)) and len(scenes(out)) == 3
+
+
+def test_7_second_ctrl_c_stops_at_once_and_stays_resumable(tmp_path):
+    cfg = tiny_config(num_renders=2, res=(96, 72), samples=4096)    # a render of tens of seconds
+    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1
+    C.save(cfg, tmp_path / "p.json")
+    out = tmp_path / "o"
+    proc = _start([sys.executable, "-m", "datapipe", "run", str(tmp_path / "p.json"), "--out", str(out)])
+    for line in proc.stderr:
+        if "dropping parts" in line:
+            break
+    time.sleep(2.0)                                  # inside the first (long) Cycles render now
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.3)
+    t0 = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    code = proc.wait(timeout=30)
+    text = proc.stderr.read()
+    assert code == 130 and time.perf_counter() - t0 < 5, text
+    assert "Traceback" not in text and "stopped at once" in text
+    assert json.loads((out / "run.json").read_text())["status"] == "cancelled"
+    assert not any(json.loads(p.read_text()).get("complete") for p in scenes(out))
+    from datapipe.outdir import OutLock
+    with OutLock(out):                               # the dead run's lock is gone with it
+        pass

@@ -35,6 +35,7 @@ def tiny_preset(d, tmp_path, num_renders=2):
         bpy.ops.datapipe.object_remove()
     d.objects[0].min_instances, d.objects[0].max_instances = 1, 2
     d.camera.resolution = (40, 30)
+    d.structured_light.periods = "1, 8"      # finest fringe >= 3 camera px at 40 px (validation refuses finer)
     d.render.samples = 1
     d.render.threads = 2
     d.simulation.max_frames = 40
