@@ -2,7 +2,8 @@
 
 What runs: the demo preset (`config.default_config()`, seed 0, structured light on, the same
 objects, plan, camera poses, projector and simulation) made cheap for `make test`: camera
-resolution 80x60 (the demo's 320x240 / 4), 4 Cycles samples (demo: 32), 2 render threads, and
+resolution 80x60 (the demo's 320x240 / 4) with fringe periods [1, 4, 16] (the demo's 5 camera px per
+finest fringe), 4 Cycles samples (demo: 32), 2 render threads, and
 `output.formats = ["native", "bop"]` so the BOP annotations come from the run itself. The full
 demo takes minutes on two shared cores; this takes about half a minute.
 
@@ -33,6 +34,8 @@ UPDATE = os.environ.get("DATAPIPE_UPDATE_SNAPSHOTS") == "1"
 def snapshot_config() -> C.Config:
     cfg = C.default_config()
     cfg.camera.resolution = [80, 60]
+    cfg.structured_light.periods = [1, 4, 16]     # finest fringe 5 camera px, as the demo's [1, 8, 64] at
+                                                  # 320 px (64 periods at 80 px are 1.25 px: validate refuses)
     cfg.render.samples = 4
     cfg.render.threads = 2
     cfg.output.formats = ["native", "bop"]
