@@ -43,6 +43,8 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--retries", type=int, default=2, help="with --ray: retries of a failed shard")
         sp.add_argument("--quiet", action="store_true", help="no per-render progress lines")
         sp.add_argument("--debug", action="store_true", help="show the traceback of a file-system error")
+        sp.add_argument("--strict", action="store_true", help="stop at a render that fails a quality gate "
+                        "(black or saturated RGB, no visible part, < 1%% structured-light depth, parts lost)")
 
     run_args(sub.add_parser("run", help="make a dataset from a preset"), preset=True)
     demo = sub.add_parser("demo", help="make the embedded demo dataset (a bin with a few small parts)")
@@ -171,10 +173,11 @@ def _run(cfg, args, preset_path) -> int:
         run_distributed(preset_path, args.out or cfg.output.path,
                         address=None if args.ray == "local" else args.ray,
                         num_shards=args.shards, seed=args.seed, retries=args.retries,
-                        extra_args=["--quiet"] if args.quiet else [])
+                        extra_args=(["--quiet"] if args.quiet else []) + (["--strict"] if args.strict else []))
         return 0
     from .core.pipeline import Pipeline
-    pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed)
+    pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
+                    strict=args.strict)
     pipe.check()                    # the output folder: refusals before anything is written
     _prepare_blender()
     from .core.preflight import preflight

@@ -17,6 +17,7 @@ import numpy as np
 from .. import __version__, outdir
 from ..config import Config
 from ..errors import DataPipeError
+from ..quality import render_warnings
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from ..io import layout
 from ..physics_check import add_to_totals, physics_line, totals_line
@@ -24,6 +25,10 @@ from ..io.files import read_json, write_json_atomic
 from ..io.models import write_models
 from ..io.native import write_scene
 from ..io.writers import open_writers
+
+class QualityError(DataPipeError):
+    """--strict: a render failed a quality gate (datapipe.quality)."""
+
 
 STAGES = ("placement", "simulation", "render", "structured_light", "write")
 
@@ -63,13 +68,14 @@ def _config_identity(cfg: Config) -> dict:
 
 class Pipeline:
     def __init__(self, cfg: Config, out_dir: str | Path | None = None, *, resume: bool = False,
-                 force: bool = False, shard: tuple[int, int] = (0, 1), seed: int | None = None):
+                 force: bool = False, shard: tuple[int, int] = (0, 1), seed: int | None = None,
+                 strict: bool = False):
         self.cfg = cfg.copy()
         if seed is not None:
             self.cfg.scene.seed = seed
         self.out = Path(out_dir if out_dir is not None else self.cfg.output.path).resolve()
         self.cfg.output.path = str(self.out)
-        self.resume, self.force, self.shard = resume, force, shard
+        self.resume, self.force, self.shard, self.strict = resume, force, shard, strict
         s = self.cfg.scene
         self.plan = plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
         self.scene_ids = shard_scenes(len(self.plan), shard)
@@ -123,9 +129,12 @@ class Pipeline:
         for i in self.scene_ids:
             sdir = self.out / layout.scene_name(i)
             scene = layout.read_scene(sdir) if self.resume else None
-            if scene is not None and scene.get("complete", False):
+            if scene is not None and scene.get("complete", False) and _files_present(sdir, scene):
                 done += self.plan[i]
-                writers.catch_up(sdir, scene)       # finished just before a crash: BOP or the pickle may lack it
+                # the commit protocol: scene.json is written first; a crash before the other outputs and
+                # run.json's scenes_done leaves them to be repaired here
+                writers.catch_up(sdir, scene)
+                self._mark_scene_done(i)
                 yield Progress("skip", done, self.total, scene=i, message="already complete")
             else:
                 todo.append(i)
@@ -173,9 +182,10 @@ class Pipeline:
                     rate = (time.perf_counter() - t_loop) / made
                     if r == 0:
                         secs = {**sim_seconds, **secs}
+                    warnings = self._quality_gate(i, r, world, scene, rec)
                     yield Progress("render", done, self.total, scene=i, render=r,
                                    elapsed=time.perf_counter() - t_start, eta=rate * (self.total - done),
-                                   seconds=secs, message="rendered")
+                                   seconds=secs, message="rendered" + "".join(f" [warning: {w}]" for w in warnings))
                     if self._cancel:
                         break
                 t0 = time.perf_counter()
@@ -210,6 +220,29 @@ class Pipeline:
         yield Progress("cancelled", done, self.total, scene=scene, elapsed=time.perf_counter() - t_start,
                        message="cancelled: everything written so far is kept; --resume continues")
 
+    # -- quality gates ----------------------------------------------------------------------------
+    def _quality_gate(self, i: int, r: int, world, scene: dict, rec: dict) -> list[str]:
+        """Warnings of one render (datapipe.quality), kept in run.json; with strict=True an error."""
+        sl_info = rec.get("structured_light") or {}
+        warnings = render_warnings(
+            rgb=world.last_rgb, visible_px=[o["px_count_visib"] for o in rec["objects"]],
+            sl_valid_fraction=sl_info.get("valid_fraction"),
+            parts_dropped=len(scene["objects"]) + len(scene["simulation"]["removed"]),
+            parts_lost=len(scene["simulation"]["removed"]))
+        if not warnings:
+            return []
+        where = f"{layout.scene_name(i)}/{layout.render_name(r)}"
+        rec_run = self._run_record()
+        kept = [w for w in rec_run.get("warnings", []) if w.get("render") != where]    # a remade render
+        rec_run["warnings"] = kept + [{"render": where, "warning": w} for w in warnings]
+        write_json_atomic(self.out / layout.RUN_FILE, rec_run)
+        if self.strict:
+            self._write_run_file(status="failed")
+            raise QualityError(f"{where}: {warnings[0]} (fix: correct the preset as the warning says, or run "
+                               "without --strict to keep such renders; --resume continues after the fix only "
+                               "with the same preset, so start a new --out)")
+        return warnings
+
     # -- run.json ---------------------------------------------------------------------------------
     def _run_record(self) -> dict:
         path = self.out / layout.RUN_FILE
@@ -238,6 +271,14 @@ class Pipeline:
         rec["scenes_done"] = sorted(done)
         rec["stats"] = self.stats
         write_json_atomic(self.out / layout.RUN_FILE, rec)
+
+
+def _files_present(sdir: Path, scene: dict) -> bool:
+    """Every file the scene's renders list is on disk (a complete scene.json alone is not enough)."""
+    try:
+        return all((sdir / rel).is_file() for rd in scene["renders"] for rel in rd["files"].values())
+    except (KeyError, TypeError, AttributeError):
+        return False
 
 
 class _BlenderWorld:
@@ -309,6 +350,7 @@ class _BlenderWorld:
         t0 = time.perf_counter()
         out = self.renderer.render(rdir, seed)
         t1 = time.perf_counter()
+        self.last_rgb = out.rgb                 # for the quality gate, not kept
         rec = {
             "render_id": r, "name": layout.render_name(r), "image_id": image_id, "pose_index": pose_index,
             "K": self.camera.K, "resolution": list(self.camera.resolution),

@@ -271,3 +271,53 @@ def test_7_second_ctrl_c_stops_at_once_and_stays_resumable(tmp_path):
     from datapipe.outdir import OutLock
     with OutLock(out):                               # the dead run's lock is gone with it
         pass
+
+
+class _Killed(BaseException):
+    """Stands for SIGKILL at one exact point: nothing after it runs, nothing is cleaned up by us."""
+
+
+def test_4_kill_right_after_scene_json_is_repaired_on_resume(tmp_path, monkeypatch):
+    """Defect #4: a kill right after a scene.json lost that scene from output_dict.pickle and from
+    run.json's scenes_done for good. Also: a complete scene.json whose image is gone is made again."""
+    from datapipe.io import legacy
+    cfg = tiny_config(num_renders=2, res=(32, 24), samples=1)
+    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1      # 2 scenes
+    out = tmp_path / "o"
+
+    def killed(self, scene_dir, scene):
+        raise _Killed
+    monkeypatch.setattr(legacy.LegacyPickleWriter, "add_scene", killed)
+    with pytest.raises(_Killed):
+        list(Pipeline(cfg, out).run())
+    monkeypatch.undo()
+    assert json.loads((out / "scene.0001" / "scene.json").read_text())["complete"]
+    assert json.loads((out / "run.json").read_text())["scenes_done"] == []
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    run(cfg, out, resume=True)
+    assert set(pickle.loads((out / "output_dict.pickle").read_bytes())) == {"scene.0001", "scene.0002"}
+    assert json.loads((out / "run.json").read_text())["scenes_done"] == ["scene.0001", "scene.0002"]
+    before = json.loads((out / "scene.0001" / "scene.json").read_text())
+    (out / "scene.0001" / "render.0001" / "rgb.png").unlink()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    events = run(cfg, out, resume=True)
+    assert [e.scene for e in events if e.stage == "scene_done"] == [0]          # remade, scene 2 skipped
+    assert (out / "scene.0001" / "render.0001" / "rgb.png").is_file()
+    assert json.loads((out / "scene.0001" / "scene.json").read_text()) == before
+
+
+def test_quality_gate_warns_and_strict_stops(tmp_path):
+    """Defect #6: a black dataset finished with exit 0 and no word."""
+    from datapipe.core.pipeline import QualityError
+    cfg = tiny_config(num_renders=1, res=(32, 24), samples=1)
+    cfg.render.light_power = 0.0
+    cfg.structured_light.enabled = False
+    events = run(cfg, tmp_path / "o")
+    line = next(e.line() for e in events if e.stage == "render")
+    assert "warning: RGB is black" in line
+    rec = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert rec["warnings"][0]["render"] == "scene.0001/render.0001" and "black" in rec["warnings"][0]["warning"]
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    with pytest.raises(QualityError, match="scene.0001/render.0001: RGB is black"):
+        list(Pipeline(cfg, tmp_path / "s", strict=True).run())
+    assert json.loads((tmp_path / "s" / "run.json").read_text())["status"] == "failed"
