@@ -163,9 +163,12 @@ def test_8_corrupt_state_and_os_errors_are_one_message(tmp_path, capsys, monkeyp
     assert err.count("error:") == 1
     # show on a folder whose scene.json is not ours
     (tmp_path / "foreign" / "scene.0001").mkdir(parents=True)
-    (tmp_path / "foreign" / "scene.0001" / "scene.json").write_text('{"renders": [{"x": 1}]}')
+    (tmp_path / "foreign" / "scene.0001" / "scene.json").write_text('{"complete": true, "renders": [{"x": 1}]}')
     code, _, err = main(capsys, "show", tmp_path / "foreign")
     assert code == 1 and "not a DataPipe scene.json" in err and "fix:" in err
+    (tmp_path / "foreign" / "scene.0001" / "scene.json").write_text('[1, 2]')
+    code, _, err = main(capsys, "show", tmp_path / "foreign")
+    assert code == 2 and "no complete scene" in err and "fix:" in err
 
 
 def test_8_legacy_pickle_with_wrong_types_is_a_field_error(tmp_path, capsys):
