@@ -6,13 +6,12 @@ faces, NaN vertices, a part bigger than the bin or too small to see) before anyt
 """
 from __future__ import annotations
 
-import math
 import os
 
 import bpy
 import numpy as np
 
-from ..config import Config
+from ..config import Config, camera_distances
 from ..errors import ConfigError, Problem
 from ..sl.triangulate import intrinsics_from_blender
 from .objects import _IMPORTERS, _remove_id, _run_importer
@@ -60,7 +59,7 @@ def check_meshes(cfg: Config) -> list[Problem]:
     c = cfg.camera
     fx = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
                                        c.sensor_fit, sensor_height_mm=c.sensor_width)[0, 0])
-    far = max((math.dist(p.location, cfg.scene.drop_zone_loc) for p in c.poses), default=1.0)
+    far = max(camera_distances(cfg))
     for i, o in enumerate(cfg.objects):
         field = f"objects[{i}].filepath"
         path = os.path.abspath(o.filepath)
