@@ -27,7 +27,7 @@ scalars = st.one_of(
     st.none(), st.booleans(),
     st.integers(), st.sampled_from([0, -1, 1, 2, 3, 2**31, 2**32, 2**63, 10**9, 10**400]),
     st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([1e-9, 1e6, 1e308, -0.0, math.nan]),
-    st.text(max_size=8), st.sampled_from(["", "CYCLES", "AUTO", "rgb", "bop", "heterodyne", "peg.obj", "/"]),
+    st.text(max_size=8), st.sampled_from(["", "CYCLES", "AUTO", "rgb", "bop", "heterodyne", "peg.obj", "/", "bin_view", "pool"]),
 )
 values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=5),
                                                        st.dictionaries(st.text(max_size=6), inner, max_size=4)),
@@ -92,6 +92,8 @@ BASE = C.Config().to_dict()
 BASE["objects"] = [{"filepath": "/nowhere/part.obj", "name": "part"}]
 BASE_SL = copy.deepcopy(BASE)
 BASE_SL["structured_light"]["enabled"] = True
+BASE_SL["camera"]["sampler"]["kind"] = "bin_view"         # the sampler's range checks too
+BASE_SL["lighting"] = {}                                  # and the lighting section's defaults
 
 
 @FUZZ
