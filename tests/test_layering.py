@@ -19,14 +19,14 @@ PKG = ROOT / "datapipe"
 MAX_FUNCTION_LINES = 120
 # qualified name -> why it may be longer for now
 LONG_FUNCTION_EXCEPTIONS = {
-    "datapipe/config.py:validate": "issue #12 restructures validation",
 }
 
 BPY_FREE = ["datapipe.config", "datapipe.sl", "datapipe.sl.scanner", "datapipe.geometry", "datapipe.seeds",
             "datapipe.exr", "datapipe.errors", "datapipe.show", "datapipe.distributed", "datapipe.io",
             "datapipe.io.layout", "datapipe.io.files", "datapipe.io.native", "datapipe.io.legacy",
             "datapipe.io.models", "datapipe.io.silhouette", "datapipe.io.bop", "datapipe.io.writers",
-            "datapipe.camera_sampler", "datapipe.lighting", "datapipe.bin_shape"]
+            "datapipe.camera_sampler", "datapipe.lighting", "datapipe.bin_shape", "datapipe.outdir",
+            "datapipe.quality"]
 
 _BLOCKER = """
 import importlib.abc, json, sys
