@@ -490,14 +490,15 @@ def _neighbour_pass(st: _Setup, out: _Out):
     triangulated again (see :mod:`.spatial`)."""
     if out.n_unsure == 0:
         return
-    reason = out.reason
-    geo_ok = (reason == 0) | (reason == Reason.OUTSIDE_PROJECTOR) | (reason == Reason.ILL_CONDITIONED)
+    # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): neither set
     with np.errstate(invalid="ignore"):
         sure = out.p_wrong <= np.float32(st.max_wrong)
         unsure = out.p_wrong > np.float32(st.max_wrong)
-    usable = geo_ok & ~out.legacy_bad & ~out.inconsistent
-    good = usable & sure
-    cand = usable & unsure
+    usable = ~out.inconsistent
+    if st.order_factor or st.max_order_error is not None:
+        usable &= ~out.legacy_bad
+    good = np.logical_and(usable, sure, out=sure)
+    cand = np.logical_and(usable, unsure, out=unsure)
     if not cand.any() or not good.any():
         return
     idx = np.flatnonzero(cand)

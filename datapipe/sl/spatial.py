@@ -72,13 +72,12 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     L = float(length)
     Wp = W + 2 * PAD
     xg = np.full((H + 2 * PAD, Wp), np.nan, np.float32)
-    xg[PAD:PAD + H, PAD:PAD + W] = np.where(good, x, np.float32(np.nan))
+    inner = xg[PAD:PAD + H, PAD:PAD + W]
+    np.copyto(inner, x, where=good)
     xg = xg.ravel()
     idx_all = np.flatnonzero(cand)
     r_all, c_all = np.divmod(idx_all, W)
     p_all = (r_all + PAD) * Wp + (c_all + PAD)
-    pos = np.full(xg.size, -1, np.int32)
-    pos[p_all] = np.arange(idx_all.size, dtype=np.int32)
     offs = np.array([dy * Wp + dx for dy, dx in _DIRS])
     todo = np.ones(idx_all.size, bool)
     active = np.zeros(idx_all.size, bool)
@@ -147,8 +146,9 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         pa = pp[acc]
         xg[pa] = xnew
         todo[sel_a] = False
-        near = pos[(pa[:, None] + offs[None, :]).ravel()]
-        frontier = np.unique(near[near >= 0])
+        near = (pa[:, None] + offs[None, :]).ravel()        # candidates among them: p_all is sorted
+        j = np.minimum(np.searchsorted(p_all, near), p_all.size - 1)
+        frontier = np.unique(j[p_all[j] == near])
         out_idx.append(idx_all[sel_a])
         out_x.append(xnew)
         out_p.append(p[acc])
