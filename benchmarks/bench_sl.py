@@ -197,9 +197,9 @@ def dark_stack(gt, alb, periods, steps, Wp, noise=0.01, seed=0):
 
 def draw_curve(path, curves, points, title):
     """Correct coverage (y, linear) vs wrong orders among valid (x, log) with cv2 primitives."""
-    Wd, Hd = 1100, 720
+    Wd, Hd = 1300, 720
     img = np.full((Hd, Wd, 3), 255, np.uint8)
-    L, R, T, B = 90, 300, 70, 80
+    L, R, T, B = 90, 430, 70, 80
     lx0, lx1 = -6.0, 0.0
     allc = [c for pts in curves.values() for _, c in pts] + [c for _, c, _ in points.values()]
     y0 = max(0.0, np.floor(min(allc) * 10) / 10)
@@ -222,7 +222,8 @@ def draw_curve(path, curves, points, title):
     cv2.putText(img, "wrong orders / valid pixels", (L + 250, Hd - 30), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(img, "correct / lit", (10, T - 20), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(img, title, (L, 30), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    colours = [(200, 60, 30), (40, 140, 40), (30, 60, 200), (160, 40, 160), (0, 140, 200), (90, 90, 90)]
+    colours = [(230, 150, 150), (200, 40, 20), (150, 230, 150), (20, 140, 20), (150, 150, 240), (30, 30, 200),
+               (230, 150, 230), (150, 20, 150), (0, 120, 230), (0, 0, 0), (120, 120, 120)]
     ly = T + 10
     for i, (label, pts) in enumerate(list(curves.items()) + [(k, [(w, c)]) for k, (w, c, _) in points.items()]):
         col = colours[i % len(colours)]
