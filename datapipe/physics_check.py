@@ -121,8 +121,12 @@ def point_triangle_distance(points: np.ndarray, tri_pts: np.ndarray) -> np.ndarr
     return out
 
 
-def _near(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    return points[np.all((points >= lo) & (points <= hi), axis=1)]
+def _near_box(points: np.ndarray, part: Part, box, tol: float) -> np.ndarray:
+    """The points within `tol` of the part's model-frame bounding box (tighter than a world box
+    for rotated parts)."""
+    T = np.asarray(part.pose, dtype=np.float64)
+    local = (points - T[:3, 3]) @ T[:3, :3]
+    return points[np.all((local >= box[0] - tol) & (local <= box[1] + tol), axis=1)]
 
 
 def penetration_depth(samples_a: np.ndarray, tri_pts_b: np.ndarray) -> float:
@@ -149,6 +153,7 @@ def check_scene(parts: list[Part], floor_z: float, walls: tuple[np.ndarray, np.n
         samples.append(edge_samples(w, p.tris, max(spacing, size / 200)))
     lo = np.array([w.min(axis=0) for w in world]) if parts else np.zeros((0, 3))
     hi = np.array([w.max(axis=0) for w in world]) if parts else np.zeros((0, 3))
+    boxes = [(np.min(p.verts, axis=0), np.max(p.verts, axis=0)) for p in parts]   # model-frame boxes
     gap = np.full(len(parts), np.inf)
     for i, w in enumerate(world):
         zmin = float(w[:, 2].min())
@@ -165,8 +170,8 @@ def check_scene(parts: list[Part], floor_z: float, walls: tuple[np.ndarray, np.n
             if np.any(lo[i] > hi[j] + float_tol) or np.any(lo[j] > hi[i] + float_tol):
                 continue
             # only samples near the other part's box can be inside it or within float_tol of it
-            near_i = _near(samples[i], lo[j] - float_tol, hi[j] + float_tol)
-            near_j = _near(samples[j], lo[i] - float_tol, hi[i] + float_tol)
+            near_i = _near_box(samples[i], parts[j], boxes[j], float_tol)
+            near_j = _near_box(samples[j], parts[i], boxes[i], float_tol)
             depth = max(penetration_depth(near_i, tri_pts[j]), penetration_depth(near_j, tri_pts[i]))
             res.max_depth = max(res.max_depth, depth)
             if depth > pen_tol:
