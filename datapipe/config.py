@@ -139,8 +139,10 @@ class StructuredLightConfig:
     unwrap: str = "auto"
     samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples)
     sensor: str = "industrial"         # datapipe.sl.sensor preset
-    exposure: float = 0.5              # scales linear radiance before the sensor model (0.5: no
-                                       # saturation on 0.8-albedo parts from ~0.65 m)
+    exposure: float | str = "auto"     # scale on linear radiance before the sensor model, or "auto":
+                                       # metered per render from the fringes (datapipe.sl.exposure)
+    hdr: list[float] = field(default_factory=list)   # relative exposure factors fused per pixel,
+                                       # e.g. [1, 4, 16]; empty = one exposure
     debug: bool = False                # also write wrapped/absolute phase, modulation, reasons
     projector_gamma: float = 1.0       # projector response exponent (emits pattern ** gamma; 1 = linear);
                                        # the decoder corrects the phase ripple it causes
@@ -299,6 +301,10 @@ def _build(tp, value, path: str, problems: list[Problem]):
         if value is None and type(None) in args:
             return None
         non_none = [a for a in args if a is not type(None)]
+        for a in non_none:       # a value of one member type stays that type (exposure: 0.5 or "auto")
+            if a in (str, bool) and isinstance(value, a) or \
+                    a in (int, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
+                return _build(a, value, path, problems)
         return _build(non_none[0], value, path, problems)
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -643,7 +649,7 @@ def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None
     if sl.sensor not in PRESETS:
         ck.add("structured_light.sensor", f"unknown sensor preset {sl.sensor!r}", f"use one of {sorted(PRESETS)}")
     ck.int_range("structured_light.samples", sl.samples, 1, MAX_SL_SAMPLES, "samples")
-    ck.positive("structured_light.exposure", sl.exposure)
+    _check_exposure(sl, ck.add)
     _check_fringe_memory(ck, cfg)
     _check_fringe_size(ck, cfg)
 
@@ -842,6 +848,16 @@ def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
 VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_variety, _check_projector, _check_structured_light,
                     _check_render, _check_simulation, _check_output)
+
+
+def _check_exposure(sl: "StructuredLightConfig", add) -> None:
+    """structured_light.exposure (number > 0 or "auto") and .hdr (distinct factors > 0)."""
+    from .sl.exposure import exposure_problem, hdr_problem   # the rules live with the code using them
+    for path, problem in (("structured_light.exposure", exposure_problem(sl.exposure)),
+                          ("structured_light.hdr", hdr_problem(sl.hdr))):
+        if problem is not None:
+            add(path, *problem)
+
 
 # ------------------------------------------------------------------------------------------------
 # files: JSON presets and the original DataPipe pickle

@@ -145,6 +145,14 @@ CASES = [
      "structured_light.projector_gamma", "[0.2, 5]"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "periods", [16, 64])),
      "structured_light.periods", "share the factor 16"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "exposure", "bright")),
+     "structured_light.exposure", "unknown mode"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "exposure", 0.0)),
+     "structured_light.exposure", "> 0"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", [1, -4])),
+     "structured_light.hdr", "factor 1"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", [1, 1])),
+     "structured_light.hdr", "repeats"),
     (lambda c: setattr(c.render, "samples", 0), "render.samples", ">= 1"),
     (lambda c: setattr(c.render, "outputs", ["rgb", "thermal"]), "render.outputs[1]", "unknown value"),
     (lambda c: setattr(c.render, "engine", "BLENDER_EEVEE"), "render.engine", "unknown value"),
@@ -248,3 +256,23 @@ def test_predicted_fringe_period_matches_the_default_comment(cfg):
     cfg.projector.location = [-0.15, 0.0, 0.35]      # projector 0.35 m behind the camera: wider fringes
     d = max(math.dist(p.location, cfg.scene.drop_zone_loc) for p in cfg.camera.poses)   # worst: farthest
     assert C.fringe_period_camera_px(cfg) == pytest.approx(5 * (d + 0.35) / d, rel=1e-9)
+
+
+@pytest.mark.parametrize("exposure, hdr", [("auto", []), (0.7, [1.0, 4.0, 16.0]), (2, [])])
+def test_exposure_modes_round_trip(cfg, tmp_path, exposure, hdr):
+    """structured_light.exposure is a number or "auto" (the default), hdr a list of factors: both
+    survive a JSON round trip with their types."""
+    assert C.StructuredLightConfig().exposure == "auto" and C.StructuredLightConfig().hdr == []
+    cfg.structured_light.enabled = True
+    cfg.structured_light.exposure = exposure
+    cfg.structured_light.hdr = hdr
+    cfg.validate()
+    C.save(cfg, tmp_path / "p.json")
+    back = C.load(tmp_path / "p.json")
+    assert back.structured_light.exposure == exposure
+    assert type(back.structured_light.exposure) is (str if exposure == "auto" else float)
+    assert back.structured_light.hdr == hdr
+    d = cfg.to_dict()
+    d["structured_light"]["exposure"] = [1]
+    with pytest.raises(ConfigError, match="structured_light.exposure"):
+        C.Config.from_dict(d)

@@ -69,7 +69,7 @@ class Reason(IntEnum):
     ILL_CONDITIONED = 5     # camera ray (nearly) in a projector column plane: |dZ/dx| over the cap
     INVALID_INPUT = 6       # NaN or inf in a sample
     FILTERED = 7            # removed by a post-filter outside the decoder (the pipeline's edge/speckle filter)
-    # 8 is reserved for the reflection filter (sl/filters.py)
+    MULTIPATH = 8           # removed by the reflection/multipath filter (sl.filters.multipath_filter)
     INCONSISTENT = 9        # the frequencies disagree by more than the noise allows (aliasing, mixed pixel,
                             # inter-reflection, tone curve): see datapipe.sl.confidence
 

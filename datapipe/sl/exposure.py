@@ -31,11 +31,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ._errors import bad_type, bad_value
+from ._errors import bad_value
 from .sensor import SensorModel
 
 __all__ = ["AUTO_PERCENTILE", "AUTO_TARGET", "Capture", "auto_exposure", "capture", "exposure_set",
-           "check_exposure", "check_hdr"]
+           "check_exposure", "check_hdr", "exposure_problem", "hdr_problem"]
 
 AUTO_PERCENTILE = 99.0           # % of the metered (lit) pixels' peaks ...
 AUTO_TARGET = 0.8                # ... at this fraction of the full well
@@ -45,35 +45,47 @@ FALLBACK_EXPOSURE = 0.5          # nothing to meter (no lit pixel): the shipped 
 EXPOSURE_LIMITS = (1e-3, 1e3)    # auto exposure is clamped to this range
 
 
-def check_exposure(value, arg: str = "exposure") -> float | str:
-    """A positive finite number or the string 'auto'."""
+def exposure_problem(value) -> tuple[str, str] | None:
+    """(what is wrong, the fix) when `value` is neither a positive finite number nor 'auto'."""
+    fix = 'give a number > 0 or "auto"'
     if isinstance(value, str):
-        if value == "auto":
-            return value
-        raise bad_value(arg, f"unknown mode {value!r}", "give a number > 0 or \"auto\"")
+        return None if value == "auto" else (f"unknown mode {value!r}", fix)
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise bad_type(arg, f"must be a number or \"auto\", got {type(value).__name__}",
-                       "give a number > 0 or \"auto\"")
+        return f"must be a number or \"auto\", got {type(value).__name__}", fix
     if not (np.isfinite(value) and value > 0):
-        raise bad_value(arg, f"must be > 0, got {value!r}", "give a number > 0 or \"auto\"")
-    return float(value)
+        return f"must be > 0, got {value!r}", fix
+    return None
 
 
-def check_hdr(factors, arg: str = "hdr") -> list[float] | None:
-    """None/empty (one exposure) or a list of distinct positive relative exposure factors."""
+def hdr_problem(factors) -> tuple[str, str] | None:
+    """(what is wrong, the fix) unless `factors` is None/empty or distinct positive numbers."""
+    fix = "give relative exposure factors, e.g. [1, 4, 16], or leave it empty"
     if factors is None:
         return None
     if not isinstance(factors, (list, tuple)):
-        raise bad_type(arg, f"must be a list of numbers, got {type(factors).__name__}",
-                       "give relative exposure factors, e.g. [1, 4, 16], or leave it empty")
-    if len(factors) == 0:
-        return None
-    out = [check_exposure(f, f"{arg}[{i}]") for i, f in enumerate(factors)]
-    if any(isinstance(f, str) for f in out):
-        raise bad_value(arg, "factors must be numbers", "give relative exposure factors, e.g. [1, 4, 16]")
-    if len(set(out)) != len(out):
-        raise bad_value(arg, f"repeats a factor: {factors}", "list each factor once")
-    return out
+        return f"must be a list of numbers, got {type(factors).__name__}", fix
+    for i, f in enumerate(factors):
+        if isinstance(f, str) or exposure_problem(f) is not None:
+            return f"factor {i} ({f!r}) is not a number > 0", fix
+    if len(set(factors)) != len(factors):
+        return f"repeats a factor: {list(factors)}", "list each factor once"
+    return None
+
+
+def check_exposure(value, arg: str = "exposure") -> float | str:
+    """A positive finite number (as float) or the string 'auto'; else SLValueError."""
+    p = exposure_problem(value)
+    if p is not None:
+        raise bad_value(arg, *p)
+    return value if isinstance(value, str) else float(value)
+
+
+def check_hdr(factors, arg: str = "hdr") -> list[float] | None:
+    """None (one exposure) for None/empty, else the factors as floats; SLValueError if bad."""
+    p = hdr_problem(factors)
+    if p is not None:
+        raise bad_value(arg, *p)
+    return [float(f) for f in factors] if factors else None
 
 
 def exposure_set(base: float, hdr: Sequence[float] | None) -> list[float]:

@@ -1,11 +1,12 @@
 """The ONE place that maps `Scene.datapipe` (the sidebar's PropertyGroup tree) to and from a `Config`.
 
 Fields map by name, section by section; the few that differ in shape are listed in `_SPECIAL`
-(periods as text, output/format sets, the optional blend file, the projector's Euler/quaternion
-rotation); `camera.sampler` is a sub-group (`_NESTED`); the optional `lighting` section is the
-group `lighting` with its `enabled` switch (off = no section). Floats come back from Blender as float32; they are written as the shortest decimal that
-round-trips in float32 (0.06, not 0.05999999865889549), so a preset saved from the sidebar reads
-exactly like one written by hand, and save -> load -> save is a fixed point.
+(periods and HDR factors as text, exposure as an auto switch + a number, output/format sets, the
+optional blend file, the projector's Euler/quaternion rotation); `camera.sampler` is a sub-group
+(`_NESTED`); the optional `lighting` section is the group `lighting` with its `enabled` switch
+(off = no section). Floats come back from Blender as float32; they are written as the shortest
+decimal that round-trips in float32 (0.06, not 0.05999999865889549), so a preset saved from the
+sidebar reads exactly like one written by hand, and save -> load -> save is a fixed point.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from .. import config as C
 from ..errors import ConfigError, Problem
-from .props import INT_MAX, format_periods, parse_periods
+from .props import INT_MAX, format_factors, format_periods, parse_factors, parse_periods
 
 SECTIONS = ("scene", "camera", "projector", "structured_light", "render", "simulation", "output")
 _COLLECTIONS = {("camera", "poses")}          # handled with the object list
@@ -65,6 +66,11 @@ _SPECIAL = {
     ("projector", "rotation"): (lambda grp, name: _rot_get(grp), _rot_set),
     ("structured_light", "periods"): (lambda grp, name: parse_periods(grp.periods),
                                       lambda value: [("periods", format_periods(value))]),
+    ("structured_light", "exposure"): (lambda grp, name: "auto" if grp.auto_exposure else f32(grp.exposure),
+                                       lambda value: [("auto_exposure", True)] if value == "auto"
+                                       else [("auto_exposure", False), ("exposure", value)]),
+    ("structured_light", "hdr"): (lambda grp, name: parse_factors(grp.hdr),
+                                  lambda value: [("hdr", format_factors(value))]),
     ("render", "outputs"): (_ordered(C.OUTPUT_KINDS), lambda value: [("outputs", set(value))]),
     ("output", "formats"): (_ordered(C.FORMATS), lambda value: [("formats", set(value))]),
     ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),

@@ -257,7 +257,11 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         col.prop(sl, "unwrap")
         col.prop(sl, "samples")
         col.prop(sl, "sensor")
-        col.prop(sl, "exposure")
+        col.prop(sl, "auto_exposure")
+        sub = col.column()
+        sub.active = not sl.auto_exposure
+        sub.prop(sl, "exposure")
+        col.prop(sl, "hdr")
         col.prop(sl, "projector_gamma")
         col.prop(sl, "debug")
         box = layout.box()

@@ -11,6 +11,7 @@ by update callbacks, so the sidebar cannot hold an impossible pair.
 """
 
 import dataclasses
+import math
 
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty,
@@ -331,6 +332,7 @@ class DATAPIPE_PG_projector(PropertyGroup):
 # structured light
 
 _L = C.StructuredLightConfig
+_FIXED_EXPOSURE = 0.5        # the Exposure field's value while Auto Exposure is on (the former default)
 
 
 def parse_periods(text: str) -> list[int]:
@@ -357,6 +359,31 @@ def _set_periods(self, value):
         self.periods_text = format_periods(parse_periods(value))
     except ValueError as e:        # keep the last valid list; the field shows it again
         print(f"DataPipe: structured_light.periods: ignored {value!r} ({e}); give integers >= 1, e.g. '1, 8, 64'")
+
+
+def parse_factors(text: str) -> list[float]:
+    """'1, 4, 16' -> [1.0, 4.0, 16.0]; '' -> [] (one exposure). ValueError unless numbers > 0."""
+    tokens = [t for t in text.replace(",", " ").replace(";", " ").replace("[", " ").replace("]", " ").split()]
+    values = [float(t) for t in tokens]
+    if any(not (math.isfinite(v) and v > 0) for v in values):
+        raise ValueError("factors must be numbers > 0")
+    return values
+
+
+def format_factors(values) -> str:
+    return ", ".join(f"{float(v):g}" for v in values)
+
+
+def _get_hdr(self):
+    return self.hdr_text
+
+
+def _set_hdr(self, value):
+    try:
+        self.hdr_text = format_factors(parse_factors(value))
+    except ValueError as e:        # keep the last valid list; the field shows it again
+        print(f"DataPipe: structured_light.hdr: ignored {value!r} ({e}); give factors > 0, e.g. '1, 4, 16', "
+              "or nothing for one exposure")
 
 
 def _sensor_search(self, context, edit_text):
@@ -387,8 +414,17 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
     sensor: StringProperty(name="Sensor Model", description="Camera noise model preset (datapipe.sl.sensor: "
                            "shot and read noise, ADC bits, saturation), e.g. ideal, industrial",
                            default=default(_L, "sensor"), search=_sensor_search)
-    exposure: FloatProperty(name="Exposure", description="Scales the linear radiance before the sensor model",
-                            min=1e-6, soft_max=10.0, default=default(_L, "exposure"))
+    auto_exposure: BoolProperty(name="Auto Exposure", description="Meter each render's fringes and set the "
+                                "exposure so the brightest lit pixels reach 80% of the full well (like a real "
+                                "scanner's auto exposure); off: the fixed Exposure below",
+                                default=default(_L, "exposure") == "auto")
+    exposure: FloatProperty(name="Exposure", description="Fixed scale on the linear radiance before the sensor "
+                            "model (used when Auto Exposure is off)", min=1e-6, soft_max=10.0,
+                            default=_FIXED_EXPOSURE)
+    hdr_text: StringProperty(default=format_factors(default(_L, "hdr")), options={"HIDDEN"})
+    hdr: StringProperty(name="HDR Factors", description="Relative exposure factors fused per pixel, e.g. "
+                        "'1, 4, 16' (shiny or high-contrast scenes); empty: one exposure", get=_get_hdr,
+                        set=_set_hdr)
     debug: BoolProperty(name="Debug Maps", description="Also write wrapped/absolute phase, modulation and "
                         "reason codes", default=default(_L, "debug"))
     projector_gamma: FloatProperty(name="Projector Gamma", description="Projector response exponent (it emits "

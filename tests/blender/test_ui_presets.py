@@ -117,6 +117,16 @@ def test_quaternion_projector_round_trip(registered):
     assert props_to_config(registered).projector.rotation == [0.5, 0.5, 0.5, 0.5]
 
 
+@pytest.mark.parametrize("exposure, hdr", [("auto", []), (0.7, [1.0, 4.0, 16.0])])
+def test_exposure_and_hdr_round_trip(registered, exposure, hdr):
+    cfg = C.default_config()
+    cfg.structured_light.exposure, cfg.structured_light.hdr = exposure, hdr
+    config_to_props(cfg, registered)
+    assert registered.structured_light.auto_exposure == (exposure == "auto")
+    back = props_to_config(registered).structured_light
+    assert (back.exposure, back.hdr) == (exposure, hdr)
+
+
 def test_save_then_load_into_fresh_scene_is_identical(registered, tmp_path):
     bpy.ops.datapipe.initialize(preset="builtin:thesis_sensor")
     d = bpy.context.scene.datapipe
@@ -130,6 +140,9 @@ def test_save_then_load_into_fresh_scene_is_identical(registered, tmp_path):
     d.projector.rotation_quaternion = (0.99, 0.0, -0.1, 0.0)
     d.structured_light.periods = "1, 4, 20"
     d.structured_light.unwrap = "multi-frequency"
+    d.structured_light.auto_exposure = False
+    d.structured_light.exposure = 0.7
+    d.structured_light.hdr = "1, 4, 16"
     d.render.outputs = {"rgb", "depth"}
     d.output.formats = {"native", "bop"}
     d.render.outputs = {"rgb", "depth", "mask"}

@@ -159,7 +159,7 @@ def test_hdr_exposures_have_independent_noise():
 
 
 @pytest.mark.parametrize("value, ok", [("auto", True), (0.5, True), (2, True), (0, False), (-1, False),
-                                       ("bright", False), (float("nan"), False), (True, False)])
+                                       ("bright", False), (float("nan"), False), (True, False), (None, False)])
 def test_check_exposure(value, ok):
     if ok:
         assert X.check_exposure(value) == value

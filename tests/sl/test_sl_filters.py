@@ -1,7 +1,11 @@
-"""The edge/speckle filter the pipeline applies after decoding (no bpy)."""
+"""The edge/speckle and multipath filters the pipeline applies after decoding (no bpy)."""
 import numpy as np
+import synth
+from sl_helpers import PERIODS, STEPS, decode_kw
 
+from datapipe import sl
 from datapipe.sl import edge_speckle_filter
+from datapipe.sl import exposure as X
 
 
 def test_edge_filter_removes_flying_pixels_and_speckles_keeps_slopes():
@@ -26,3 +30,42 @@ def test_edge_filter_removes_flying_pixels_and_speckles_keeps_slopes():
     z2 = z.copy()
     z2[20:, 40:] = (0.8 + (u - 45) * 0.8 / f * np.tan(np.radians(85)))[20:, 40:]
     assert edge_speckle_filter(z2, valid, sigma, 1.0 / f)[21:-1, 41:-1].all()
+
+
+def test_multipath_filter_removes_inter_reflected_orders_not_ambient(rig):
+    """Plane, periods (1, 8, 64). Right half: besides the direct light, light from another surface
+    point 256 projector px away, 1.5x as strong, blurred by a bounce (modulation kept 98% / 21% /
+    0% for 1 / 8 / 64 periods: the pipeline's INDIRECT_BLUR_PX at K/W = 1/512 etc.): the coarse
+    phase follows the other point, so the decoder picks wrong fringe orders (> 5 mm errors).
+    Left half: 4x the projector's mean light as unmodulated ambient (contrast B/A = 0.2).
+    The filter removes the wrong orders and none of the ambient-lit pixels; the fixed contrast test
+    it replaces (B/A >= 0.5) removed the whole ambient-lit half."""
+    cam, proj = rig
+    r = synth.render(synth.plane_scene(), cam, proj, PERIODS, STEPS)
+    W = proj.size[0]
+    cols = np.arange(r.lit.shape[1])[None, :]
+    right, left = r.lit & (cols >= r.lit.shape[1] // 2), r.lit & (cols < r.lit.shape[1] // 2)
+    img = r.images.copy()
+    kept = {1: 0.98, 8: 0.21, 64: 0.0}
+    x_other = np.where(right, r.proj_x + 256.0, 0.0)
+    for i, K in enumerate(PERIODS):
+        for n in range(STEPS):
+            glob = 1.5 * (0.5 + 0.5 * kept[K] * np.cos(2 * np.pi * K * x_other / W + 2 * np.pi * n / STEPS))
+            img[i * STEPS + n] += np.where(right, glob, 0.0)
+    img[:, left] += 2.0
+    img = img.astype(np.float32)
+    ind = sl.SensorModel.preset("industrial")
+    cap = X.capture(img, ind, [X.auto_exposure(img, ind)], 3)
+    res = sl.decode(cap.images, noise_sigma=cap.noise_sigma, saturation=cap.saturation,
+                    **decode_kw(cam, proj, min_contrast=0.05))
+    wrong = res.valid & (np.abs(res.depth - r.depth) > 5e-3)
+    assert wrong[right].mean() > 0.9                   # the decoder alone trusts the wrong orders
+    mp = sl.multipath_filter(res.modulation, res.offset, PERIODS, STEPS, cap.noise_sigma, res.valid)
+    assert (wrong & ~mp)[right].mean() < 0.005
+    assert res.valid[left].mean() > 0.99 and not mp[left].any()
+    fixed = sl.decode(cap.images, noise_sigma=cap.noise_sigma, saturation=cap.saturation,
+                      **decode_kw(cam, proj, min_contrast=0.5))
+    assert fixed.valid[left].mean() < 0.01
+    # heterodyne-like sets (finest / coarsest < 4) have no coarse fringe to compare: nothing removed
+    assert not sl.multipath_filter(res.modulation, res.offset, (70, 64, 59), STEPS, cap.noise_sigma,
+                                   res.valid).any()

@@ -1,0 +1,125 @@
+"""Rendered structured-light test scenes for the benchmarks, cached as npz (bpy only while rendering).
+
+A *case* is (rig, camera height, material): the demo preset's parts dropped into its bin (seed 0,
+scene 0), the camera straight down from `height` m above the bin floor, and the projector of
+`rig`: 'default' (the preset: 0.15 m baseline, 8.5 deg toe-in) or 'gui' (where the original
+DataPipe GUI puts it: 0.12 m, 8.5 deg). The preset is made the way a user of the original add-on
+makes it: an original-layout pickle (camera pose, projector pose, is_structured_light) loaded with
+`config.load_legacy_pickle`, everything else default.
+
+Per case the cache holds the linear fringe stack (`rad`), the z-buffer depth, the instance mask,
+the camera pose/intrinsics and `direct`: the pixels the projector lights directly and the camera
+sees (z-buffer point inside the projector image, nothing between it and the projector: a Blender
+ray cast, independent of the fringe render), plus render times.
+"""
+from __future__ import annotations
+
+import json
+import math
+import pickle
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from datapipe import config as C
+
+SEED = 1234
+RIGS = {"default": ([-0.15, 0.0, 0.0], [0.0, math.radians(-8.5), 0.0]),
+        "gui": ([-0.12, 0.0, 0.0], [0.0, math.radians(-8.5), 0.0])}
+
+
+def case_config(rig: str, height: float, material=None, res=(320, 240)) -> C.Config:
+    """The original-layout pickle preset of a case (see the module doc), loaded as a user would."""
+    base = C.default_config()
+    d = C.to_legacy_dict(base)
+    d["camera"]["world2cam_pose_list"] = [{"location": [0.0, 0.0, float(height)], "rotation": [1.0, 0.0, 0.0, 0.0]}]
+    d["camera"]["resolution"] = [int(res[1]), int(res[0])]
+    d["camera"]["is_structured_light"] = True
+    loc, rot = RIGS[rig]
+    d["projector"]["proj2cam_pose"] = {"location": list(loc), "rotation": list(rot)}
+    cfg = C.load_legacy_pickle(pickle.dumps(d), base_dir=C.presets_dir())
+    cfg.render.samples = 8                   # native layer: its depth and mask are what is used
+    cfg.render.threads = 2
+    cfg.render.outputs = ["rgb", "depth", "mask"]
+    if material is not None:
+        for o in cfg.objects:
+            o.material = material
+    return cfg
+
+
+def case_key(rig: str, height: float, material=None) -> str:
+    return f"{rig}_h{height:.2f}_{material or 'file'}"
+
+
+def direct_mask(bscene, cfg, T_world_cam, K, depth) -> np.ndarray:
+    """Pixels whose z-buffer point is inside the projector image with a free line to the projector
+    centre (Blender ray cast from the point towards the projector)."""
+    import bpy
+    from mathutils import Vector
+
+    from datapipe.core.projector import projector_matrix
+
+    H, W = depth.shape
+    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    Xc = np.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth], -1)
+    Xw = Xc @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+    P = projector_matrix(cfg, T_world_cam)
+    p = np.concatenate([Xw, np.ones((H, W, 1))], -1) @ P.T
+    x, y = p[..., 0] / p[..., 2], p[..., 1] / p[..., 2]
+    Wp, Hp = cfg.projector.resolution
+    inside = np.isfinite(depth) & (p[..., 2] > 0) & (x > 0.5) & (x < Wp - 1.5) & (y > 0.5) & (y < Hp - 1.5)
+    centre = -np.linalg.solve(P[:, :3], P[:, 3])
+    dg = bpy.context.evaluated_depsgraph_get()
+    out = np.zeros((H, W), bool)
+    for i, j in zip(*np.nonzero(inside)):
+        d = centre - Xw[i, j]
+        dist = float(np.linalg.norm(d))
+        d /= dist
+        o = Xw[i, j] + d * 1e-4
+        hit = bscene.ray_cast(dg, Vector(o.tolist()), Vector(d.tolist()), distance=dist - 2e-4)[0]
+        out[i, j] = not hit
+    return out
+
+
+def render_cases(cases, cache: Path, log=print) -> dict:
+    """Render every (rig, height, material) case missing from `cache`; returns the meta dict."""
+    import bpy
+
+    from datapipe.core.pipeline import _BlenderWorld
+
+    cache.mkdir(parents=True, exist_ok=True)
+    meta_path = cache / "renders.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    groups: dict = {}
+    for rig, h, mat in cases:
+        if case_key(rig, h, mat) not in meta:
+            groups.setdefault((rig, mat), []).append(h)
+    for (rig, mat), heights in groups.items():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        cfg = case_config(rig, heights[0], mat)
+        cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, float(h)]) for h in heights]
+        tmp = Path(tempfile.mkdtemp(prefix="slmat_"))
+        world = _BlenderWorld(cfg, tmp / "world")
+        world.setup()
+        world.start_scene(0, cfg.scene.seed, 1)
+        for k, h in enumerate(heights):
+            T = world.camera.set_pose(k)
+            t0 = time.perf_counter()
+            out = world.renderer.render(tmp / "native", SEED)
+            t1 = time.perf_counter()
+            rad, fringe_s = world.sl.render_fringes(tmp / "fringes", SEED)
+            direct = direct_mask(world.blend.scene, cfg, T, world.camera.K, out.depth)
+            key = case_key(rig, h, mat)
+            np.savez_compressed(cache / f"{key}.npz", rad=rad, depth=out.depth, mask=out.mask, T=T,
+                                K=world.camera.K, direct=direct, rgb=out.rgb)
+            meta[key] = {"rig": rig, "height": h, "material": mat or "file", "native_s": t1 - t0,
+                         "fringe_s": fringe_s, "images": int(rad.shape[0])}
+            meta_path.write_text(json.dumps(meta, indent=1))
+            log(f"  {key}: native {t1 - t0:.1f} s, fringes {fringe_s:.1f} s")
+    return meta
+
+
+def load_case(cache: Path, rig, height, material=None):
+    return dict(np.load(cache / f"{case_key(rig, height, material)}.npz"))
