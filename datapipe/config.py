@@ -69,6 +69,8 @@ class SceneConfig:
     bin_wall_scale: list[float] = _vec(1.0, 1.0)   # per scene: wall height (the zone's) times [min, max]
     blend_file: str | None = None      # open this .blend first; its object "drop_zone" wins over the above
     seed: int = 0                      # base seed; scene i derives its own (see datapipe.seeds)
+    bin_material: Any = "file"         # floor + walls: "file" (built-in 0.5 grey, roughness 0.6), a
+                                       # preset name or a dict of Principled BSDF values (core/materials.py)
 
 
 @dataclass
@@ -83,6 +85,8 @@ class ObjectEntry:
     friction: float = 0.5
     restitution: float = 0.1
     name: str = ""                     # defaults to the file stem
+    material: Any = "file"             # "file" (what the mesh carries), a preset name, a dict of
+                                       # Principled BSDF values, or a list drawn per instance (core/materials.py)
 
 
 @dataclass
@@ -270,6 +274,8 @@ def _type_name(tp) -> str:
 
 
 def _build(tp, value, path: str, problems: list[Problem]):
+    if tp is Any:                    # free-form JSON (materials): checked by validate()
+        return copy.deepcopy(value)
     origin = typing.get_origin(tp)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
@@ -845,9 +851,21 @@ def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:
     ck.problems += _lighting_problems(cfg.lighting)
 
 
+def _check_materials(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
+    """objects[i].material (name, dict or list) and scene.bin_material (name or dict)."""
+    from .core.materials import material_problem   # no bpy at import: the rules live with the builder
+    for i, o in enumerate(cfg.objects):
+        problem = material_problem(o.material)
+        if problem is not None:
+            ck.add(f"objects[{i}].material", *problem)
+    problem = material_problem(cfg.scene.bin_material, allow_list=False)
+    if problem is not None:
+        ck.add("scene.bin_material", *problem)
+
+
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
 VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_variety, _check_projector, _check_structured_light,
-                    _check_render, _check_simulation, _check_output)
+                    _check_render, _check_simulation, _check_output, _check_materials)
 
 
 def _check_exposure(sl: "StructuredLightConfig", add) -> None:

@@ -153,6 +153,11 @@ CASES = [
      "structured_light.hdr", "factor 1"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", [1, 1])),
      "structured_light.hdr", "repeats"),
+    (lambda c: setattr(c.objects[0], "material", "chrome"), "objects[0].material", "unknown material"),
+    (lambda c: setattr(c.objects[1], "material", {"roughnes": 0.2}), "objects[1].material", "unknown key"),
+    (lambda c: setattr(c.objects[1], "material", {"base_color": [2, 0, 0]}), "objects[1].material", "base_color"),
+    (lambda c: setattr(c.objects[2], "material", ["steel", 3]), "objects[2].material", "item 1"),
+    (lambda c: setattr(c.scene, "bin_material", ["steel", "rubber"]), "scene.bin_material", "expected a material"),
     (lambda c: setattr(c.render, "samples", 0), "render.samples", ">= 1"),
     (lambda c: setattr(c.render, "outputs", ["rgb", "thermal"]), "render.outputs[1]", "unknown value"),
     (lambda c: setattr(c.render, "engine", "BLENDER_EEVEE"), "render.engine", "unknown value"),
@@ -276,3 +281,19 @@ def test_exposure_modes_round_trip(cfg, tmp_path, exposure, hdr):
     d["structured_light"]["exposure"] = [1]
     with pytest.raises(ConfigError, match="structured_light.exposure"):
         C.Config.from_dict(d)
+
+
+def test_materials_round_trip(cfg, tmp_path):
+    """objects[i].material / scene.bin_material: 'file' by default; names, dicts and lists survive
+    a JSON round trip unchanged."""
+    assert C.ObjectEntry().material == "file" and C.SceneConfig().bin_material == "file"
+    cfg.objects[0].material = "steel"
+    cfg.objects[1].material = {"name": "blue", "base_color": [0.1, 0.2, 0.6], "roughness": 0.3, "ior": 1.49,
+                               "variation": 0.2}
+    cfg.objects[2].material = ["steel", "aluminium", {"metallic": 1.0, "roughness": 0.1}]
+    cfg.scene.bin_material = "matte_plastic"
+    cfg.validate()
+    C.save(cfg, tmp_path / "m.json")
+    back = C.load(tmp_path / "m.json")
+    assert [o.material for o in back.objects] == [o.material for o in cfg.objects]
+    assert back.scene.bin_material == "matte_plastic"

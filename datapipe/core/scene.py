@@ -222,6 +222,11 @@ class BlendScene:
             self.drop_zone_source = "config"
 
     def _material(self) -> bpy.types.Material:
+        """The bin's material: `scene.bin_material` (core/materials.py), or for "file" the built-in
+        grey (0.5, roughness 0.6)."""
+        from . import materials
+        if self.cfg.scene.bin_material != materials.FILE:
+            return materials.build(self.cfg.scene.bin_material)
         mat = bpy.data.materials.get(BIN_MATERIAL)
         if mat is None:
             mat = bpy.data.materials.new(BIN_MATERIAL)

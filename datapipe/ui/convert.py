@@ -71,10 +71,29 @@ _SPECIAL = {
                                        else [("auto_exposure", False), ("exposure", value)]),
     ("structured_light", "hdr"): (lambda grp, name: parse_factors(grp.hdr),
                                   lambda value: [("hdr", format_factors(value))]),
+    ("scene", "bin_material"): (lambda grp, name: _material_get(grp, name),
+                                lambda value: [("bin_material", _material_set(value))]),
+    ("objects", "material"): (lambda grp, name: _material_get(grp, name),
+                              lambda value: [("material", _material_set(value))]),
     ("render", "outputs"): (_ordered(C.OUTPUT_KINDS), lambda value: [("outputs", set(value))]),
     ("output", "formats"): (_ordered(C.FORMATS), lambda value: [("formats", set(value))]),
     ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),
 }
+
+
+def _material_get(grp, name):
+    """A material field's text -> name / list / dict (malformed JSON is kept as text so that
+    Config.validate() names the field)."""
+    from ..core.materials import parse_text
+    try:
+        return parse_text(getattr(grp, name))
+    except ValueError:
+        return getattr(grp, name)
+
+
+def _material_set(value) -> str:
+    from ..core.materials import format_text
+    return format_text(value)
 
 
 def _read(grp, name: str, hint):
@@ -94,9 +113,10 @@ def _read(grp, name: str, hint):
     raise TypeError(f"no property mapping for {name} ({hint})")
 
 
-def _read_group(grp, dc_type) -> dict:
+def _read_group(grp, dc_type, section: str) -> dict:
     hints = typing.get_type_hints(dc_type)
-    return {f.name: _read(grp, f.name, hints[f.name]) for f in dataclasses.fields(dc_type)}
+    return {f.name: _SPECIAL[(section, f.name)][0](grp, f.name) if (section, f.name) in _SPECIAL
+            else _read(grp, f.name, hints[f.name]) for f in dataclasses.fields(dc_type)}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -114,16 +134,16 @@ def props_to_config(props) -> C.Config:
             if key in _COLLECTIONS:
                 continue
             if key in _NESTED:
-                value = _NESTED[key](**_read_group(getattr(grp, f.name), _NESTED[key]))
+                value = _NESTED[key](**_read_group(getattr(grp, f.name), _NESTED[key], f.name))
             elif key in _SPECIAL:
                 value = _SPECIAL[key][0](grp, f.name)
             else:
                 value = _read(grp, f.name, hints[f.name])
             setattr(dc, f.name, value)
-    cfg.camera.poses = [C.CameraPose(**_read_group(p, C.CameraPose)) for p in props.camera.poses]
+    cfg.camera.poses = [C.CameraPose(**_read_group(p, C.CameraPose, "poses")) for p in props.camera.poses]
     if props.lighting.enabled:        # off: no lighting section, the fixed key light
-        cfg.lighting = C.LightingConfig(**_read_group(props.lighting, C.LightingConfig))
-    cfg.objects = [C.ObjectEntry(**_read_group(o, C.ObjectEntry)) for o in props.objects]
+        cfg.lighting = C.LightingConfig(**_read_group(props.lighting, C.LightingConfig, "lighting"))
+    cfg.objects = [C.ObjectEntry(**_read_group(o, C.ObjectEntry, "objects")) for o in props.objects]
     return cfg
 
 

@@ -102,6 +102,7 @@ class DATAPIPE_PT_scene(_DataPipePanel, Panel):
         sub.active = s.make_bin
         sub.prop(s, "bin_wall_thickness")
         _draw_ranges(sub, s, (("bin_size_scale", "Size Scale"), ("bin_wall_scale", "Wall Scale")))
+        col.prop(s, "bin_material")
         layout.prop(s, "blend_file")
 
 
@@ -185,6 +186,7 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
         sub = col.column(align=True)
         sub.prop(item, "friction")
         sub.prop(item, "restitution")
+        col.prop(item, "material")
 
 
 class DATAPIPE_PT_camera(_DataPipePanel, Panel):

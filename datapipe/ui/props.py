@@ -79,6 +79,12 @@ def _range(name: str, label: str, description: str, dc, *, unit="NONE", lo=None,
                                default=default(dc, name), precision=precision, update=_keep_range(name), **kw)
 
 
+def _material_search(edit_text):
+    """Preset names for the material fields (unknown text is reported by Config.validate())."""
+    from ..core.materials import NAMES
+    return [n for n in NAMES if edit_text.lower() in n.lower()]
+
+
 def _sync_previews(self, context):
     """Keep the viewport previews (camera, projector, object) in step with edited properties."""
     from . import preview
@@ -136,6 +142,11 @@ class DATAPIPE_PG_scene(PropertyGroup):
         name="Seed", description="Base seed of the run: scene i derives its own seed from it, so any scene "
         "can be re-made alone and shards match a single run",
         default=default(_S, "seed"), min=0, max=INT_MAX)
+    bin_material: StringProperty(
+        name="Bin Material", description="Floor and walls: file (the built-in grey), a preset (matte_plastic, "
+        "dark_plastic, painted, steel, aluminium, rubber) or Principled BSDF values as JSON, e.g. "
+        "{\"base_color\": [0.5, 0.5, 0.5], \"roughness\": 0.2}", default=default(_S, "bin_material"),
+        search=lambda self, context, text: _material_search(text))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -203,6 +214,11 @@ class DATAPIPE_PG_object(PropertyGroup):
                             default=default(_O, "friction"))
     restitution: FloatProperty(name="Restitution", description="Rigid-body bounciness (0..1)",
                                min=0.0, max=1.0, default=default(_O, "restitution"))
+    material: StringProperty(
+        name="Material", description="file (what the mesh carries), a preset (matte_plastic, dark_plastic, "
+        "painted, steel, aluminium, rubber), several comma separated (one drawn per instance), or Principled "
+        "BSDF values as JSON, e.g. {\"base_color\": [0.5, 0.5, 0.5], \"metallic\": 1, \"roughness\": 0.2}",
+        default=default(_O, "material"), search=lambda self, context, text: _material_search(text))
 
 
 # ------------------------------------------------------------------------------------------------

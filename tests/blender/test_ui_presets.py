@@ -127,6 +127,21 @@ def test_exposure_and_hdr_round_trip(registered, exposure, hdr):
     assert (back.exposure, back.hdr) == (exposure, hdr)
 
 
+def test_materials_round_trip_through_the_sidebar(registered):
+    cfg = C.default_config()
+    cfg.objects[0].material = "steel"
+    cfg.objects[1].material = ["steel", "aluminium"]
+    cfg.objects[2].material = {"name": "blue", "base_color": [0.1, 0.2, 0.6], "roughness": 0.3}
+    cfg.scene.bin_material = {"base_color": [0.5, 0.5, 0.5], "roughness": 0.1}
+    config_to_props(cfg, registered)
+    assert registered.objects[1].material == "steel, aluminium"
+    back = props_to_config(registered)
+    assert [o.material for o in back.objects] == [o.material for o in cfg.objects]
+    assert back.scene.bin_material == cfg.scene.bin_material
+    registered.objects[0].material = "{not json"
+    assert "objects[0].material" in {p.path for p in props_to_config(registered).problems(check_files=False)}
+
+
 def test_save_then_load_into_fresh_scene_is_identical(registered, tmp_path):
     bpy.ops.datapipe.initialize(preset="builtin:thesis_sensor")
     d = bpy.context.scene.datapipe
@@ -143,6 +158,8 @@ def test_save_then_load_into_fresh_scene_is_identical(registered, tmp_path):
     d.structured_light.auto_exposure = False
     d.structured_light.exposure = 0.7
     d.structured_light.hdr = "1, 4, 16"
+    d.objects[0].material = "steel, rubber"
+    d.scene.bin_material = "matte_plastic"
     d.render.outputs = {"rgb", "depth"}
     d.output.formats = {"native", "bop"}
     d.render.outputs = {"rgb", "depth", "mask"}
