@@ -25,22 +25,27 @@ What differs from the native call (all restored afterwards):
 
 Inter-reflected light (projector node tree, `regularize_indirect`)
 -------------------------------------------------------------------
-Light that reaches a surface after a bounce (Light Path "Ray Depth" > 1 in the light's shader)
-sees the pattern blurred by INDIRECT_BLUR_PX projector pixels. With a few paths per pixel the
-inter-reflected part of a fine fringe is otherwise Monte-Carlo noise (each path picks up the
-pattern at one random point of another surface): 3x the noise limit on the bin floor at 4 samples.
-Physically a bounce averages the fine pattern over a footprint of many periods (why fine fringes
-resist inter-reflections), so the blur is the expected value, computed analytically (a blurred
-sinusoid is the sinusoid with less modulation): the 64-period fringe keeps ~0 of its modulation
-after a bounce (its light still raises the offset and lowers the contrast), the 8-period 21%, the
-1-period 98%, so the coarse patterns keep their real inter-reflection bias. Direct light is
-unchanged (tested byte-for-byte). Not modelled: fine fringes mirrored by near-specular parts.
+Light that reaches a surface on a path with a *diffuse* bounce between it and the camera (Light
+Path "Diffuse Depth" > 0 in the light's shader) sees the pattern blurred by INDIRECT_BLUR_PX
+projector pixels. With a few paths per pixel the diffusely inter-reflected part of a fine fringe
+is otherwise Monte-Carlo noise (each path picks up the pattern at one random point of another
+surface): 3x the noise limit on the bin floor at 4 samples. Physically a diffuse bounce averages
+the fine pattern over a footprint of many periods (why fine fringes resist inter-reflections), so
+the blur is the expected value, computed analytically (a blurred sinusoid is the sinusoid with
+less modulation): the 64-period fringe keeps ~0 of its modulation after a diffuse bounce (its
+light still raises the offset and lowers the contrast), the 8-period 21%, the 1-period 98%, so
+the coarse patterns keep their real inter-reflection bias. Paths whose bounces are all glossy
+(a metal part or a glossy floor mirroring a lit surface) see the SHARP pattern: a mirror image
+of a fringe is a fringe, with the phase of the mirrored surface -- the ghost points and holes
+of real scanners on shiny parts (the glossy lobe's own width blurs it as much as it should, by
+Monte Carlo; tests/blender/test_sl_glossy.py). Direct light is unchanged (tested byte-for-byte).
 
 Sensor, decode and filters
 --------------------------
-`sl.Scanner` (datapipe/sl/scanner.py): exposure, the seeded sensor model, the decoder with
-min_contrast 0.5 against inter-reflections, the projector-border and edge/speckle filters
-(reason FILTERED = 7), and the maps written per render. This module only renders the fringes.
+`sl.Scanner` (datapipe/sl/scanner.py): exposure (fixed, auto, HDR: sl.exposure), the seeded
+sensor model, the decoder, the multipath filter (reason MULTIPATH = 8), the projector-border and
+edge/speckle filters (reason FILTERED = 7), and the maps written per render. This module only
+renders the fringes.
 
 Timing: `last_seconds` holds the fringe call's and the scan's wall time of the last render (the
 pipeline reports both as its "structured_light" stage); they are kept out of the annotations so
@@ -203,7 +208,8 @@ class StructuredLightCamera:
         return {
             "files": {k: str(Path(p).relative_to(sdir)) for k, p in files.items()},
             "periods": self.periods, "steps": self.steps, "unwrap": summary["unwrap"], "samples": int(s.samples),
-            "sensor": s.sensor, "exposure": float(s.exposure), "power": float(self.cfg.projector.power),
+            "sensor": s.sensor, "exposure": summary["exposure"], "exposure_mode": summary["exposure_mode"],
+            "hdr": summary["hdr"], "power": float(self.cfg.projector.power),
             "filter_width": float(self.filter_width), "P_proj": scan.P_proj,
             "K_proj": projector_intrinsics(self.cfg),
             "T_cam_proj": T_cam_proj(self.cfg), "proj_resolution": list(self.proj_size),
@@ -229,10 +235,10 @@ def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:
 
 
 def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
-    """Make a projector light's node tree emit, for inter-reflected light only (Light Path Ray
-    Depth > 1.5: in a light shader direct light has ray depth 1), the pattern blurred by
-    INDIRECT_BLUR_PX: offset + gain * (pattern - offset), times the image's alpha (no light outside
-    the projector image). Direct light is untouched.
+    """Make a projector light's node tree emit, for light on paths with a diffuse bounce (Light
+    Path Diffuse Depth > 0.5: direct light and glossy-only paths have 0, measured), the pattern
+    blurred by INDIRECT_BLUR_PX: offset + gain * (pattern - offset), times the image's alpha (no
+    light outside the projector image). Direct light and mirror images see the sharp pattern.
 
     Why: with a few paths per pixel the inter-reflected part of a fine fringe is Monte-Carlo noise
     (each path picks up the pattern at one random point of another surface), while physically a
@@ -241,20 +247,21 @@ def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
     (`indirect_gain`): with the default 32 px blur on a 912 px projector the 64-period fringe keeps
     ~0 of its modulation after a bounce (its light still adds to the offset, lowering the
     contrast), the 8-period 21%, the 1-period 98%, so the coarse patterns keep their real
-    inter-reflection bias. Not modelled: fine fringes mirrored by near-specular parts."""
+    inter-reflection bias. A glossy bounce keeps the fine pattern: its lobe is narrow, and Monte
+    Carlo over the lobe blurs it as much as the surface's roughness does."""
     tex = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeTexImage")
     em = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeEmission")
     N, L = nt.nodes, nt.links
     lp = N.new("ShaderNodeLightPath")
     ind = N.new("ShaderNodeMath"); ind.operation = "GREATER_THAN"
-    ind.inputs[1].default_value = 1.5                 # in a light shader direct light has depth 1
+    ind.inputs[1].default_value = 0.5                 # direct light and glossy-only paths: 0 (measured)
     blur = N.new("ShaderNodeMath"); blur.operation = "MULTIPLY_ADD"       # tex * gain + offset (1 - gain)
     blur.name = INDIRECT_NODE
     _set_gain(blur, gain, offset)
     clip = N.new("ShaderNodeMath"); clip.operation = "MULTIPLY"           # x alpha: dark outside the image
     diff = N.new("ShaderNodeMath"); diff.operation = "SUBTRACT"           # blurred - sharp
     out = N.new("ShaderNodeMath"); out.operation = "MULTIPLY_ADD"         # ind * diff + sharp
-    L.new(lp.outputs["Ray Depth"], ind.inputs[0])
+    L.new(lp.outputs["Diffuse Depth"], ind.inputs[0])
     L.new(tex.outputs["Color"], blur.inputs[0])
     L.new(blur.outputs[0], clip.inputs[0])
     L.new(tex.outputs["Alpha"], clip.inputs[1])

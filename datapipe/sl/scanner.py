@@ -1,5 +1,6 @@
 """The structured-light scanner as one pure pipeline: linear radiance of the fringe images ->
-exposure -> sensor model (seeded) -> decode -> projector-border and edge/speckle filters -> maps.
+exposure (fixed / auto / HDR) -> sensor model (seeded) -> decode -> multipath, projector-border and
+edge/speckle filters -> maps.
 
 No Blender: the Blender side (core/structured_light.py) renders the fringe radiance and hands it
 here; tests and benchmarks feed synthetic or saved radiance the same way.
@@ -11,11 +12,18 @@ here; tests and benchmarks feed synthetic or saved radiance the same way.
 
 Validity (what "valid" means)
 -----------------------------
-1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated, and
-   fringe contrast B/A >= MIN_CONTRAST (0.5; the decoder's default is 0.05). Direct light has
-   B/A ~0.9; a pixel lit mostly by light reflected from another surface (e.g. the projector's
-   shadow next to a bin wall, seen through the glossy floor) has ~0.2-0.4 and the phase of the
-   other surface.
+0. exposure (`sl.exposure`): a fixed number, or "auto" (the default): metered per render from the
+   fringe radiance (99th percentile of the lit pixels' peaks at 80% of the full well); with `hdr`
+   factors one sensor-model capture per exposure (independent noise), fused per pixel (highest
+   unsaturated exposure, rescaled, with its noise). `Scan.exposure` is the base exposure used.
+1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated.
+   Contrast B/A >= MIN_CONTRAST = 0.05 is only a sanity floor: ambient light (the key light on a
+   part) lowers B/A without harming the phase; a fixed 0.5 discarded lit parts near the camera.
+1b. multipath / reflection filter (`sl.filters.multipath_filter`, reason MULTIPATH = 8): the
+   frequencies' modulations disagree beyond the noise (min_K B_K < 0.6 max_K B_K): light of a
+   second path pulls the coarse phase and so the fringe order (e.g. the projector's shadow next to
+   a bin wall, lit by the wall). On the demo bin it removes what B/A >= 0.5 removed, without
+   punishing ambient light (benchmarks/results/sl_materials.md).
 2. projector border: pixels within BORDER_PX camera pixel of the projector image's left/right
    edge (their sub-samples straddle the edge of the lit area).
 3. edge / speckle filter (`sl.filters.edge_speckle_filter`): a camera pixel that straddles a depth
@@ -38,14 +46,16 @@ import numpy as np
 
 from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from .decode import DecodeResult, Reason, decode
-from .filters import edge_speckle_filter
+from .exposure import Capture, auto_exposure, capture, check_exposure, check_hdr, exposure_set
+from .filters import edge_speckle_filter, multipath_filter
 from .metrics import pixel_depth_sigma
 from .sensor import SensorModel
 from .unwrap import plan_unwrap
 
-MIN_CONTRAST = 0.5               # decode(min_contrast=): fringe contrast B/A below this = global light
+MIN_CONTRAST = 0.05              # decode(min_contrast=): a sanity floor; global light is the multipath filter's
 BORDER_PX = 1.0                  # camera px kept free at the projector image's left/right border
 FILTERED = int(Reason.FILTERED)  # reason code of pixels removed by the border and edge/speckle filters
+MULTIPATH = int(Reason.MULTIPATH)  # reason code of pixels removed by the multipath filter
 REASON_NAMES = {r.value: r.name for r in Reason}
 
 
@@ -59,6 +69,14 @@ class Scan:
     P_proj: np.ndarray
     sensor: SensorModel
     seconds: float              # wall time of sensor model + decode + filters
+    capture: Capture | None = None   # the exposures used (.exposures, .reference = base, .chosen per pixel)
+    exposure_mode: str = "fixed"     # "fixed" or "auto"
+    multipath: np.ndarray | None = None   # bool: removed by the multipath filter
+
+    @property
+    def exposure(self) -> float:
+        """The base exposure used (auto: the metered one)."""
+        return float(self.capture.reference) if self.capture is not None else float("nan")
 
     def maps(self, debug: bool = False) -> dict:
         """The per-render outputs by kind (the native layout names their files): depth channels,
@@ -77,28 +95,34 @@ class Scan:
     def summary(self) -> dict:
         res = self.result
         counts = np.bincount(res.reason.ravel(), minlength=max(REASON_NAMES) + 1)
+        cap = self.capture
+        factors = [e / cap.reference for e in cap.exposures] if cap is not None and len(cap.exposures) > 1 else []
         return {"unwrap": res.method, "valid_fraction": float(res.valid.mean()),
                 "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
-                "median_sigma_z": _nanmedian(self.sigma_z)}
+                "median_sigma_z": _nanmedian(self.sigma_z), "exposure": self.exposure,
+                "exposure_mode": self.exposure_mode, "hdr": [float(f) for f in factors]}
 
 
 class Scanner:
     """Fringe radiance -> depth, as a real structured-light sensor does it (see the module doc).
 
     `K_proj`, `T_cam_proj`: the projector's intrinsics and its pose in the camera frame (OpenCV);
-    `sensor`: a SensorModel or a preset name; `exposure`: gain on the radiance before the sensor."""
+    `sensor`: a SensorModel or a preset name; `exposure`: gain on the radiance before the sensor,
+    or "auto"; `hdr`: relative exposure factors fused per pixel (empty: one exposure)."""
 
     def __init__(self, periods: Sequence[float], steps: int, proj_size: tuple[int, int], K_proj, T_cam_proj_, *,
-                 unwrap: str = "auto", sensor: SensorModel | str = "industrial", exposure: float = 1.0,
-                 min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX, edge_filter: bool = True,
-                 projector_gamma: float = 1.0):
+                 unwrap: str = "auto", sensor: SensorModel | str = "industrial", exposure: float | str = "auto",
+                 hdr: Sequence[float] = (), min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX,
+                 edge_filter: bool = True, multipath_filter: bool = True, projector_gamma: float = 1.0):
         self.periods, self.steps = list(periods), int(steps)
         self.proj_size = tuple(int(v) for v in proj_size)
         self.K_proj = np.asarray(K_proj, dtype=np.float64)
         self.T_cam_proj = np.asarray(T_cam_proj_, dtype=np.float64)
         self.unwrap = unwrap
         self.sensor = SensorModel.preset(sensor) if isinstance(sensor, str) else sensor
-        self.exposure = float(exposure)
+        self.exposure = check_exposure(exposure)
+        self.hdr = check_hdr(list(hdr)) or []
+        self.multipath_filter = bool(multipath_filter)
         self.min_contrast = float(min_contrast)
         self.border_px = float(border_px)
         self.edge_filter = bool(edge_filter)
@@ -109,7 +133,7 @@ class Scanner:
     def from_config(cls, cfg, **overrides) -> "Scanner":
         """The scanner a Config describes (structured_light + projector sections)."""
         s = cfg.structured_light
-        kw = dict(unwrap=s.unwrap, sensor=s.sensor, exposure=s.exposure, projector_gamma=s.projector_gamma)
+        kw = dict(unwrap=s.unwrap, sensor=s.sensor, exposure=s.exposure, hdr=s.hdr, projector_gamma=s.projector_gamma)
         kw.update(overrides)
         return cls(s.periods, s.steps, cfg.projector.resolution, projector_intrinsics(cfg), T_cam_proj(cfg), **kw)
 
@@ -122,19 +146,26 @@ class Scanner:
         """(F*N, H, W) linear radiance (frequency-major) seen from `T_world_cam` -> Scan."""
         t0 = time.perf_counter()
         model = self.sensor
-        radiance = np.clip(np.asarray(radiance, dtype=np.float32), 0.0, None) * self.exposure
-        dn, saturation = model.apply(radiance, seed)
+        radiance = np.clip(np.asarray(radiance, dtype=np.float32), 0.0, None)
+        base = auto_exposure(radiance, model) if self.exposure == "auto" else self.exposure
+        cap = capture(radiance, model, exposure_set(base, self.hdr), seed, reference=base)
         P_cam = projection_matrix(K_cam, T_world_cam)
         P_proj = self.projector_matrix(T_world_cam)
-        res = decode(dn, periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
-                     proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=model.noise_sigma,
-                     saturation=saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma)
-        sigma_z = pixel_depth_sigma(res, model.noise_sigma, self.proj_size[0], self.steps)
+        res = decode(cap.images, periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
+                     proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=cap.noise_sigma,
+                     saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma)
+        sigma_z = pixel_depth_sigma(res, cap.noise_sigma, self.proj_size[0], self.steps)
+        multipath = np.zeros(res.valid.shape, bool)
+        if self.multipath_filter:
+            multipath = multipath_filter(res.modulation, res.offset, res.periods, self.steps, cap.noise_sigma,
+                                         res.valid)
+            _remove(res, multipath, MULTIPATH)
         filtered = np.zeros(res.valid.shape, bool)
         if self.edge_filter:
             filtered = self._filter(res, sigma_z, float(np.asarray(K_cam)[0, 0]))
         sigma_z[~res.valid] = np.nan
-        return Scan(res, sigma_z, filtered, P_cam, P_proj, model, time.perf_counter() - t0)
+        return Scan(res, sigma_z, filtered, P_cam, P_proj, model, time.perf_counter() - t0, cap,
+                    "auto" if self.exposure == "auto" else "fixed", multipath)
 
     def _filter(self, res: DecodeResult, sigma_z: np.ndarray, fx: float) -> np.ndarray:
         """Projector-border and edge/speckle filters; removed pixels become FILTERED, NaN."""
@@ -143,12 +174,16 @@ class Scanner:
             filtered = res.valid & ((res.proj_x < margin - 0.5)
                                     | (res.proj_x > self.proj_size[0] - 0.5 - margin))
         filtered |= edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
-        res.valid &= ~filtered
-        res.depth[filtered] = np.nan
-        res.proj_x[filtered] = np.nan
-        res.phase[filtered] = np.nan
-        res.reason[filtered] = FILTERED
+        _remove(res, filtered, FILTERED)
         return filtered
+
+
+def _remove(res: DecodeResult, mask: np.ndarray, reason: int) -> None:
+    """Drop `mask` pixels from a DecodeResult with `reason` (depth, projector column, phase NaN)."""
+    res.valid &= ~mask
+    for a in (res.depth, res.proj_x, res.phase):
+        a[mask] = np.nan
+    res.reason[mask] = reason
 
 
 def _nanmedian(a) -> float | None:

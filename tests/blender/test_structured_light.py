@@ -3,7 +3,7 @@ the z-buffer depth of the same render and against analytic geometry.
 
 Scenes are built directly from the core classes (BlendScene with the floor only, BlendCamera,
 Renderer, StructuredLightCamera) with the shipped StructuredLightConfig defaults (periods (1, 8,
-64), 4 steps, 4 fringe samples per camera pixel, `industrial` sensor, exposure 0.5) and the preset's
+64), 4 steps, 4 fringe samples per camera pixel, `industrial` sensor, auto exposure) and the preset's
 camera/projector: camera straight down from 0.8 m above the floor, 16 mm / 11.3 mm lens, projector
 0.15 m to the side, toed in by 8.5 deg.
 """
@@ -259,7 +259,8 @@ def test_debug_output_and_annotations(tmp_path):
     # annotations: settings, projector matrix from the render's pose, valid fraction, reasons
     assert info["periods"] == cfg.structured_light.periods and info["steps"] == cfg.structured_light.steps
     assert info["samples"] == cfg.structured_light.samples and info["sensor"] == cfg.structured_light.sensor
-    assert info["exposure"] == cfg.structured_light.exposure
+    assert cfg.structured_light.exposure == "auto" and info["exposure_mode"] == "auto" and info["hdr"] == []
+    assert 0.01 < info["exposure"] < 100                 # the metered value, a number
     assert np.allclose(info["P_proj"], projector_matrix(cfg, np.array(r["T_world_cam"])), atol=1e-9)
     assert info["valid_fraction"] == pytest.approx(valid_png.mean())
     assert sum(info["reasons"].values()) == H * W and info["reasons"]["VALID"] == int(valid_png.sum())
