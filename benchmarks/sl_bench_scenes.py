@@ -104,6 +104,9 @@ def render_cases(cases, cache: Path, log=print) -> dict:
         world = _BlenderWorld(cfg, tmp / "world")
         world.setup()
         world.start_scene(0, cfg.scene.seed, 1)
+        if mat is not None and not getattr(world, "applies_materials", False):
+            from datapipe.core import materials
+            materials.apply_to_instances(cfg, world.instances, cfg.scene.seed)
         for k, h in enumerate(heights):
             T = world.camera.set_pose(k)
             t0 = time.perf_counter()
