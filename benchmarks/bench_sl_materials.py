@@ -33,7 +33,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -45,7 +44,6 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import sl_bench_scenes as S  # noqa: E402
 
 from datapipe import sl  # noqa: E402
-from datapipe.core import structured_light as SLM  # noqa: E402
 
 MATERIALS = ("file", "matte_plastic", "dark_plastic", "painted", "steel", "aluminium", "rubber")
 HEIGHTS = (0.4, 0.6, 0.8, 1.2)
@@ -73,11 +71,11 @@ def plan(quick: bool):
 
 
 def decode_case(c: dict, rig: str, height: float, exposure, hdr, seed: int = S.SEED):
-    cfg = S.case_config(rig, height)
-    slc = SLM.StructuredLightCamera(cfg, None, SimpleNamespace(K=c["K"]), None)
+    """The product's scanner (sl.Scanner) on a cached radiance -> (DecodeResult, Scan, seconds)."""
+    scanner = sl.Scanner.from_config(S.case_config(rig, height), exposure=exposure, hdr=hdr)
     t0 = time.perf_counter()
-    res, extra = slc.decode(c["rad"], seed, c["T"], exposure=exposure, hdr=hdr)
-    return res, extra, time.perf_counter() - t0
+    scan = scanner.scan(c["rad"], seed, c["K"], c["T"])
+    return scan.result, scan, time.perf_counter() - t0
 
 
 def metrics(c: dict, res, extra) -> dict:
@@ -98,7 +96,7 @@ def metrics(c: dict, res, extra) -> dict:
         "median_mm": float(np.median(e) * 1e3) if e.size else float("nan"),
         "p99_mm": float(np.percentile(e, 99) * 1e3) if e.size else float("nan"),
         "out5": float((e > 5e-3).mean()) if e.size else float("nan"),
-        "exposure": float(extra["exposure"]),
+        "exposure": float(extra.exposure),
         "reasons_parts": {REASONS[i]: float(counts[i] / max(part.sum(), 1)) for i in range(len(REASONS))},
     }
 

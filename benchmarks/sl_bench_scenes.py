@@ -103,10 +103,7 @@ def render_cases(cases, cache: Path, log=print) -> dict:
         tmp = Path(tempfile.mkdtemp(prefix="slmat_"))
         world = _BlenderWorld(cfg, tmp / "world")
         world.setup()
-        world.start_scene(0, cfg.scene.seed, 1)
-        if mat is not None and not getattr(world, "applies_materials", False):
-            from datapipe.core import materials
-            materials.apply_to_instances(cfg, world.instances, cfg.scene.seed)
+        world.start_scene(0, cfg.scene.seed, 1)           # drops the parts, applies their material
         for k, h in enumerate(heights):
             T = world.camera.set_pose(k)
             t0 = time.perf_counter()

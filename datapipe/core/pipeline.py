@@ -328,6 +328,9 @@ class _BlenderWorld:
         t2 = time.perf_counter()
         pose_indices = self.variety.pose_plan(rng, n_renders)
         self.instances = sim.kept
+        from . import materials        # on a random stream of their own: a list changes no pose
+        labels = materials.apply_to_instances(self.cfg, sim.kept, scene_seed(base, i))
+        self.materials = {inst.name: lab for inst, lab in zip(sim.kept, labels)}
         objects = [self._object_record(inst) for inst in sim.kept]
         scene = {
             "scene_id": i, "name": layout.scene_name(i), "seed": scene_seed(base, i),
@@ -339,7 +342,7 @@ class _BlenderWorld:
 
     def _object_record(self, inst) -> dict:
         return {"name": inst.name, "filename": inst.filename, "obj_id": inst.entry_index + 1,
-                "mask_index": inst.mask_index}
+                "mask_index": inst.mask_index, "material": self.materials.get(inst.name, "file")}
 
     def render(self, i: int, r: int, pose_index: int, sdir: Path, base: int, *, image_id: int):
         rdir = sdir / layout.render_name(r)

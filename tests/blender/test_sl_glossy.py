@@ -15,6 +15,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from datapipe import sl  # noqa: E402
 from datapipe.core import materials as M  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
 from datapipe.core.camera import BlendCamera  # noqa: E402
@@ -79,7 +80,10 @@ def test_mirror_plate_gives_ghosts_where_the_mirror_geometry_predicts(tmp_path):
     on_plate, hits, z_plate, z_ghost = _mirror_geometry(cfg, cam.K, T, rad.shape[1:])
     assert hits.sum() > 150
 
-    res, _ = slc.decode(rad, SEED, T, multipath_filter=False)
+    def scan(radiance, **kw):
+        return sl.Scanner.from_config(cfg, **kw).scan(radiance, SEED, cam.K, T).result
+
+    res = scan(rad, multipath_filter=False)
     valid = res.valid & hits
     ghost = valid & (np.abs(res.depth - z_ghost) < 5e-3)
     assert not (res.valid & on_plate & (np.abs(res.depth - z_plate) < 5e-3)).any()   # no true plate depth
@@ -88,7 +92,7 @@ def test_mirror_plate_gives_ghosts_where_the_mirror_geometry_predicts(tmp_path):
     assert (np.abs(z_ghost - z_plate)[ghost] > 0.1).all()     # floating > 10 cm above the plate
 
     # the filter removes ghosts whose pixel also sees another path, and keeps the floor
-    filt, _ = slc.decode(rad, SEED, T)
+    filt = scan(rad)
     assert (filt.valid & ghost).sum() < ghost.sum()
     floor = np.abs(res.depth - 0.8) < 1e-3                  # the floor plane, 0.8 m below the camera
     assert (filt.valid & floor).sum() >= 0.98 * (res.valid & floor).sum()
@@ -101,5 +105,5 @@ def test_mirror_plate_gives_ghosts_where_the_mirror_geometry_predicts(tmp_path):
         gt = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeMath" and n.operation == "GREATER_THAN")
         nt.links.new(lp.outputs["Ray Depth"], gt.inputs[0])
         gt.inputs[1].default_value = 1.5
-    blurred, _ = slc.decode(slc.render_fringes(tmp_path / "b", SEED)[0], SEED, T, multipath_filter=False)
+    blurred = scan(slc.render_fringes(tmp_path / "b", SEED)[0], multipath_filter=False)
     assert (blurred.valid & hits & (np.abs(blurred.depth - z_ghost) < 5e-3)).sum() < 0.25 * ghost.sum()
