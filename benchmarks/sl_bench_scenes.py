@@ -88,6 +88,7 @@ def render_cases(cases, cache: Path, log=print) -> dict:
     import bpy
 
     from datapipe.core.pipeline import _BlenderWorld
+    from datapipe.core.structured_light import has_shiny_surface
 
     cache.mkdir(parents=True, exist_ok=True)
     meta_path = cache / "renders.json"
@@ -109,13 +110,14 @@ def render_cases(cases, cache: Path, log=print) -> dict:
             t0 = time.perf_counter()
             out = world.renderer.render(tmp / "native", SEED)
             t1 = time.perf_counter()
+            world.sl.set_sharp_glossy(has_shiny_surface(world.blend.scene))   # as process() does
             rad, fringe_s = world.sl.render_fringes(tmp / "fringes", SEED)
             direct = direct_mask(world.blend.scene, cfg, T, world.camera.K, out.depth)
             key = case_key(rig, h, mat)
             np.savez_compressed(cache / f"{key}.npz", rad=rad, depth=out.depth, mask=out.mask, T=T,
                                 K=world.camera.K, direct=direct, rgb=out.rgb)
             meta[key] = {"rig": rig, "height": h, "material": mat or "file", "native_s": t1 - t0,
-                         "fringe_s": fringe_s, "images": int(rad.shape[0])}
+                         "fringe_s": fringe_s, "images": int(rad.shape[0]), "sharp_glossy": world.sl.sharp_glossy}
             meta_path.write_text(json.dumps(meta, indent=1))
             log(f"  {key}: native {t1 - t0:.1f} s, fringes {fringe_s:.1f} s")
     return meta

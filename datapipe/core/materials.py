@@ -146,6 +146,7 @@ def build(spec):
         bsdf.inputs["IOR"].default_value = float(v["ior"])
     if "specular" in v:
         bsdf.inputs["Specular IOR Level"].default_value = float(v["specular"])
+    mat["datapipe_roughness"] = float(v["roughness"])   # read by structured_light.has_shiny_surface
     mat.diffuse_color = color                     # the viewport colour
     mat.roughness = float(v["roughness"])
     mat.metallic = float(v["metallic"])

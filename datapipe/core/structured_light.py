@@ -34,11 +34,17 @@ the fine pattern over a footprint of many periods (why fine fringes resist inter
 the blur is the expected value, computed analytically (a blurred sinusoid is the sinusoid with
 less modulation): the 64-period fringe keeps ~0 of its modulation after a diffuse bounce (its
 light still raises the offset and lowers the contrast), the 8-period 21%, the 1-period 98%, so
-the coarse patterns keep their real inter-reflection bias. Paths whose bounces are all glossy
-(a metal part or a glossy floor mirroring a lit surface) see the SHARP pattern: a mirror image
-of a fringe is a fringe, with the phase of the mirrored surface -- the ghost points and holes
-of real scanners on shiny parts (the glossy lobe's own width blurs it as much as it should, by
-Monte Carlo; tests/blender/test_sl_glossy.py). Direct light is unchanged (tested byte-for-byte).
+the coarse patterns keep their real inter-reflection bias. Glossy bounces: a mirror image of a
+fringe is a fringe, with the phase of the mirrored surface -- the ghost points and holes of real
+scanners on shiny parts. When the scene has a shiny surface (a visible material with roughness
+below SHINY_ROUGHNESS = 0.45: steel, aluminium, painted, dark plastic presets; checked per render,
+`has_shiny_surface`), paths whose bounces are all glossy (Light Path Glossy Depth, not counted)
+see the SHARP pattern and Monte Carlo over the lobe blurs it as much as the roughness does
+(tests/blender/test_sl_glossy.py). Otherwise glossy bounces are blurred like diffuse ones: a
+rough lobe (the bin's 0.6) averages the fine fringe over centimetres, and Monte Carlo at 4 paths
+per pixel would turn it into noise (p99 error on the demo bin 0.6 -> 1.0 mm measured). The
+light shader cannot see the roughness of the surface a path bounced off, hence the per-scene
+switch. Direct light is unchanged (tested byte-for-byte).
 
 Sensor, decode and filters
 --------------------------
@@ -70,6 +76,8 @@ FRINGE_BASENAME = "_sl_fringes"  # the fringe call's multilayer EXR in the rende
 OUTPUT_NODE = "datapipe_sl_file_output"
 INDIRECT_BLUR_PX = 32.0          # projector px: Gaussian blur of the pattern as seen by inter-reflected light
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
+GLOSSY_NODE = "datapipe_sl_glossy_switch"
+SHINY_ROUGHNESS = 0.45           # a visible surface rougher than this scatters like a diffuse one (see module doc)
 
 
 class StructuredLightCamera:
@@ -90,6 +98,7 @@ class StructuredLightCamera:
         self.filter_width = FRINGE_FILTER_WIDTH
         self.supersample = FRINGE_SUPERSAMPLE
         self.indirect_blur_px = INDIRECT_BLUR_PX
+        self.sharp_glossy = False
         self.samples = int(s.samples)
         self.layers: list = []
         self.layer_names: list[str] = []
@@ -135,6 +144,12 @@ class StructuredLightCamera:
             K = self.periods[i // self.steps]
             _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE],
                       indirect_gain(K, self.proj_size[0], self.indirect_blur_px))
+
+    def set_sharp_glossy(self, sharp: bool) -> None:
+        """Glossy bounces see the sharp pattern (True) or the blurred one like diffuse bounces."""
+        self.sharp_glossy = bool(sharp)
+        for ob in self.projector.lights:
+            ob.data.node_tree.nodes[GLOSSY_NODE].inputs[1].default_value = 0.0 if sharp else 1.0
 
     @property
     def layer_samples(self) -> int:
@@ -200,6 +215,7 @@ class StructuredLightCamera:
         """Render the fringes, scan them, write the maps; returns the render's structured_light record."""
         s = self.cfg.structured_light
         rdir = Path(rdir)
+        self.set_sharp_glossy(has_shiny_surface(self.scene))
         radiance, render_s = self.render_fringes(rdir, seed)
         scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam)
         self.last_seconds = {"render": render_s, "decode": scan.seconds}
@@ -209,7 +225,8 @@ class StructuredLightCamera:
             "files": {k: str(Path(p).relative_to(sdir)) for k, p in files.items()},
             "periods": self.periods, "steps": self.steps, "unwrap": summary["unwrap"], "samples": int(s.samples),
             "sensor": s.sensor, "exposure": summary["exposure"], "exposure_mode": summary["exposure_mode"],
-            "hdr": summary["hdr"], "power": float(self.cfg.projector.power),
+            "hdr": summary["hdr"], "glossy_fringes": "sharp" if self.sharp_glossy else "blurred",
+            "power": float(self.cfg.projector.power),
             "filter_width": float(self.filter_width), "P_proj": scan.P_proj,
             "K_proj": projector_intrinsics(self.cfg),
             "T_cam_proj": T_cam_proj(self.cfg), "proj_resolution": list(self.proj_size),
@@ -228,6 +245,29 @@ class StructuredLightCamera:
         self.layers, self.layer_names = [], []
 
 
+def has_shiny_surface(bpy_scene) -> bool:
+    """Whether any rendered mesh in the scene has a glossy lobe narrower than SHINY_ROUGHNESS
+    (Principled / Glossy / Anisotropic BSDF roughness; core/materials records the value of the
+    materials it builds, whose roughness socket may be driven by a texture)."""
+    for ob in bpy_scene.objects:
+        if ob.type != "MESH" or ob.hide_render:
+            continue
+        for slot in ob.material_slots:
+            mat = slot.material
+            if mat is None or mat.node_tree is None:
+                continue
+            if "datapipe_roughness" in mat:
+                if float(mat["datapipe_roughness"]) < SHINY_ROUGHNESS:
+                    return True
+                continue
+            for n in mat.node_tree.nodes:
+                r = n.inputs.get("Roughness") if n.type in ("BSDF_PRINCIPLED", "BSDF_GLOSSY", "BSDF_ANISOTROPIC") \
+                    else None
+                if r is not None and not r.is_linked and float(r.default_value) < SHINY_ROUGHNESS:
+                    return True
+    return False
+
+
 def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:
     """Modulation left in a K-period fringe after a Gaussian blur of `blur_px` projector pixels:
     exp(-2 pi^2 (blur_px K / W)^2) (a blurred sinusoid is the same sinusoid, scaled)."""
@@ -235,10 +275,11 @@ def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:
 
 
 def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
-    """Make a projector light's node tree emit, for light on paths with a diffuse bounce (Light
-    Path Diffuse Depth > 0.5: direct light and glossy-only paths have 0, measured), the pattern
-    blurred by INDIRECT_BLUR_PX: offset + gain * (pattern - offset), times the image's alpha (no
-    light outside the projector image). Direct light and mirror images see the sharp pattern.
+    """Make a projector light's node tree emit, for light on paths with a bounce (Light Path
+    Diffuse Depth + g * Glossy Depth > 0.5; direct light has both 0, measured; g = 0 when the
+    scene has shiny surfaces, `set_sharp_glossy`), the pattern blurred by INDIRECT_BLUR_PX:
+    offset + gain * (pattern - offset), times the image's alpha (no light outside the projector
+    image). Direct light, and with g = 0 mirror images, see the sharp pattern.
 
     Why: with a few paths per pixel the inter-reflected part of a fine fringe is Monte-Carlo noise
     (each path picks up the pattern at one random point of another surface), while physically a
@@ -253,15 +294,20 @@ def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
     em = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeEmission")
     N, L = nt.nodes, nt.links
     lp = N.new("ShaderNodeLightPath")
+    bounces = N.new("ShaderNodeMath"); bounces.operation = "MULTIPLY_ADD"  # glossy * g + diffuse depth
+    bounces.name = GLOSSY_NODE
+    bounces.inputs[1].default_value = 1.0             # g = 1: glossy bounces blurred too (set_sharp_glossy)
     ind = N.new("ShaderNodeMath"); ind.operation = "GREATER_THAN"
-    ind.inputs[1].default_value = 0.5                 # direct light and glossy-only paths: 0 (measured)
+    ind.inputs[1].default_value = 0.5                 # direct light: both depths 0 (measured)
     blur = N.new("ShaderNodeMath"); blur.operation = "MULTIPLY_ADD"       # tex * gain + offset (1 - gain)
     blur.name = INDIRECT_NODE
     _set_gain(blur, gain, offset)
     clip = N.new("ShaderNodeMath"); clip.operation = "MULTIPLY"           # x alpha: dark outside the image
     diff = N.new("ShaderNodeMath"); diff.operation = "SUBTRACT"           # blurred - sharp
     out = N.new("ShaderNodeMath"); out.operation = "MULTIPLY_ADD"         # ind * diff + sharp
-    L.new(lp.outputs["Diffuse Depth"], ind.inputs[0])
+    L.new(lp.outputs["Glossy Depth"], bounces.inputs[0])
+    L.new(lp.outputs["Diffuse Depth"], bounces.inputs[2])
+    L.new(bounces.outputs[0], ind.inputs[0])
     L.new(tex.outputs["Color"], blur.inputs[0])
     L.new(blur.outputs[0], clip.inputs[0])
     L.new(tex.outputs["Alpha"], clip.inputs[1])
