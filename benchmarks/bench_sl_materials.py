@@ -122,7 +122,8 @@ def run_decodes(cases, cache: Path, meta: dict, log):
             res, extra, dt = decode_case(c, rig, h, exposure, hdr)
             m = metrics(c, res, extra)
             m.update(rig=rig, height=h, material=mat or "file", mode=mode, decode_s=dt,
-                     fringe_s=meta[key]["fringe_s"], native_s=meta[key]["native_s"])
+                     fringe_s=meta[key]["fringe_s"], native_s=meta[key]["native_s"],
+                     physics=meta[key].get("physics", "current"))
             rows.append(m)
         log(f"  decoded {key}")
     return rows
@@ -132,7 +133,7 @@ def run_decodes(cases, cache: Path, meta: dict, log):
 # report
 
 COLS = ("material", "height", "mode", "exposure", "valid_parts", "part_ok", "valid_floor", "median_mm", "p99_mm",
-        "out5", "fringe_s", "decode_s")
+        "out5", "fringe_s", "decode_s", "physics")
 
 
 def _fmt(v, k):
@@ -168,42 +169,41 @@ def reason_table(rows) -> list[str]:
 
 
 def grid_png(cases, cache: Path, meta: dict, path: Path) -> None:
-    """Rows: materials; columns: heights; each cell the auto-exposure SL depth error map (green
-    within 1 mm, yellow 1-5 mm, red > 5 mm, dark grey no SL depth, black background)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """One row per rendered case (rig, height, material): RGB, then the SL depth error map for
+    each exposure mode (green within 1 mm, yellow 1-5 mm, red > 5 mm, grey no SL depth, black no
+    surface). Drawn with OpenCV (no plotting library in the environment)."""
+    import cv2
 
-    mats = [m for m in MATERIALS if any(S.case_key("default", h, None if m == "file" else m) in meta
-                                        for h in HEIGHTS)]
-    fig, axes = plt.subplots(len(mats), len(HEIGHTS) * 2, figsize=(2.2 * 2 * len(HEIGHTS), 1.8 * len(mats)),
-                             squeeze=False)
-    for i, m in enumerate(mats):
-        for j, h in enumerate(HEIGHTS):
-            key = S.case_key("default", h, None if m == "file" else m)
-            ax_rgb, ax_err = axes[i, 2 * j], axes[i, 2 * j + 1]
-            for ax in (ax_rgb, ax_err):
-                ax.set_xticks([])
-                ax.set_yticks([])
-            if key not in meta:
-                continue
-            c = S.load_case(cache, "default", h, None if m == "file" else m)
-            res, _, _ = decode_case(c, "default", h, "auto", [])
+    tiles = []
+    for rig, h, mat in cases:
+        key = S.case_key(rig, h, mat)
+        if key not in meta:
+            continue
+        c = S.load_case(cache, rig, h, mat)
+        rgb = np.asarray(c["rgb"], np.float32)
+        rgb = rgb[..., :3] if rgb.ndim == 3 else np.repeat(rgb[..., None], 3, -1)
+        if rgb.max() <= 1.0:
+            rgb = rgb * 255.0
+        row = [cv2.cvtColor(np.clip(rgb, 0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR)]
+        for mode, (exposure, hdr) in MODES.items():
+            res, _, _ = decode_case(c, rig, h, exposure, hdr)
             err = np.abs(res.depth - c["depth"])
-            img = np.zeros(err.shape + (3,))
-            img[np.isfinite(c["depth"])] = (0.25, 0.25, 0.25)
-            img[res.valid & (err <= 1e-3)] = (0.1, 0.75, 0.2)
-            img[res.valid & (err > 1e-3) & (err <= 5e-3)] = (0.95, 0.8, 0.1)
-            img[res.valid & (err > 5e-3)] = (0.9, 0.1, 0.1)
-            ax_rgb.imshow(c["rgb"][..., :3] if c["rgb"].ndim == 3 else c["rgb"])
-            ax_err.imshow(img)
-            if i == 0:
-                ax_rgb.set_title(f"{h:.1f} m RGB", fontsize=8)
-                ax_err.set_title(f"{h:.1f} m SL (auto)", fontsize=8)
-        axes[i, 0].set_ylabel(m, fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+            img = np.zeros(err.shape + (3,), np.uint8)
+            img[np.isfinite(c["depth"])] = (64, 64, 64)
+            img[res.valid & (err <= 1e-3)] = (50, 190, 25)
+            img[res.valid & (err > 1e-3) & (err <= 5e-3)] = (25, 205, 240)
+            img[res.valid & (err > 5e-3)] = (25, 25, 230)
+            cv2.putText(img, mode, (4, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
+            row.append(img)
+        cv2.putText(row[0], f"{rig} {h:.2f} m {mat or 'file'}", (4, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
+                    (255, 255, 255), 2)
+        tiles.append(np.concatenate(row, axis=1))
+    if tiles:
+        w = max(t.shape[1] for t in tiles)
+        tiles = [np.pad(t, ((0, 0), (0, w - t.shape[1]), (0, 0))) for t in tiles]
+        grid = np.concatenate(tiles, axis=0)
+        grid = cv2.resize(grid, (grid.shape[1] // 2, grid.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(path), grid, [cv2.IMWRITE_PNG_COMPRESSION, 9])
 
 
 def write_report(rows, prec, cache, meta, render_wall):
@@ -215,9 +215,9 @@ def write_report(rows, prec, cache, meta, render_wall):
             w.writerow([r["rig"], *[r[k] for k in COLS], r["direct_part_px"],
                         *[r["reasons_parts"][n] for n in REASONS]])
     grid_png(plan(False), cache, meta, RESULTS / "sl_materials_grid.png")
-    mat_rows = [r for r in rows if r["rig"] == "default" and r["height"] in HEIGHTS]
+    mat_rows = [r for r in rows if r["rig"] == "default"]
     mat_rows.sort(key=lambda r: (MATERIALS.index(r["material"]), r["height"], list(MODES).index(r["mode"])))
-    wd = [r for r in rows if r["material"] == "file" and r["height"] in WD_HEIGHTS]
+    wd = [r for r in rows if r["material"] == "file"]
     wd.sort(key=lambda r: (r["rig"], r["height"], list(MODES).index(r["mode"])))
     L = ["# Structured light on part materials, working distances and exposure modes", "",
          f"Machine: {platform.machine()}, 2 cores shared with other jobs; Blender (bpy) Cycles CPU, 320x240, "
@@ -238,7 +238,7 @@ def write_report(rows, prec, cache, meta, render_wall):
          "## Point precision against a data sheet", "",
          f"Zivid 2+ M60 data sheet: point precision 80 um (1 sigma, consecutive captures, 600 mm, Lambertian "
          f"target, 0 lux; second-hand, /work/shared/scanner-facts.md). Ours, same definition (two captures = "
-         f"two sensor-noise draws of one render; floor of the demo bin at 0.6 m camera height, 'file' parts, auto "
+         f"two sensor-noise draws of one render; floor of the demo bin, camera 0.55 m above it, GUI rig, auto "
          f"exposure): sigma {prec['sigma_um']:.0f} um (robust {prec['robust_sigma_um']:.0f} um) over "
          f"{prec['pixels']} floor pixels. Not like for like: 320x240 camera and 912x570 projector vs Zivid's "
          "2448x2048; the floor is 0.5 grey with roughness 0.6 (not a Lambertian 80% target); key light on "
@@ -265,8 +265,8 @@ def main(argv=None):
     import json
     meta = json.loads((args.cache / "renders.json").read_text())
     rows = run_decodes(cases, args.cache, meta, log)
-    c = S.load_case(args.cache, "default", 0.6, None)
-    prec = point_precision(c, "default", 0.6)
+    c = S.load_case(args.cache, "gui", 0.55, None)
+    prec = point_precision(c, "gui", 0.55)
     render_wall = sum(v["fringe_s"] + v["native_s"] for v in meta.values())
     write_report(rows, prec, args.cache, meta, render_wall)
     log(f"wrote {RESULTS / 'sl_materials.md'}")
