@@ -89,7 +89,7 @@ def test_mirror_plate_gives_ghosts_where_the_mirror_geometry_predicts(tmp_path):
     valid = res.valid & hits
     ghost = valid & (np.abs(res.depth - z_ghost) < 5e-3)
     assert not (res.valid & on_plate & (np.abs(res.depth - z_plate) < 5e-3)).any()   # no true plate depth
-    assert ghost.sum() >= 10                          # ghost points, where the mirror puts them ...
+    assert ghost.sum() >= 5                           # ghost points, where the mirror puts them ...
     assert ghost.sum() >= 0.8 * valid.sum()           # ... and almost nothing else: ghosts or holes
     assert (np.abs(z_ghost - z_plate)[ghost] > 0.1).all()     # floating > 10 cm above the plate
 
