@@ -36,6 +36,7 @@ COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE"
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap
 SAMPLER_KINDS = ("pool", "bin_view")
+FRINGE_MODES = ("fast", "render")    # structured_light.fringe_mode (core/fringe_fast.py)
 MAX_RESOLUTION = 8192
 # Upper limits: beyond them a preset is a typo, not a dataset (validate() says so before any work).
 MAX_RENDERS = 1_000_000            # ~12 days of Cycles at 1 s per render (= seeds.MAX_PLAN_RENDERS)
@@ -142,6 +143,8 @@ class StructuredLightConfig:
     steps: int = 4                     # phase steps per period (4: one clipped sample tolerated)
     unwrap: str = "auto"
     samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples)
+    fringe_mode: str = "render"        # "render": every pattern path-traced; "fast": one flat-lit
+                                       # render, patterns synthesised (core/fringe_fast.py)
     sensor: str = "industrial"         # datapipe.sl.sensor preset
     exposure: float | str = "auto"     # scale on linear radiance before the sensor model, or "auto":
                                        # metered per render from the fringes (datapipe.sl.exposure)
@@ -169,7 +172,9 @@ class RenderConfig:
     device: str = "CPU"
     samples: int = 32                  # native RGB layer
     threads: int = 0                   # 0 = all cores
-    denoise: bool = False
+    denoise: bool = False              # OpenImageDenoise (CPU) on the RGB, albedo + normal guided
+    adaptive_threshold: float = 0.0    # Cycles adaptive sampling noise threshold; 0 = off (fixed samples)
+    persistent_data: bool = False      # keep Cycles' scene data between the renders of a scene
     max_bounces: int = 4
     light_power: float = 50.0          # W, area light above the bin (the scene's key light)
     outputs: list[str] = _vec(*OUTPUT_KINDS)
@@ -648,6 +653,7 @@ def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None
     else:
         _check_sl_periods(sl, pr, ck.add)
     ck.choice("structured_light.unwrap", sl.unwrap, UNWRAP_METHODS)
+    ck.choice("structured_light.fringe_mode", sl.fringe_mode, FRINGE_MODES)
     if not (0.2 <= sl.projector_gamma <= 5.0):
         ck.add("structured_light.projector_gamma", f"must be a number in [0.2, 5], got {sl.projector_gamma!r}",
                "use 1.0 for a linear projector, ~2.2 for a typical DLP/LCD response")
@@ -736,6 +742,9 @@ def _check_render(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.add("render.threads", f"must be >= 0, got {r.threads}", "use 0 for all cores")
     ck.at_most("render.threads", r.threads, 1024, "more threads than any machine has")
     ck.int_range("render.max_bounces", r.max_bounces, 0, 1024, "bounces")
+    if not (0.0 <= r.adaptive_threshold < 1.0):
+        ck.add("render.adaptive_threshold", f"must be in [0, 1), got {r.adaptive_threshold}",
+               "use 0 (off) or a noise threshold such as 0.01")
     if r.light_power < 0:
         ck.add("render.light_power", f"must be >= 0, got {r.light_power}", "give a power >= 0 W")
     if not r.outputs:

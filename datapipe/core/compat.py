@@ -205,26 +205,42 @@ def take_written_exr(directory: str | os.PathLike, basename: str, what: str = "p
 # ------------------------------------------------------------------------------------------------
 # Cycles device, colour management
 
-def set_cycles_device(scene, device: str) -> None:
-    """'CPU', or 'GPU' with the first available compute backend enabled. Raises RuntimeError when
-    a GPU is asked for and none can be used."""
-    scene.cycles.device = device
+GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")   # tried in this order (OptiX: NVIDIA RTX)
+_gpu_fallback_reported = False
+
+
+def set_cycles_device(scene, device: str) -> str:
+    """Put Cycles on the CPU, or (`device` "GPU") on the first backend in GPU_BACKENDS that has a
+    device, with all that backend's devices enabled. Returns what renders: "CPU" or the backend.
+
+    No GPU: Cycles renders on the CPU, and the first time in a process this prints one line on
+    stderr saying so (a dataset is still made; a "GPU" config stays usable on laptops and CI)."""
+    global _gpu_fallback_reported
     if device != "GPU":
-        return
+        scene.cycles.device = "CPU"
+        return "CPU"
     prefs = bpy.context.preferences.addons["cycles"].preferences
-    for backend in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+    for backend in GPU_BACKENDS:
         try:
             prefs.compute_device_type = backend
-        except TypeError:
+        except TypeError:              # this Blender build has no such backend
             continue
         prefs.get_devices()
         gpus = [d for d in prefs.devices if d.type == backend]
         if gpus:
             for d in prefs.devices:
                 d.use = d.type == backend
-            return
+            scene.cycles.device = "GPU"
+            return backend
     prefs.compute_device_type = "NONE"
-    raise RuntimeError("no GPU compute device found for Cycles")
+    scene.cycles.device = "CPU"
+    if not _gpu_fallback_reported:
+        _gpu_fallback_reported = True
+        import sys
+        print("datapipe: render.device is GPU, but Cycles finds no GPU device (tried "
+              f"{', '.join(GPU_BACKENDS)}): rendering on the CPU (set render.device to \"CPU\" to "
+              "silence this)", file=sys.stderr, flush=True)
+    return "CPU"
 
 
 def set_linear_color_management(scene) -> None:

@@ -85,6 +85,7 @@ class Renderer:
         self.camera = camera
         self.outputs: list[str] = [k for k in _OUTPUTS if k in cfg.render.outputs]
         self.view_layer = None
+        self.device: str | None = None                   # set by setup(): "CPU" or the GPU backend
         self.tree = None
         self.file_output = None
         self._rl_nodes: dict[str, object] = {}           # view layer name -> Render Layers node
@@ -101,15 +102,24 @@ class Renderer:
     def _setup_cycles(self) -> None:
         sc, r = self.scene, self.cfg.render
         sc.render.engine = compat.engine_id(r.engine)
-        try:
-            compat.set_cycles_device(sc, r.device)
-        except RuntimeError as e:
-            raise DataPipeError(f"render.device = {r.device!r}: {e} (fix: set render.device to \"CPU\")") from None
+        self.device = compat.set_cycles_device(sc, r.device)    # "CPU", or the GPU backend used
         cy = sc.cycles
         cy.samples = int(r.samples)
-        cy.use_adaptive_sampling = False      # `samples` means what it says: a fixed noise level
+        # adaptive sampling off: `samples` means what it says, a fixed noise level; with a threshold
+        # Cycles stops a pixel's sampling once its noise estimate is below it
+        cy.use_adaptive_sampling = r.adaptive_threshold > 0
+        if r.adaptive_threshold > 0:
+            cy.adaptive_threshold = float(r.adaptive_threshold)
+            cy.adaptive_min_samples = 0                  # Cycles' automatic minimum
         cy.max_bounces = int(r.max_bounces)
         cy.use_denoising = bool(r.denoise)
+        if r.denoise:                 # OpenImageDenoise runs on the CPU; guided by albedo and normals
+            cy.denoiser = "OPENIMAGEDENOISE"
+            cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+            cy.denoising_prefilter = "ACCURATE"
+            if hasattr(cy, "denoising_quality"):
+                cy.denoising_quality = "HIGH"
+        sc.render.use_persistent_data = bool(r.persistent_data)
         cy.use_preview_denoising = False
         cy.time_limit = 0.0
         if r.threads > 0:

@@ -7,6 +7,10 @@ Only built when `cfg.structured_light.enabled`; with it off, none of this exists
 
 Fringe render (its own Cycles call)
 -----------------------------------
+`structured_light.fringe_mode` "render" path-traces every pattern as described here (the
+reference); "fast" renders once with the projector showing white and synthesises every pattern's
+direct light from it (core/fringe_fast.py, sl/fringe_synth.py), on the same point-sample grid.
+
 The fringe view layers (`sl_00` ...) are rendered in a second `render.render` call right after the
 Renderer's native one, with the native layer switched off and the Renderer's File Output node muted;
 a File Output node of our own writes the fringe layers into `_sl_fringes.exr` (read back, deleted).
@@ -65,7 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import sl
-from ..geometry import T_cam_proj, projector_intrinsics
+from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
 from ..io.native import write_render_maps
 from . import projector as _pj
 from .projector import LIGHTS_COLLECTION, Projector
@@ -100,6 +104,10 @@ class StructuredLightCamera:
         self.indirect_blur_px = INDIRECT_BLUR_PX
         self.sharp_glossy = False
         self.samples = int(s.samples)
+        self.fringe_mode = s.fringe_mode       # "fast": one flat-lit call (core/fringe_fast.py); "render"
+        self.flat = None                       # FlatLitRender in fast mode
+        self.bounce_min_gain = None            # fast mode: periods with bounce layers (None: its default)
+        self._profiles = sl.pattern_profiles(self.proj_size[0], self.periods, self.steps)
         self.layers: list = []
         self.layer_names: list[str] = []
         self.file_output = None
@@ -113,6 +121,13 @@ class StructuredLightCamera:
         from . import compat
 
         remove_leftovers(self.scene, self.renderer.tree)
+        if self.fringe_mode == "fast":
+            from .fringe_fast import FlatLitRender
+            kw = {} if self.bounce_min_gain is None else {"min_gain": self.bounce_min_gain}
+            self.flat = FlatLitRender(self.cfg, self.scene, self.camera, self.renderer, **kw)
+            self.flat.setup()
+            self.set_samples(self.samples)
+            return
         Wp, Hp = self.proj_size
         patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps,
                                       gamma=self.cfg.structured_light.projector_gamma)
@@ -140,6 +155,8 @@ class StructuredLightCamera:
     def set_indirect_blur(self, blur_px: float) -> None:
         """Blur (projector px) of the pattern seen by inter-reflected light; 0 = none (benchmarks)."""
         self.indirect_blur_px = float(blur_px)
+        if self.flat is not None:            # fast mode: bounced light is offset only, nothing to blur
+            return
         for i, ob in enumerate(self.projector.lights):
             K = self.periods[i // self.steps]
             _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE],
@@ -148,6 +165,8 @@ class StructuredLightCamera:
     def set_sharp_glossy(self, sharp: bool) -> None:
         """Glossy bounces see the sharp pattern (True) or the blurred one like diffuse bounces."""
         self.sharp_glossy = bool(sharp)
+        if self.flat is not None:    # fast mode: every bounce of the fine fringe is offset only
+            return
         for ob in self.projector.lights:
             ob.data.node_tree.nodes[GLOSSY_NODE].inputs[1].default_value = 0.0 if sharp else 1.0
 
@@ -163,47 +182,29 @@ class StructuredLightCamera:
             vl.samples = self.layer_samples
 
     # -- once per render --------------------------------------------------------------------------
-    def render_fringes(self, render_dir, seed: int) -> tuple[np.ndarray, float]:
+    def render_fringes(self, render_dir, seed: int, T_world_cam=None) -> tuple[np.ndarray, float]:
         """Render the fringe layers (own Cycles call, see the module doc) -> ((F*N, H, W) float32
-        linear radiance, frequency-major; wall seconds of the call)."""
-        import bpy
+        linear radiance, frequency-major; wall seconds of the call, and in fast mode of the
+        synthesis). `T_world_cam` (fast mode: the pose P_proj is made from) defaults to the
+        camera's current pose."""
         from . import compat
 
-        render_dir = Path(render_dir)
-        render_dir.mkdir(parents=True, exist_ok=True)
-        for stale in compat.written_files(render_dir, FRINGE_BASENAME):
-            stale.unlink()
-        compat.set_file_output_path(self.file_output, render_dir, FRINGE_BASENAME)
-        sc = self.scene
-        fringe = set(self.layer_names)
-        saved_use = {vl.name: vl.use for vl in sc.view_layers}
-        others = [n for n in self.renderer.tree.nodes
-                  if n.bl_idname == "CompositorNodeOutputFile" and n != self.file_output]
-        saved_mute = {n.name: n.mute for n in others}
-        saved_filter, saved_seed = sc.cycles.filter_width, sc.cycles.seed
-        saved_pct = sc.render.resolution_percentage
         ss = int(self.supersample)
-        try:
-            for vl in sc.view_layers:
-                vl.use = vl.name in fringe
-            for n in others:
-                n.mute = True
-            self.file_output.mute = False
-            sc.cycles.filter_width = float(self.filter_width)
-            sc.cycles.seed = int(seed) & 0x7FFFFFFF
-            sc.render.resolution_percentage = 100 * ss
+        if self.flat is not None:
+            if T_world_cam is None:
+                T_world_cam = self.camera.T_world_cam()
+            lit, seconds = self.flat.render(render_dir, seed, supersample=ss, filter_width=self.filter_width,
+                                            samples=self.layer_samples)
             t0 = time.perf_counter()
-            bpy.ops.render.render(write_still=False, scene=sc.name)
-            seconds = time.perf_counter() - t0
-        finally:
-            self.file_output.mute = True
-            for n in others:
-                n.mute = saved_mute[n.name]
-            for vl in sc.view_layers:
-                if vl.name in saved_use:
-                    vl.use = saved_use[vl.name]
-            sc.cycles.filter_width, sc.cycles.seed = saved_filter, saved_seed
-            sc.render.resolution_percentage = saved_pct
+            stack = sl.synthesize_fringes(lit.direct, lit.indirect, lit.points,
+                                          projector_matrix(self.cfg, T_world_cam), self._profiles, block=ss)
+            bounce = lit.bounce(self.periods, self.steps, ss)
+            if bounce is not None:
+                stack += bounce
+            return stack, seconds + time.perf_counter() - t0
+        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, self.layer_names,
+                                  render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
+                                  filter_width=self.filter_width)
         ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe")
         stack = np.stack([ch[f"{name}.V"] for name in self.layer_names]).astype(np.float32)
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
@@ -216,7 +217,7 @@ class StructuredLightCamera:
         s = self.cfg.structured_light
         rdir = Path(rdir)
         self.set_sharp_glossy(has_shiny_surface(self.scene))
-        radiance, render_s = self.render_fringes(rdir, seed)
+        radiance, render_s = self.render_fringes(rdir, seed, T_world_cam)
         scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam)
         self.last_seconds = {"render": render_s, "decode": scan.seconds}
         files = write_render_maps(rdir, scan.maps(debug=s.debug))
@@ -224,8 +225,9 @@ class StructuredLightCamera:
         return {
             "files": {k: str(Path(p).relative_to(sdir)) for k, p in files.items()},
             "periods": self.periods, "steps": self.steps, "unwrap": summary["unwrap"], "samples": int(s.samples),
-            "sensor": s.sensor, "exposure": summary["exposure"], "exposure_mode": summary["exposure_mode"],
-            "hdr": summary["hdr"], "glossy_fringes": "sharp" if self.sharp_glossy else "blurred",
+            "fringe_mode": self.fringe_mode, "sensor": s.sensor, "exposure": summary["exposure"], "exposure_mode": summary["exposure_mode"],
+            "hdr": summary["hdr"], "glossy_fringes": ("offset" if self.flat is not None
+                                                        else "sharp" if self.sharp_glossy else "blurred"),
             "power": float(self.cfg.projector.power),
             "filter_width": float(self.filter_width), "P_proj": scan.P_proj,
             "K_proj": projector_intrinsics(self.cfg),
@@ -241,6 +243,10 @@ class StructuredLightCamera:
                 if n is not None and tree.nodes.get(n.name) is not None:
                     tree.nodes.remove(n)
         self._rl_nodes, self.file_output = [], None
+        if self.flat is not None:
+            self.flat.teardown()
+            self.flat = None
+            return
         self.projector.teardown()
         self.layers, self.layer_names = [], []
 
@@ -266,6 +272,52 @@ def has_shiny_surface(bpy_scene) -> bool:
                 if r is not None and not r.is_linked and float(r.default_value) < SHINY_ROUGHNESS:
                     return True
     return False
+
+
+def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *, seed: int,
+                    supersample: int, filter_width: float) -> float:
+    """Render only the view layers `layer_names` of scene `sc` in their own Cycles call, written by
+    `file_output` (muted otherwise) to `render_dir`/`basename`, at `supersample` x the resolution
+    with pixel filter `filter_width` and Cycles seed `seed`; every other layer and File Output
+    node is switched off for the call and everything is restored afterwards. Returns wall seconds."""
+    import bpy
+    from . import compat
+
+    render_dir = Path(render_dir)
+    render_dir.mkdir(parents=True, exist_ok=True)
+    for stale in compat.written_files(render_dir, basename):
+        stale.unlink()
+    compat.set_file_output_path(file_output, render_dir, basename)
+    wanted = set(layer_names)
+    saved_use = {vl.name: vl.use for vl in sc.view_layers}
+    others = [n for n in tree.nodes if n.bl_idname == "CompositorNodeOutputFile" and n != file_output]
+    saved_mute = {n.name: n.mute for n in others}
+    saved_filter, saved_seed = sc.cycles.filter_width, sc.cycles.seed
+    saved_pct = sc.render.resolution_percentage
+    saved_adaptive = sc.cycles.use_adaptive_sampling
+    try:
+        sc.cycles.use_adaptive_sampling = False     # the fringe layers' samples are exact counts
+        for vl in sc.view_layers:
+            vl.use = vl.name in wanted
+        for n in others:
+            n.mute = True
+        file_output.mute = False
+        sc.cycles.filter_width = float(filter_width)
+        sc.cycles.seed = int(seed) & 0x7FFFFFFF
+        sc.render.resolution_percentage = 100 * int(supersample)
+        t0 = time.perf_counter()
+        bpy.ops.render.render(write_still=False, scene=sc.name)
+        return time.perf_counter() - t0
+    finally:
+        file_output.mute = True
+        for n in others:
+            n.mute = saved_mute[n.name]
+        for vl in sc.view_layers:
+            if vl.name in saved_use:
+                vl.use = saved_use[vl.name]
+        sc.cycles.filter_width, sc.cycles.seed = saved_filter, saved_seed
+        sc.render.resolution_percentage = saved_pct
+        sc.cycles.use_adaptive_sampling = saved_adaptive
 
 
 def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:

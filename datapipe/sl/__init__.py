@@ -2,6 +2,8 @@
 a camera noise model, the decoder and its metrics, and the scanner (sensor -> decode -> filters). No Blender here, ever (design.md)."""
 from .decode import DecodeResult, Reason, decode, estimate_noise_sigma, modulation_floor_factor
 from .filters import edge_speckle_filter, multipath_filter
+from .fringe_synth import (bounce_modulation, pattern_profiles, projector_columns, quadrature_profiles,
+                           synthesize_fringes)
 from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
                       theoretical_phase_sigma)
 from .patterns import fringe_patterns, phase_shifts
@@ -21,4 +23,5 @@ __all__ = [
     "depth_error_stats", "theoretical_phase_sigma", "theoretical_depth_sigma", "effective_period",
     "pixel_depth_sigma", "edge_speckle_filter", "multipath_filter",
     "Scanner", "Scan",
+    "synthesize_fringes", "pattern_profiles", "projector_columns", "quadrature_profiles", "bounce_modulation",
 ]

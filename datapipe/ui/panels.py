@@ -257,6 +257,7 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         col.prop(sl, "periods")
         col.prop(sl, "steps")
         col.prop(sl, "unwrap")
+        col.prop(sl, "fringe_mode")
         col.prop(sl, "samples")
         col.prop(sl, "sensor")
         col.prop(sl, "auto_exposure")
@@ -352,7 +353,8 @@ class DATAPIPE_PT_render(_DataPipePanel, Panel):
         layout.use_property_decorate = False
         r = _props(context).render
         col = layout.column()
-        for name in ("engine", "device", "samples", "threads", "denoise", "max_bounces", "light_power"):
+        for name in ("engine", "device", "samples", "adaptive_threshold", "denoise", "persistent_data", "threads",
+                     "max_bounces", "light_power"):
             col.prop(r, name)
 
 

@@ -425,6 +425,10 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
                        default=default(_L, "steps"), min=3, soft_max=16)
     unwrap: EnumProperty(name="Unwrapping", description="Temporal phase unwrapping method",
                          items=_items(C.UNWRAP_METHODS), default=default(_L, "unwrap"))
+    fringe_mode: EnumProperty(name="Fringe Mode", description="fast: one render with the projector showing white, "
+                              "every fringe image synthesised from it (exact direct light, bounce light as offset); "
+                              "render: every fringe image path-traced (the reference)",
+                              items=_items(C.FRINGE_MODES), default=default(_L, "fringe_mode"))
     samples: IntProperty(name="Samples", description="Render paths per camera pixel for each fringe image (point-sampled at 2x2 per pixel; 4 is enough once bounce light is blurred, see README)",
                          default=default(_L, "samples"), min=1, soft_max=4096)
     sensor: StringProperty(name="Sensor Model", description="Camera noise model preset (datapipe.sl.sensor: "
@@ -467,7 +471,14 @@ class DATAPIPE_PG_render(PropertyGroup):
                          default=default(_R, "samples"), min=1, soft_max=4096)
     threads: IntProperty(name="Threads", description="CPU threads (0: all cores)",
                          default=default(_R, "threads"), min=0, soft_max=256)
-    denoise: BoolProperty(name="Denoise", description="Denoise the RGB render", default=default(_R, "denoise"))
+    denoise: BoolProperty(name="Denoise", description="Denoise the RGB render (OpenImageDenoise on the CPU, "
+                          "albedo and normal guided)", default=default(_R, "denoise"))
+    adaptive_threshold: FloatProperty(name="Noise Threshold", description="Adaptive sampling: stop sampling a "
+                                      "pixel once its noise is below this (0: off, every pixel gets Samples)",
+                                      min=0.0, max=0.999, soft_max=0.1, precision=3,
+                                      default=default(_R, "adaptive_threshold"))
+    persistent_data: BoolProperty(name="Persistent Data", description="Keep Cycles' scene data between the "
+                                  "renders of a scene", default=default(_R, "persistent_data"))
     max_bounces: IntProperty(name="Max Bounces", description="Cycles light bounces",
                              default=default(_R, "max_bounces"), min=0, soft_max=32)
     light_power: FloatProperty(name="Key Light", description="Power of the area light above the bin",

@@ -265,16 +265,57 @@ def test_linear_emission_gives_srgb_value(factory_scene, tmp_path):
     assert scene.view_settings.view_transform == "Standard" and scene.render.dither_intensity == 0
 
 
+def test_denoise_and_adaptive_sampling_options(factory_scene, tmp_path):
+    """render.denoise runs OpenImageDenoise on the RGB only (depth, mask untouched) and brings a
+    2-sample render much closer to a 128-sample one; render.adaptive_threshold turns Cycles'
+    adaptive sampling on with that threshold (and 0 leaves it off)."""
+    scene = factory_scene
+    add_plane(size=4.0, pass_index=1)
+    add_sphere(0.08, (0.0, 0.0, 0.05), pass_index=2)
+    add_light()
+    results = {}
+    for name, samples, denoise, thr in (("ref", 128, False, 0.0), ("noisy", 2, False, 0.0), ("clean", 2, True, 0.02)):
+        cfg = make_cfg(samples=samples)
+        cfg.render.denoise, cfg.render.adaptive_threshold = denoise, thr
+        cam, ren = setup(scene, cfg)
+        assert scene.cycles.use_denoising == denoise and scene.cycles.use_adaptive_sampling == (thr > 0)
+        results[name] = ren.render(tmp_path / name, seed=3)
+    assert scene.cycles.denoiser == "OPENIMAGEDENOISE" and scene.cycles.adaptive_threshold == pytest.approx(0.02)
+    ref, noisy, clean = results["ref"], results["noisy"], results["clean"]
+    np.testing.assert_array_equal(clean.depth, noisy.depth)
+    np.testing.assert_array_equal(clean.mask, noisy.mask)
+    err = lambda o: np.abs(o.rgb.astype(float) - ref.rgb.astype(float)).mean()  # noqa: E731
+    assert err(clean) < 0.5 * err(noisy)
+
+
+def test_gpu_device_falls_back_to_cpu_with_one_message(factory_scene, tmp_path, capsys, monkeypatch):
+    """render.device GPU on a machine without a GPU (this one: Cycles' compute_device_type NONE)
+    renders on the CPU and says so once per process on stderr; with a GPU it picks a backend."""
+    monkeypatch.setattr(compat, "_gpu_fallback_reported", False)
+    scene = factory_scene
+    cfg = make_cfg(outputs=("rgb",), samples=1)
+    cfg.render.device = "GPU"
+    cam, ren = setup(scene, cfg)
+    add_plane(material=emission_material((0.18, 0.18, 0.18)))
+    err = capsys.readouterr().err
+    if ren.device == "CPU":
+        assert scene.cycles.device == "CPU"
+        assert err.count("datapipe: render.device is GPU") == 1 and "rendering on the CPU" in err
+        assert "OPTIX, CUDA" in err
+    else:                                           # a machine with a usable GPU
+        assert ren.device in compat.GPU_BACKENDS and scene.cycles.device == "GPU" and not err
+    out = ren.render(tmp_path, seed=0)              # renders either way
+    assert np.abs(out.rgb.astype(int) - 118).max() <= 1
+    setup(scene, cfg)                               # a second run in the same process: no repeat
+    assert "render.device" not in capsys.readouterr().err
+    cfg.render.device = "CPU"
+    setup(scene, cfg)
+    assert scene.cycles.device == "CPU" and ren.device in ("CPU", *compat.GPU_BACKENDS)
+
+
 def test_user_errors_are_datapipe_errors(factory_scene, tmp_path):
     scene = factory_scene
     cfg = make_cfg(outputs=("depth",))
-    cfg.render.device = "GPU"
-    try:
-        setup(scene, cfg)
-        assert scene.cycles.device == "GPU"          # a machine with a usable GPU
-    except DataPipeError as e:
-        assert "render.device" in str(e)
-    cfg.render.device = "CPU"
     cam, ren = setup(scene, cfg)
     with pytest.raises(DataPipeError, match="no '{'"):
         ren.render(tmp_path / "a{frame}", seed=0)
