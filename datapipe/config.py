@@ -143,8 +143,9 @@ class StructuredLightConfig:
     steps: int = 4                     # phase steps per period (4: one clipped sample tolerated)
     unwrap: str = "auto"
     samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples)
-    fringe_mode: str = "render"        # "render": every pattern path-traced; "fast": one flat-lit
-                                       # render, patterns synthesised (core/fringe_fast.py)
+    fringe_mode: str = "fast"          # "fast": one flat-lit render (+ coarse bounce layers), patterns
+                                       # synthesised (core/fringe_fast.py); "render": every pattern
+                                       # path-traced (the reference; sl_fringe_modes.md)
     sensor: str = "industrial"         # datapipe.sl.sensor preset
     exposure: float | str = "auto"     # scale on linear radiance before the sensor model, or "auto":
                                        # metered per render from the fringes (datapipe.sl.exposure)
