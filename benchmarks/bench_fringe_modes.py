@@ -52,7 +52,7 @@ def plan(quick: bool):
     D = C.StructuredLightConfig()
     P = [("bin", "320", v, D.samples) for v in VARIANTS]
     if not quick:
-        P += [("bin", "640", v, D.samples) for v in ("render", "fast", "fast_k1", "fast_offset")]
+        P += [("bin", "640", v, D.samples) for v in ("render", "fast", "fast_k1", "fast_offset")]   # render: see notes
         P += [("plane", "320", v, D.samples) for v in ("render", "fast")]
     return P
 

@@ -302,8 +302,10 @@ def test_native_render_unchanged_by_structured_light(tmp_path):
 
 def test_second_setup_in_one_session_replaces_the_first(tmp_path):
     """The pipeline builds the projector once per run and leaves it in the session (or a saved
-    .blend); a later run's setup removes those leftovers instead of failing on leaking lights."""
+    .blend); a later run's setup removes those leftovers instead of failing on leaking lights.
+    Render mode (one light per pattern); the fast mode's: test_fringe_fast.py."""
     cfg = plane_config(res=(32, 24))
+    cfg.structured_light.fringe_mode = "render"
     blend, cam, ren, slc, T = build(tmp_path, cfg)
     n = len(cfg.structured_light.periods) * cfg.structured_light.steps
     again = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
@@ -322,6 +324,7 @@ def test_indirect_regularisation_leaves_direct_light_alone(tmp_path):
     the fringes are byte-identical with and without it; with a box on the plane they differ, and
     only by a fraction of the signal (the inter-reflected part)."""
     cfg = plane_config(res=(64, 48))
+    cfg.structured_light.fringe_mode = "render"           # the blur lives in the per-pattern lights
     for box, same in ((False, True), (True, False)):
         bpy.ops.wm.read_factory_settings(use_empty=True)
         blend, cam, ren, slc, T = build(tmp_path, cfg, box=box)
