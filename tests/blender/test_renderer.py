@@ -41,6 +41,7 @@ def make_cfg(outputs=("rgb", "depth", "normals", "mask"), poses=None, samples=4)
     cfg.camera.poses = poses or [CameraPose([0.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0])]
     cfg.render.samples = samples
     cfg.render.threads = 2
+    cfg.render.denoise = False            # exact pixel values (test_denoise_... turns it on)
     cfg.render.outputs = list(outputs)
     return cfg
 
