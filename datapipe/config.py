@@ -36,7 +36,8 @@ COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE"
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap
 SAMPLER_KINDS = ("pool", "bin_view")
-FRINGE_MODES = ("fast", "render")    # structured_light.fringe_mode (core/fringe_fast.py)
+FRINGE_MODES = ("auto", "fast", "render")   # structured_light.fringe_mode (core/fringe_fast.py);
+                                            # auto: render when a configured material is shiny, else fast
 MAX_RESOLUTION = 8192
 # Upper limits: beyond them a preset is a typo, not a dataset (validate() says so before any work).
 MAX_RENDERS = 1_000_000            # ~12 days of Cycles at 1 s per render (= seeds.MAX_PLAN_RENDERS)
@@ -143,9 +144,10 @@ class StructuredLightConfig:
     steps: int = 4                     # phase steps per period (4: one clipped sample tolerated)
     unwrap: str = "auto"
     samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples)
-    fringe_mode: str = "fast"          # "fast": one flat-lit render (+ coarse bounce layers), patterns
+    fringe_mode: str = "auto"          # "fast": one flat-lit render (+ coarse bounce layers), patterns
                                        # synthesised (core/fringe_fast.py); "render": every pattern
-                                       # path-traced (the reference; sl_fringe_modes.md)
+                                       # path-traced (the reference; sl_fringe_modes.md); "auto": render
+                                       # when a configured material is shiny (mirrored fringes), else fast
     sensor: str = "industrial"         # datapipe.sl.sensor preset
     exposure: float | str = "auto"     # scale on linear radiance before the sensor model, or "auto":
                                        # metered per render from the fringes (datapipe.sl.exposure)

@@ -104,7 +104,7 @@ class StructuredLightCamera:
         self.indirect_blur_px = INDIRECT_BLUR_PX
         self.sharp_glossy = False
         self.samples = int(s.samples)
-        self.fringe_mode = s.fringe_mode       # "fast": one flat-lit call (core/fringe_fast.py); "render"
+        self.fringe_mode = resolve_fringe_mode(cfg)   # "fast": one flat-lit call (core/fringe_fast.py); "render"
         self.flat = None                       # FlatLitRender in fast mode
         self.bounce_min_gain = None            # fast mode: periods with bounce layers (None: its default)
         self._profiles = sl.pattern_profiles(self.proj_size[0], self.periods, self.steps)
@@ -249,6 +249,26 @@ class StructuredLightCamera:
             return
         self.projector.teardown()
         self.layers, self.layer_names = [], []
+
+
+def resolve_fringe_mode(cfg) -> str:
+    """`structured_light.fringe_mode` with "auto" decided from the configured materials: "render"
+    when any of them (bin, or any choice of any object entry) has roughness below SHINY_ROUGHNESS,
+    since only path-traced patterns carry the fringes that shiny parts mirror (ghosts, holes);
+    "fast" otherwise, where the two modes agree (sl_fringe_modes.md). Materials that come from the
+    mesh file ("file") count as diffuse: set "render" for meshes that carry shiny materials."""
+    from . import materials
+
+    mode = cfg.structured_light.fringe_mode
+    if mode != "auto":
+        return mode
+    specs = [cfg.scene.bin_material]
+    for entry in cfg.objects:
+        m = entry.material
+        specs.extend(m if isinstance(m, list) else [m])
+    shiny = any(spec != materials.FILE and float(materials.values(spec)["roughness"]) < SHINY_ROUGHNESS
+                for spec in specs)
+    return "render" if shiny else "fast"
 
 
 def has_shiny_surface(bpy_scene) -> bool:

@@ -85,3 +85,25 @@ def test_fast_mode_builds_its_lights_and_cleans_up(tmp_path):
     assert not [ld for ld in bpy.data.lights if ld.type == "SPOT"]
     assert not [nd for nd in slc.renderer.tree.nodes if nd.name.startswith(SLM.OUTPUT_NODE)]
     assert not [vl for vl in blend.scene.view_layers if vl.name.startswith("sl_")]
+
+
+def test_auto_mode_renders_the_fringes_only_where_a_material_is_shiny():
+    """'auto' = fast for diffuse scenes (where the modes agree) and render as soon as any configured
+    material is shiny enough to mirror the fringes; explicit modes are kept as given."""
+    from datapipe.config import default_config
+
+    cfg = default_config()
+    cfg.structured_light.fringe_mode = "auto"
+    assert SLM.resolve_fringe_mode(cfg) == "fast"                    # 'file' materials: diffuse
+    cfg.objects[0].material = ["matte_plastic", "rubber"]
+    assert SLM.resolve_fringe_mode(cfg) == "fast"                    # roughness 0.6, 0.85
+    cfg.objects[-1].material = ["rubber", "steel"]                   # one shiny choice is enough
+    assert SLM.resolve_fringe_mode(cfg) == "render"
+    cfg.objects[-1].material = "file"
+    cfg.scene.bin_material = {"base_color": [0.5, 0.5, 0.5], "roughness": 0.1}
+    assert SLM.resolve_fringe_mode(cfg) == "render"
+    cfg.scene.bin_material = {"base_color": [0.5, 0.5, 0.5], "roughness": SLM.SHINY_ROUGHNESS}
+    assert SLM.resolve_fringe_mode(cfg) == "fast"                    # the threshold itself is diffuse
+    cfg.structured_light.fringe_mode = "fast"
+    cfg.scene.bin_material = "steel"
+    assert SLM.resolve_fringe_mode(cfg) == "fast"                    # an explicit choice wins
