@@ -42,6 +42,7 @@ sys.path.insert(0, str(ROOT))
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
+from datapipe.seeds import scene_rng  # noqa: E402
 from datapipe.sl.scanner import FILTERED, MIN_CONTRAST  # noqa: E402
 
 SEED = 1234                       # render seed (Cycles + sensor model) of every case
@@ -131,7 +132,7 @@ def is_base(c) -> bool:
 def build_world(scene_kind: str, res: tuple[int, int], tmp: Path):
     import bpy
     from datapipe.core.camera import BlendCamera
-    from datapipe.core.pipeline import _BlenderWorld
+    from datapipe.core.world import BlenderWorld
     from datapipe.core.renderer import Renderer
     from datapipe.core.scene import BlendScene
 
@@ -140,9 +141,9 @@ def build_world(scene_kind: str, res: tuple[int, int], tmp: Path):
     cfg.camera.resolution = list(res)
     cfg.structured_light.enabled = False           # the world without SL; SL is added per pattern set
     if scene_kind == "bin":
-        world = _BlenderWorld(cfg, tmp / "world")
+        world = BlenderWorld(cfg, tmp / "world")
         world.setup()
-        world.start_scene(0, cfg.scene.seed, 1)
+        world.start_scene(0, cfg.scene.seed, scene_rng(cfg.scene.seed, 0), 1)
         camera, renderer, bscene = world.camera, world.renderer, world.blend.scene
     else:
         cfg.scene.make_bin = False

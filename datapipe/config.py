@@ -30,6 +30,8 @@ SCHEMA_VERSION = 1
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 OUTPUT_KINDS = ("rgb", "depth", "normals", "mask")
 FORMATS = ("native", "bop")
+ENGINES = ("CYCLES",)
+DEVICES = ("CPU", "GPU")
 # AUTO: DECOMPOSED for clearly concave meshes, else CONVEX_HULL. DECOMPOSED and MESH: a compound of
 # convex pieces (Blender's moving triangle meshes threw concave parts out; see core/collision.py)
 COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "CONE")
@@ -739,8 +741,8 @@ def _check_fringe_size(ck: _Checks, cfg: Config) -> None:
 
 def _check_render(ck: _Checks, cfg: Config, check_files: bool) -> None:
     r = cfg.render
-    ck.choice("render.engine", r.engine, ("CYCLES",))
-    ck.choice("render.device", r.device, ("CPU", "GPU"))
+    ck.choice("render.engine", r.engine, ENGINES)
+    ck.choice("render.device", r.device, DEVICES)
     ck.int_range("render.samples", r.samples, 1, MAX_SAMPLES, "samples")
     if r.threads < 0:
         ck.add("render.threads", f"must be >= 0, got {r.threads}", "use 0 for all cores")

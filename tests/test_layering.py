@@ -1,6 +1,7 @@
 """The house rules of the package layout (docs/ARCHITECTURE.md), checked on the source itself.
 
-- config, sl, io.*, show, distributed, geometry, seeds, exr import with bpy absent (a subprocess
+- config, sl, io.*, show, distributed, geometry, seeds, exr and the run loop (core.pipeline,
+  core.world: bpy only inside BlenderWorld's methods) import with bpy absent (a subprocess
   whose import system refuses `bpy` and `mathutils`, so an installed bpy wheel cannot hide a slip);
 - no core module imports `show` (the run engine does not depend on the reporting module);
 - the native layout's file names are spelled in datapipe/io/layout.py only;
@@ -26,7 +27,8 @@ BPY_FREE = ["datapipe.config", "datapipe.sl", "datapipe.sl.scanner", "datapipe.g
             "datapipe.io.layout", "datapipe.io.files", "datapipe.io.native", "datapipe.io.legacy",
             "datapipe.io.models", "datapipe.io.silhouette", "datapipe.io.bop", "datapipe.io.writers",
             "datapipe.camera_sampler", "datapipe.lighting", "datapipe.bin_shape", "datapipe.outdir",
-            "datapipe.quality"]
+            "datapipe.quality",
+            "datapipe.core.pipeline", "datapipe.core.world"]     # the run loop is tested with a fake world
 
 _BLOCKER = """
 import importlib.abc, json, sys
@@ -81,6 +83,58 @@ def _imported_modules(path: Path) -> set[str]:
             names.add(base)
             names.update(f"{base}.{a.name}" for a in node.names)
     return names
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """{module: the datapipe modules it imports (lazily or not)}; `from pkg import mod` counts as mod."""
+    paths = {}
+    for p in _sources():
+        parts = p.relative_to(ROOT).with_suffix("").parts
+        paths[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+    graph = {}
+    for name, p in paths.items():
+        deps = set()
+        for m in _imported_modules(p):
+            if m not in paths and not any(m.startswith(k + ".") for k in paths):
+                continue
+            while m not in paths:             # pkg.mod.attr -> pkg.mod
+                m = m.rpartition(".")[0]
+            if m != name and not any(d.startswith(m + ".") for d in _imported_modules(p) if d in paths):
+                deps.add(m)
+        graph[name] = deps
+    return graph
+
+
+def test_no_import_cycles():
+    graph = _module_graph()
+    cycles, index, low, stack, on = [], {}, {}, [], set()
+
+    def visit(v):                               # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    assert cycles == []
+    assert "datapipe.ui.props" in graph["datapipe.ui"]          # the graph is real: a known edge is there
 
 
 def test_core_does_not_import_show():

@@ -88,7 +88,7 @@ class StructuredLightCamera:
     """Projector + fringe layers (setup), and per render: fringes -> depth (process).
 
     >>> slc = StructuredLightCamera(cfg, bpy_scene, camera, renderer); slc.setup()
-    >>> info = slc.process(out, render_dir, seed, T_world_cam, scene_dir)   # after renderer.render
+    >>> files, info = slc.process(render_dir, seed, T_world_cam)           # after renderer.render
     >>> stack, seconds = slc.render_fringes(render_dir, seed)               # the pieces, for benchmarks
     >>> scan = slc.scanner.scan(stack, seed, camera.K, T_world_cam)         # sl.Scanner
     """
@@ -212,8 +212,9 @@ class StructuredLightCamera:
             stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
         return stack, seconds
 
-    def process(self, rdir: Path, seed: int, T_world_cam, sdir: Path) -> dict:
-        """Render the fringes, scan them, write the maps; returns the render's structured_light record."""
+    def process(self, rdir: Path, seed: int, T_world_cam) -> tuple[dict[str, Path], dict]:
+        """Render the fringes, scan them, write the maps; returns ({kind: written file}, the render's
+        structured_light record for scene.json)."""
         s = self.cfg.structured_light
         rdir = Path(rdir)
         self.set_sharp_glossy(has_shiny_surface(self.scene))
@@ -222,8 +223,7 @@ class StructuredLightCamera:
         self.last_seconds = {"render": render_s, "decode": scan.seconds}
         files = write_render_maps(rdir, scan.maps(debug=s.debug))
         summary = scan.summary()
-        return {
-            "files": {k: str(Path(p).relative_to(sdir)) for k, p in files.items()},
+        return files, {
             "periods": self.periods, "steps": self.steps, "unwrap": summary["unwrap"], "samples": int(s.samples),
             "fringe_mode": self.fringe_mode, "sensor": s.sensor, "exposure": summary["exposure"], "exposure_mode": summary["exposure_mode"],
             "hdr": summary["hdr"], "glossy_fringes": ("offset" if self.flat is not None

@@ -20,11 +20,40 @@ import numpy as np
 
 from .. import config as C
 from ..errors import ConfigError, Problem
-from .props import INT_MAX, format_factors, format_periods, parse_factors, parse_periods
+
+INT_MAX = 2**31 - 1          # Blender's IntProperty is a signed 32-bit integer
 
 SECTIONS = ("scene", "camera", "projector", "structured_light", "render", "simulation", "output")
 _COLLECTIONS = {("camera", "poses")}          # handled with the object list
 _NESTED = {("camera", "sampler"): C.CameraSamplerConfig}    # a sub-group: fields map by name again
+
+
+def parse_periods(text: str) -> list[int]:
+    """'8, 7' -> [8, 7]. Raises ValueError for anything but a non-empty list of integers >= 1."""
+    tokens = [t for t in text.replace(",", " ").replace(";", " ").replace("[", " ").replace("]", " ").split()]
+    if not tokens:
+        raise ValueError("no periods given")
+    values = [int(t) for t in tokens]
+    if any(v < 1 for v in values):
+        raise ValueError("periods must be >= 1")
+    return values
+
+
+def format_periods(values) -> str:
+    return ", ".join(str(int(v)) for v in values)
+
+
+def parse_factors(text: str) -> list[float]:
+    """'1, 4, 16' -> [1.0, 4.0, 16.0]; '' -> [] (one exposure). ValueError unless numbers > 0."""
+    tokens = [t for t in text.replace(",", " ").replace(";", " ").replace("[", " ").replace("]", " ").split()]
+    values = [float(t) for t in tokens]
+    if any(not (math.isfinite(v) and v > 0) for v in values):
+        raise ValueError("factors must be numbers > 0")
+    return values
+
+
+def format_factors(values) -> str:
+    return ", ".join(f"{float(v):g}" for v in values)
 
 
 def f32(value: float) -> float:
@@ -214,7 +243,6 @@ def config_to_props(cfg: C.Config, props) -> None:
     Raises ConfigError, changing nothing, when a value cannot be held by the sidebar (outside a
     property's limits, an unknown choice). Paired limits are set low-then-high so the update
     callbacks that keep min <= max never alter a valid config."""
-    from . import props as P
     problems: list[Problem] = []
     plans = []
     for section in SECTIONS:
@@ -222,9 +250,11 @@ def config_to_props(cfg: C.Config, props) -> None:
         plans.append((getattr(props, section),
                       _plan_group(getattr(cfg, section), rna, type(getattr(cfg, section)), section, section,
                                   problems)))
-    objects = [_plan_group(o, P.DATAPIPE_PG_object.bl_rna, C.ObjectEntry, "objects", f"objects[{i}]", problems)
+    object_rna = props.bl_rna.properties["objects"].fixed_type         # the item types, without importing props
+    pose_rna = props.camera.bl_rna.properties["poses"].fixed_type
+    objects = [_plan_group(o, object_rna, C.ObjectEntry, "objects", f"objects[{i}]", problems)
                for i, o in enumerate(cfg.objects)]
-    poses = [_plan_group(p, P.DATAPIPE_PG_pose.bl_rna, C.CameraPose, "poses", f"camera.poses[{i}]", problems)
+    poses = [_plan_group(p, pose_rna, C.CameraPose, "poses", f"camera.poses[{i}]", problems)
              for i, p in enumerate(cfg.camera.poses)]
     for (section, name), dc in _NESTED.items():
         grp = getattr(getattr(props, section), name)

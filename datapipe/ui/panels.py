@@ -58,6 +58,16 @@ def _list_buttons(col, add: str, remove: str, move: str) -> None:
 # ------------------------------------------------------------------------------------------------
 # panels
 
+def _fields(layout, group, names):
+    """A column of `group`'s properties `names`, labels split off (Blender's property-editor look)."""
+    col = layout.column()
+    col.use_property_split = True
+    col.use_property_decorate = False
+    for name in names:
+        col.prop(group, name)
+    return col
+
+
 class DATAPIPE_PT_initialize(_DataPipePanel, Panel):
     bl_label = "Initialize"
     bl_idname = "DATAPIPE_PT_initialize"
@@ -172,14 +182,7 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
             layout.label(text="Add an object entry (a mesh file)", icon="INFO")
             return
         item = props.objects[props.objects_index]
-        col = layout.column()
-        col.use_property_split = True
-        col.use_property_decorate = False
-        col.prop(item, "filepath")
-        col.prop(item, "name")
-        col.prop(item, "scale")
-        col.prop(item, "mass")
-        col.prop(item, "collision_shape")
+        col = _fields(layout, item, ("filepath", "name", "scale", "mass", "collision_shape"))
         sub = col.column(align=True)
         sub.prop(item, "min_instances", text="Instances Min")
         sub.prop(item, "max_instances", text="Max")
@@ -197,12 +200,7 @@ class DATAPIPE_PT_camera(_DataPipePanel, Panel):
     def draw(self, context):
         layout = self.layout
         cam = _props(context).camera
-        col = layout.column()
-        col.use_property_split = True
-        col.use_property_decorate = False
-        col.prop(cam, "focal_length")
-        col.prop(cam, "sensor_width")
-        col.prop(cam, "sensor_fit")
+        col = _fields(layout, cam, ("focal_length", "sensor_width", "sensor_fit"))
         sub = col.column(align=True)
         sub.prop(cam, "resolution", index=0, text="Resolution X")
         sub.prop(cam, "resolution", index=1, text="Y")
@@ -251,29 +249,16 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         props = _props(context)
         sl, pr = props.structured_light, props.projector
         layout.active = sl.enabled
-        col = layout.column()
-        col.use_property_split = True
-        col.use_property_decorate = False
-        col.prop(sl, "periods")
-        col.prop(sl, "steps")
-        col.prop(sl, "unwrap")
-        col.prop(sl, "fringe_mode")
-        col.prop(sl, "samples")
-        col.prop(sl, "sensor")
-        col.prop(sl, "auto_exposure")
+        col = _fields(layout, sl, ("periods", "steps", "unwrap", "fringe_mode", "samples", "sensor",
+                                   "auto_exposure"))
         sub = col.column()
         sub.active = not sl.auto_exposure
         sub.prop(sl, "exposure")
-        col.prop(sl, "hdr")
-        col.prop(sl, "projector_gamma")
-        col.prop(sl, "debug")
+        for name in ("hdr", "projector_gamma", "debug"):
+            col.prop(sl, name)
         box = layout.box()
         box.label(text="Projector", icon="LIGHT_SPOT")
-        bcol = box.column()
-        bcol.use_property_split = True
-        bcol.use_property_decorate = False
-        bcol.prop(pr, "focal_length")
-        bcol.prop(pr, "sensor_width")
+        bcol = _fields(box, pr, ("focal_length", "sensor_width"))
         sub = bcol.column(align=True)
         sub.prop(pr, "resolution", index=0, text="Resolution X")
         sub.prop(pr, "resolution", index=1, text="Y")
@@ -301,10 +286,7 @@ class DATAPIPE_PT_output(_DataPipePanel, Panel):
         layout = self.layout
         props = _props(context)
         out, r = props.output, props.render
-        col = layout.column()
-        col.use_property_split = True
-        col.use_property_decorate = False
-        col.prop(out, "path")
+        col = _fields(layout, out, ("path",))
         col.prop(r, "outputs")
         col.prop(out, "formats")
         col.prop(out, "legacy_pickle")

@@ -227,7 +227,7 @@ def camera_pose(obj) -> CameraPose:
 
 def show_projector(context, props):
     """A spot light parented to the preview camera at the projector's pose, cone = projector image."""
-    from ..core import projector as core_projector      # pure math: the pose and cone a run uses
+    from .. import geometry                             # the pose and cone a run uses
     from .convert import props_to_config
     cam = camera_object()
     if cam is None:
@@ -248,12 +248,12 @@ def show_projector(context, props):
     data.shadow_soft_size = 0.0
     data.show_cone = True
     try:
-        data.spot_size = core_projector.spot_size(cfg.projector)
+        data.spot_size = geometry.spot_size(cfg.projector)
     except DataPipeError:
         data.spot_size = math.radians(179.0)
     obj.parent = cam
     obj.matrix_parent_inverse = Matrix.Identity(4)
-    obj.matrix_basis = Matrix([list(row) for row in core_projector.projector_pose_blender(cfg.projector)])
+    obj.matrix_basis = Matrix([list(row) for row in geometry.projector_pose_blender(cfg.projector)])
     return obj
 
 

@@ -11,7 +11,6 @@ by update callbacks, so the sidebar cannot hold an impossible pair.
 """
 
 import dataclasses
-import math
 
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty,
@@ -21,8 +20,8 @@ from bpy.types import PropertyGroup
 from mathutils import Euler, Quaternion
 
 from .. import config as C
+from .convert import INT_MAX, format_factors, format_periods, parse_factors, parse_periods
 
-INT_MAX = 2**31 - 1          # Blender's IntProperty is a signed 32-bit integer
 
 
 def default(dc, name: str):
@@ -351,21 +350,6 @@ _L = C.StructuredLightConfig
 _FIXED_EXPOSURE = 0.5        # the Exposure field's value while Auto Exposure is on (the former default)
 
 
-def parse_periods(text: str) -> list[int]:
-    """'8, 7' -> [8, 7]. Raises ValueError for anything but a non-empty list of integers >= 1."""
-    tokens = [t for t in text.replace(",", " ").replace(";", " ").replace("[", " ").replace("]", " ").split()]
-    if not tokens:
-        raise ValueError("no periods given")
-    values = [int(t) for t in tokens]
-    if any(v < 1 for v in values):
-        raise ValueError("periods must be >= 1")
-    return values
-
-
-def format_periods(values) -> str:
-    return ", ".join(str(int(v)) for v in values)
-
-
 def _get_periods(self):
     return self.periods_text
 
@@ -375,19 +359,6 @@ def _set_periods(self, value):
         self.periods_text = format_periods(parse_periods(value))
     except ValueError as e:        # keep the last valid list; the field shows it again
         print(f"DataPipe: structured_light.periods: ignored {value!r} ({e}); give integers >= 1, e.g. '1, 8, 64'")
-
-
-def parse_factors(text: str) -> list[float]:
-    """'1, 4, 16' -> [1.0, 4.0, 16.0]; '' -> [] (one exposure). ValueError unless numbers > 0."""
-    tokens = [t for t in text.replace(",", " ").replace(";", " ").replace("[", " ").replace("]", " ").split()]
-    values = [float(t) for t in tokens]
-    if any(not (math.isfinite(v) and v > 0) for v in values):
-        raise ValueError("factors must be numbers > 0")
-    return values
-
-
-def format_factors(values) -> str:
-    return ", ".join(f"{float(v):g}" for v in values)
 
 
 def _get_hdr(self):
@@ -459,15 +430,13 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
 _R = C.RenderConfig
 
 
-_ENGINES = getattr(C, "ENGINES", ("CYCLES",))      # what Config.validate() accepts
-_DEVICES = getattr(C, "DEVICES", ("CPU", "GPU"))
 
 
 class DATAPIPE_PG_render(PropertyGroup):
-    engine: EnumProperty(name="Engine", description="Render engine", items=_items(_ENGINES),
+    engine: EnumProperty(name="Engine", description="Render engine", items=_items(C.ENGINES),
                          default=default(_R, "engine"))
     device: EnumProperty(name="Device", description="Cycles device (GPU uses the first available backend)",
-                         items=_items(_DEVICES), default=default(_R, "device"))
+                         items=_items(C.DEVICES), default=default(_R, "device"))
     samples: IntProperty(name="Samples", description="Cycles samples for the RGB / depth / normals / mask render",
                          default=default(_R, "samples"), min=1, soft_max=4096)
     threads: IntProperty(name="Threads", description="CPU threads (0: all cores)",
@@ -603,9 +572,3 @@ def register_pointer() -> None:
 def unregister_pointer() -> None:
     if hasattr(bpy.types.Scene, "datapipe"):
         del bpy.types.Scene.datapipe
-
-
-def props(context=None):
-    """`Scene.datapipe` of the context's scene."""
-    context = context or bpy.context
-    return context.scene.datapipe

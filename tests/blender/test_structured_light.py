@@ -57,7 +57,7 @@ def build(tmp_path, cfg, box=False):
 def render(tmp_path, ren, slc, T):
     rdir = tmp_path / "r"
     out = ren.render(rdir, SEED)
-    info = slc.process(rdir, SEED, T, tmp_path)
+    _, info = slc.process(rdir, SEED, T)
     return out, info, read_depth(rdir / "sl_depth.exr")
 
 
@@ -286,7 +286,7 @@ def test_native_render_unchanged_by_structured_light(tmp_path):
     slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
     slc.setup()
     after = ren.render(tmp_path / "b", SEED)
-    slc.process(tmp_path / "b", SEED, T, tmp_path)
+    slc.process(tmp_path / "b", SEED, T)
     again = ren.render(tmp_path / "c", SEED)
     for o in (after, again):
         assert np.array_equal(o.rgb, before.rgb)

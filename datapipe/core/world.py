@@ -1,0 +1,167 @@
+"""The world a run renders, as the run loop (core/pipeline.py) sees it: a small protocol, and the real
+one, `BlenderWorld` (bpy imported inside its methods, so this module imports without Blender).
+
+The pipeline owns the run: plan, seeds, folders, resume, cancel, shards, run.json, the writers, the
+annotations. A world only makes things: once `setup()`, then per scene `start_scene(scene_id, base_seed,
+rng, n)` (draw the bin and lights, drop parts, settle, pick camera poses) and per render
+`render(render_dir, pose_index, seed, scene_id=, render_id=, base_seed=)` (place the camera,
+files + what the annotations need), then `finish_scene()`; `close()` at the end. Tests pass a fake world
+(tests/fake_world.py: analytic boxes, numpy ray casting) to check the run loop without Blender.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from ..config import Config
+from ..seeds import scene_seed
+
+
+@dataclass
+class Part:
+    """One object instance of a scene, as the annotations name it."""
+    name: str               # "{entry name}_{k:03d}", numbered within the scene
+    filename: str           # the mesh file it was imported from
+    obj_id: int             # index of its Config.objects entry + 1
+    mask_index: int         # its pass index in mask.exr (1..n; 0 = background)
+    material: str = "file"  # the material label it was given (core/materials.py; "file": the mesh's own)
+
+
+@dataclass
+class SceneStart:
+    """A scene after the drop: the parts that stayed, the drop's record, the camera poses to render."""
+    parts: list[Part]
+    simulation: dict                    # scene.json's "simulation": frames, settled, removed [{name, reason}], ...
+    pose_indices: list              # pool index per render, or None where the camera pose is drawn per render
+    drawn: dict = field(default_factory=dict)        # scene.json's per-scene draws: {"bin": ..., "lighting": ...}
+    seconds: dict = field(default_factory=dict)      # {"placement": s, "simulation": s}
+
+
+@dataclass
+class View:
+    """One render: its files and what its annotations are computed from."""
+    files: dict[str, Path]              # output kind -> written file (native, then structured light)
+    K: np.ndarray                       # 3x3
+    resolution: tuple[int, int]         # (W, H)
+    T_world_cam: np.ndarray             # 4x4, OpenCV camera frame
+    T_world_blcam: np.ndarray           # 4x4, the Blender camera object's world matrix
+    T_world_obj: list[np.ndarray]       # per part of the scene, in SceneStart.parts order
+    mask: np.ndarray | None             # (H, W) pass indices, None without a mask output
+    rgb: np.ndarray | None = None       # (H, W, 3) uint8, for the quality gates (not kept)
+    camera_sampler: dict | None = None      # the drawn camera pose's parameters (bin_view sampler)
+    structured_light: dict | None = None    # the render's structured_light record (files excluded)
+    seconds: dict = field(default_factory=dict)      # {"render": s, "write": s, "structured_light": s}
+
+
+class World(Protocol):
+    import_count: int                   # mesh files read this run
+
+    def setup(self) -> None: ...
+
+    def model_meshes(self) -> dict: ...
+
+    def start_scene(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int) -> SceneStart: ...
+
+    def render(self, render_dir: Path, pose_index: int | None, seed: int, *, scene_id: int, render_id: int,
+               base_seed: int) -> View: ...
+
+    def finish_scene(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class BlenderWorld:
+    """The bpy side of one run: built once, then scene after scene."""
+
+    def __init__(self, cfg: Config, out: Path):
+        self.cfg, self.out = cfg, out
+        self.sl = None
+        self.instances: list = []
+
+    @property
+    def import_count(self) -> int:
+        return self.objects.import_count
+
+    def setup(self) -> None:
+        from .camera import BlendCamera
+        from .objects import ObjectManager
+        from .renderer import Renderer
+        from .scene import BlendScene
+        from .simulation import Simulation
+        from .variety import SceneVariety
+
+        self.blend = BlendScene(self.cfg)
+        self.blend.setup()
+        bscene = self.blend.scene
+        self.camera = BlendCamera(self.cfg, bscene)
+        self.camera.setup()
+        self.variety = SceneVariety(self.cfg, self.blend, self.camera)
+        self.objects = ObjectManager(self.cfg, self.blend)
+        self.objects.load_sources()
+        self.simulation = Simulation(self.cfg, self.blend)
+        self.renderer = Renderer(self.cfg, bscene, self.camera)
+        self.renderer.setup()
+        if self.cfg.structured_light.enabled:
+            from .structured_light import StructuredLightCamera
+            self.sl = StructuredLightCamera(self.cfg, bscene, self.camera, self.renderer)
+            self.sl.setup()
+
+    def model_meshes(self) -> dict:
+        """{obj_id: (verts m, faces, normals)} of every object entry (scale baked), for OUT/models."""
+        return {i + 1: self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
+
+    def start_scene(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int) -> SceneStart:
+        t0 = time.perf_counter()
+        from .simulation import drop_scene
+        drawn = self.variety.apply_scene(base_seed, scene_id)      # bin and lights first: placement fits the bin
+        t1 = time.perf_counter()
+        # populate + simulate (again from a derived seed when too many parts were lost)
+        sim, rng = drop_scene(self.objects, self.simulation, rng, scene_seed(base_seed, scene_id))
+        t2 = time.perf_counter()
+        pose_indices = self.variety.pose_plan(rng, n_renders)
+        self.instances = sim.kept
+        from . import materials        # on a random stream of their own: a list changes no pose
+        labels = materials.apply_to_instances(self.cfg, sim.kept, scene_seed(base_seed, scene_id))
+        return SceneStart(parts=[_part(inst, lab) for inst, lab in zip(sim.kept, labels)], simulation=sim.summary(),
+                          pose_indices=list(pose_indices), drawn=drawn,
+                          seconds={"placement": t1 - t0 + sim.placement_seconds,
+                                   "simulation": t2 - t1 - sim.placement_seconds})
+
+    def render(self, render_dir: Path, pose_index: int | None, seed: int, *, scene_id: int, render_id: int,
+               base_seed: int) -> View:
+        T_world_cam, sampled = self.variety.place_camera(pose_index, base_seed, scene_id, render_id)
+        T_world_blcam = np.array(self.camera.obj.matrix_world, dtype=np.float64)
+        t0 = time.perf_counter()
+        out = self.renderer.render(render_dir, seed)
+        t1 = time.perf_counter()
+        cycles_s = float(getattr(out, "seconds", t1 - t0) or 0.0)
+        view = View(files=dict(out.files), K=self.camera.K, resolution=tuple(self.camera.resolution),
+                    T_world_cam=T_world_cam, T_world_blcam=T_world_blcam,
+                    T_world_obj=[np.array(inst.obj.matrix_world, dtype=np.float64) for inst in self.instances],
+                    mask=out.mask, rgb=out.rgb, camera_sampler=sampled,
+                    seconds={"render": cycles_s, "write": max(0.0, (t1 - t0) - cycles_s)})  # EXR read-back + writes
+        if self.sl is not None:
+            t2 = time.perf_counter()
+            files, view.structured_light = self.sl.process(render_dir, seed, T_world_cam)
+            view.files.update(files)
+            view.seconds["structured_light"] = time.perf_counter() - t2
+        return view
+
+    def finish_scene(self) -> None:
+        """Delete what the scene created (templates, camera, projector stay)."""
+        self.objects.clear()
+
+    def close(self) -> None:
+        """Remove the projector lights, patterns and fringe layers (nothing left in the user's scene)."""
+        if self.sl is not None:
+            self.sl.teardown()
+            self.sl = None
+
+
+def _part(inst, material: str) -> Part:
+    return Part(name=inst.name, filename=inst.filename, obj_id=inst.entry_index + 1, mask_index=inst.mask_index,
+                material=material)
