@@ -105,9 +105,9 @@ def _module_graph() -> dict[str, set[str]]:
     return graph
 
 
-# cycles left to their owners (issue #14's fast fringe mode: fringe_fast imports structured_light's
-# helpers, structured_light builds a FlatLitRender lazily); the ui cycle of #13 is gone
-KNOWN_CYCLES = [["datapipe.core.fringe_fast", "datapipe.core.structured_light"]]
+# cycles left to their owners: none (the ui cycle went with #13, fringe_fast <-> structured_light
+# with core/fringe_call.py)
+KNOWN_CYCLES = []
 
 
 def test_no_import_cycles():

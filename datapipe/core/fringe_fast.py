@@ -49,7 +49,7 @@ import numpy as np
 from .. import sl
 from ..geometry import projector_resolution
 from .projector import LIGHTS_COLLECTION, Projector
-from .structured_light import INDIRECT_BLUR_PX, indirect_gain, isolated_render
+from .fringe_call import INDIRECT_BLUR_PX, indirect_gain, isolated_render
 
 BOUNCE_MIN_GAIN = 0.05     # periods whose bounce keeps at least this modulation get bounce layers
 BOUNCE_SAMPLES = 1         # paths per camera pixel of the bounce layers (camera resolution)

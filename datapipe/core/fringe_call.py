@@ -1,0 +1,65 @@
+"""The pieces both fringe modes share (core/structured_light.py renders every pattern,
+core/fringe_fast.py a flat-lit layer and the coarse periods' bounce layers): the isolated Cycles
+call that renders only some view layers at the point-sampled sub-pixel grid, and the modulation a
+K-period fringe keeps when bounced light sees it blurred. Its own module so that neither mode
+imports the other."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+INDIRECT_BLUR_PX = 32.0          # projector px: Gaussian blur of the pattern as seen by inter-reflected light
+
+
+def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *, seed: int,
+                    supersample: int, filter_width: float) -> float:
+    """Render only the view layers `layer_names` of scene `sc` in their own Cycles call, written by
+    `file_output` (muted otherwise) to `render_dir`/`basename`, at `supersample` x the resolution
+    with pixel filter `filter_width` and Cycles seed `seed`; every other layer and File Output
+    node is switched off for the call and everything is restored afterwards. Returns wall seconds."""
+    import bpy
+    from . import compat
+
+    render_dir = Path(render_dir)
+    render_dir.mkdir(parents=True, exist_ok=True)
+    for stale in compat.written_files(render_dir, basename):
+        stale.unlink()
+    compat.set_file_output_path(file_output, render_dir, basename)
+    wanted = set(layer_names)
+    saved_use = {vl.name: vl.use for vl in sc.view_layers}
+    others = [n for n in tree.nodes if n.bl_idname == "CompositorNodeOutputFile" and n != file_output]
+    saved_mute = {n.name: n.mute for n in others}
+    saved_filter, saved_seed = sc.cycles.filter_width, sc.cycles.seed
+    saved_pct = sc.render.resolution_percentage
+    saved_adaptive = sc.cycles.use_adaptive_sampling
+    try:
+        sc.cycles.use_adaptive_sampling = False     # the fringe layers' samples are exact counts
+        for vl in sc.view_layers:
+            vl.use = vl.name in wanted
+        for n in others:
+            n.mute = True
+        file_output.mute = False
+        sc.cycles.filter_width = float(filter_width)
+        sc.cycles.seed = int(seed) & 0x7FFFFFFF
+        sc.render.resolution_percentage = 100 * int(supersample)
+        t0 = time.perf_counter()
+        bpy.ops.render.render(write_still=False, scene=sc.name)
+        return time.perf_counter() - t0
+    finally:
+        file_output.mute = True
+        for n in others:
+            n.mute = saved_mute[n.name]
+        for vl in sc.view_layers:
+            if vl.name in saved_use:
+                vl.use = saved_use[vl.name]
+        sc.cycles.filter_width, sc.cycles.seed = saved_filter, saved_seed
+        sc.render.resolution_percentage = saved_pct
+        sc.cycles.use_adaptive_sampling = saved_adaptive
+
+
+def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:
+    """Modulation left in a K-period fringe after a Gaussian blur of `blur_px` projector pixels:
+    exp(-2 pi^2 (blur_px K / W)^2) (a blurred sinusoid is the same sinusoid, scaled)."""
+    return float(np.exp(-2.0 * np.pi ** 2 * (blur_px * K / proj_width) ** 2))
