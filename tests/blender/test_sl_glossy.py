@@ -33,6 +33,8 @@ WALL_X, WALL_TOP, WALL_Y = 0.10, 0.15, 0.1
 def _scene():
     cfg = plane_config(res=(160, 120))
     cfg.structured_light.periods = [1, 4, 32]            # ~5 camera px per finest period at 160 px
+    cfg.structured_light.fringe_mode = "render"          # mirrored fringes need path-traced patterns; the
+                                                         # plate is built here, not configured, so auto cannot see it
     blend = BlendScene(cfg).setup()
     corners = [tuple(C_PLATE + su * HALF * U_PLATE + sv * HALF * V_PLATE)
                for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
