@@ -74,7 +74,8 @@ class SceneConfig:
     blend_file: str | None = None      # open this .blend first; its object "drop_zone" wins over the above
     seed: int = 0                      # base seed; scene i derives its own (see datapipe.seeds)
     bin_material: Any = "file"         # floor + walls: "file" (built-in 0.5 grey, roughness 0.6), a
-                                       # preset name or a dict of Principled BSDF values (core/materials.py)
+                                       # preset name, a dict of Principled BSDF values, or a list of
+                                       # those: one drawn per scene (core/materials.py)
 
 
 @dataclass
@@ -867,13 +868,13 @@ def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:
 
 
 def _check_materials(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
-    """objects[i].material (name, dict or list) and scene.bin_material (name or dict)."""
+    """objects[i].material and scene.bin_material (name, dict or list)."""
     from .core.materials import material_problem   # no bpy at import: the rules live with the builder
     for i, o in enumerate(cfg.objects):
         problem = material_problem(o.material)
         if problem is not None:
             ck.add(f"objects[{i}].material", *problem)
-    problem = material_problem(cfg.scene.bin_material, allow_list=False)
+    problem = material_problem(cfg.scene.bin_material)
     if problem is not None:
         ck.add("scene.bin_material", *problem)
 

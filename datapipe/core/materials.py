@@ -42,6 +42,7 @@ NAMES = (FILE, *PRESETS)
 KEYS = {"name", "base_color", "metallic", "roughness", "ior", "specular", "anisotropic", "variation"}
 MATERIAL_PREFIX = "datapipe_mat_"
 STREAM = 0x6D617472              # "matr": the material draw's own random stream of the scene seed
+BIN_STREAM = 0x62696E            # "bin": the bin's draw within it (object entries use 0, 1, ...)
 NOISE_SCALE = 100.0              # noise texture scale in object space (1/m): ~1 cm features
 
 
@@ -114,6 +115,15 @@ def draw(value, n: int, scene_seed: int, entry_index: int = 0) -> list:
         return [value] * n
     rng = np.random.default_rng(np.random.SeedSequence([int(scene_seed), STREAM, int(entry_index)]))
     return [value[int(k)] for k in rng.integers(0, len(value), size=n)]
+
+
+def draw_bin(value, scene_seed: int):
+    """The bin's material spec for one scene: `value` itself, or for a list one item drawn from the
+    scene seed on a stream of its own (apart from the parts' material and pose streams)."""
+    if not isinstance(value, list):
+        return value
+    rng = np.random.default_rng(np.random.SeedSequence([int(scene_seed), STREAM, BIN_STREAM]))
+    return value[int(rng.integers(0, len(value)))]
 
 
 # ------------------------------------------------------------------------------------------------

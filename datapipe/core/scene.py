@@ -124,6 +124,8 @@ class BlendScene:
         self.occlusion_box: bpy.types.Object | None = None
         self.key_light: bpy.types.Object | None = None
         self.wall_height: float | None = None  # None: as high as the drop zone (apply_bin draws it)
+        m = cfg.scene.bin_material           # a list is drawn per scene (core/variety.py); its first
+        self.bin_material_spec = m[0] if isinstance(m, list) else m     # item until the first draw
 
     # -- derived geometry -------------------------------------------------------------------------
     @property
@@ -222,11 +224,13 @@ class BlendScene:
             self.drop_zone_source = "config"
 
     def _material(self) -> bpy.types.Material:
-        """The bin's material: `scene.bin_material` (core/materials.py), or for "file" the built-in
-        grey (0.5, roughness 0.6)."""
+        """The bin's material: the current `bin_material_spec` (`scene.bin_material`, or one scene's
+        draw from a list of them; core/materials.py), or for "file" the built-in grey (0.5,
+        roughness 0.6)."""
         from . import materials
-        if self.cfg.scene.bin_material != materials.FILE:
-            return materials.build(self.cfg.scene.bin_material)
+        spec = self.bin_material_spec
+        if spec != materials.FILE:
+            return materials.build(spec)
         mat = bpy.data.materials.get(BIN_MATERIAL)
         if mat is None:
             mat = bpy.data.materials.new(BIN_MATERIAL)
@@ -311,6 +315,15 @@ class BlendScene:
     def _key_light_home(self) -> tuple[float, float, float]:
         c = self.drop_zone_center
         return float(c[0]), float(c[1]), max(self.floor_z + LIGHT_HEIGHT, self.top_z + 0.5, self.wall_top_z + 0.5)
+
+    def set_bin_material(self, spec) -> None:
+        """Give floor and walls the material `spec` (one scene's draw from a `scene.bin_material` list)."""
+        self.bin_material_spec = spec
+        mat = self._material()
+        for obj in [self.floor, *self.walls]:
+            if obj is not None:
+                obj.data.materials.clear()
+                obj.data.materials.append(mat)
 
     def apply_bin(self, draw: dict) -> None:
         """Rebuild floor, walls and occlusion box for one scene's `datapipe.bin_shape.draw_bin`: the

@@ -262,7 +262,8 @@ def resolve_fringe_mode(cfg) -> str:
     mode = cfg.structured_light.fringe_mode
     if mode != "auto":
         return mode
-    specs = [cfg.scene.bin_material]
+    b = cfg.scene.bin_material
+    specs = list(b) if isinstance(b, list) else [b]
     for entry in cfg.objects:
         m = entry.material
         specs.extend(m if isinstance(m, list) else [m])

@@ -18,7 +18,8 @@ from .. import bin_shape
 from ..camera_sampler import draw_bin_view
 from ..config import Config
 from ..lighting import draw_lighting
-from ..seeds import bin_rng, camera_rng, lighting_rng
+from ..seeds import bin_rng, camera_rng, lighting_rng, scene_seed
+from . import materials
 
 
 class SceneVariety:
@@ -30,9 +31,14 @@ class SceneVariety:
         return self.cfg.camera.sampler.kind == "bin_view"
 
     def apply_scene(self, base: int, scene: int) -> dict:
-        """Draw and apply scene `scene`'s bin and lighting; {"bin": ..., "lighting": ...} for the
-        features that are on (empty when none is)."""
+        """Draw and apply scene `scene`'s bin material (from a list), bin shape and lighting;
+        {"bin_material": ..., "bin": ..., "lighting": ...} for the features that are on (empty when
+        none is)."""
         rec = {}
+        if isinstance(self.cfg.scene.bin_material, list):        # before a rebuild, which uses it
+            spec = materials.draw_bin(self.cfg.scene.bin_material, scene_seed(base, scene))
+            self.blend.set_bin_material(spec)
+            rec["bin_material"] = materials.label(spec)
         if bin_shape.varies(self.cfg.scene):
             rec["bin"] = bin_shape.draw_bin(self.cfg.scene, self.blend.base_half, bin_rng(base, scene))
             self.blend.apply_bin(rec["bin"])

@@ -144,7 +144,8 @@ class DATAPIPE_PG_scene(PropertyGroup):
     bin_material: StringProperty(
         name="Bin Material", description="Floor and walls: file (the built-in grey), a preset (matte_plastic, "
         "dark_plastic, painted, steel, aluminium, rubber) or Principled BSDF values as JSON, e.g. "
-        "{\"base_color\": [0.5, 0.5, 0.5], \"roughness\": 0.2}", default=default(_S, "bin_material"),
+        "{\"base_color\": [0.5, 0.5, 0.5], \"roughness\": 0.2}; a comma-separated list draws one per scene",
+        default=default(_S, "bin_material"),
         search=lambda self, context, text: _material_search(text))
 
 
