@@ -43,6 +43,7 @@ def case_config(rig: str, height: float, material=None, res=(320, 240)) -> C.Con
     cfg.render.samples = 8                   # native layer: its depth and mask are what is used
     cfg.render.threads = 2
     cfg.render.outputs = ["rgb", "depth", "mask"]
+    cfg.structured_light.fringe_mode = "render"   # the reference path (sharp glossy bounces), as cached
     if material is not None:
         for o in cfg.objects:
             o.material = material
@@ -87,7 +88,8 @@ def render_cases(cases, cache: Path, log=print) -> dict:
     """Render every (rig, height, material) case missing from `cache`; returns the meta dict."""
     import bpy
 
-    from datapipe.core.pipeline import _BlenderWorld
+    from datapipe.core.world import BlenderWorld
+    from datapipe.seeds import scene_rng
     from datapipe.core.structured_light import has_shiny_surface
 
     cache.mkdir(parents=True, exist_ok=True)
@@ -102,9 +104,9 @@ def render_cases(cases, cache: Path, log=print) -> dict:
         cfg = case_config(rig, heights[0], mat)
         cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, float(h)]) for h in heights]
         tmp = Path(tempfile.mkdtemp(prefix="slmat_"))
-        world = _BlenderWorld(cfg, tmp / "world")
+        world = BlenderWorld(cfg, tmp / "world")
         world.setup()
-        world.start_scene(0, cfg.scene.seed, 1)           # drops the parts, applies their material
+        world.start_scene(0, cfg.scene.seed, scene_rng(cfg.scene.seed, 0), 1)   # drops the parts, applies their material
         for k, h in enumerate(heights):
             T = world.camera.set_pose(k)
             t0 = time.perf_counter()
