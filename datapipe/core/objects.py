@@ -122,6 +122,20 @@ def _run_importer(kind: str, path: str) -> None:
         raise AssertionError(kind)
 
 
+def remove_import_leftovers(before_objs, before_meshes, before_colls) -> None:
+    """Delete every object, mesh and collection an import added (given what existed before it)."""
+    for o in [o for o in bpy.data.objects if o not in before_objs]:
+        data = o.data
+        bpy.data.objects.remove(o, do_unlink=True)
+        if data is not None and data.users == 0:
+            _remove_id(data)
+    for m in set(bpy.data.meshes) - before_meshes:
+        if m.users == 0:
+            bpy.data.meshes.remove(m)
+    for c in set(bpy.data.collections) - before_colls:
+        bpy.data.collections.remove(c)
+
+
 def _remove_id(idblock) -> None:
     kinds = {bpy.types.Mesh: bpy.data.meshes, bpy.types.Camera: bpy.data.cameras,
              bpy.types.Light: bpy.data.lights, bpy.types.Curve: bpy.data.curves}
@@ -224,14 +238,14 @@ class ObjectManager:
         try:
             _run_importer(kind, path)
         except RuntimeError as e:
-            self._cleanup_import(before_objs, before_meshes, before_colls)
+            remove_import_leftovers(before_objs, before_meshes, before_colls)
             raise DataPipeError(f"{field}: cannot import {path}: {str(e).strip()} "
                                 "(fix: check that the file is a valid mesh file of that format)") from None
         self.import_count += 1
         new = [o for o in bpy.data.objects if o not in before_objs]
         meshes = [o for o in new if o.type == 'MESH' and o.data is not None and len(o.data.vertices) > 0]
         if not meshes:
-            self._cleanup_import(before_objs, before_meshes, before_colls)
+            remove_import_leftovers(before_objs, before_meshes, before_colls)
             raise DataPipeError(f"{field}: {path} holds no mesh with vertices (fix: export the part as a "
                                 "triangle/polygon mesh, e.g. OBJ with 'v' and 'f' lines)")
         meshes.sort(key=lambda o: o.name)
@@ -276,18 +290,6 @@ class ObjectManager:
             if len(c.all_objects) == 0:
                 bpy.data.collections.remove(c)
         return obj
-
-    def _cleanup_import(self, before_objs, before_meshes, before_colls) -> None:
-        for o in [o for o in bpy.data.objects if o not in before_objs]:
-            data = o.data
-            bpy.data.objects.remove(o, do_unlink=True)
-            if data is not None and data.users == 0:
-                _remove_id(data)
-        for m in set(bpy.data.meshes) - before_meshes:
-            if m.users == 0:
-                bpy.data.meshes.remove(m)
-        for c in set(bpy.data.collections) - before_colls:
-            bpy.data.collections.remove(c)
 
     def _make_template(self, i: int, raw_mesh: bpy.types.Mesh) -> _Template:
         entry = self.cfg.objects[i]

@@ -14,7 +14,7 @@ import numpy as np
 from ..config import Config, camera_distances
 from ..errors import ConfigError, Problem
 from ..sl.triangulate import intrinsics_from_blender
-from .objects import _IMPORTERS, _remove_id, _run_importer
+from .objects import _IMPORTERS, _run_importer, remove_import_leftovers
 
 MIN_PART_PX = 0.25       # a part narrower than this on the camera image is not in the dataset (tiny
                          # test renders go down to ~1 px parts; a wrong scale is orders of magnitude off)
@@ -39,16 +39,7 @@ def _import_measure(path: str) -> tuple[int, int, np.ndarray]:
         allpts = np.concatenate(pts) if pts else np.zeros((0, 3))
         return len(allpts), n_faces, allpts
     finally:
-        for o in [o for o in bpy.data.objects if o not in before_objs]:
-            data = o.data
-            bpy.data.objects.remove(o, do_unlink=True)
-            if data is not None and data.users == 0:
-                _remove_id(data)
-        for m in set(bpy.data.meshes) - before_meshes:
-            if m.users == 0:
-                bpy.data.meshes.remove(m)
-        for c in set(bpy.data.collections) - before_colls:
-            bpy.data.collections.remove(c)
+        remove_import_leftovers(before_objs, before_meshes, before_colls)
 
 
 def check_meshes(cfg: Config) -> list[Problem]:
