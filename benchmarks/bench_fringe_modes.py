@@ -32,7 +32,8 @@ RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_sl_render import RES, SEED, build_world, metrics, timed  # noqa: E402
+from bench_sl_render import (RES, SEED, build_world, cache_native_render, metrics, timed,  # noqa: E402
+                             write_with_notes)
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
@@ -72,14 +73,7 @@ def render_all(cases, cache: Path, log):
         log(f"building {scene_kind} {res}")
         cfg, bscene, camera, renderer, T = build_world(scene_kind, RES[res], tmp)
         if nkey not in meta:
-            runs = []
-            for _ in range(2):
-                out, wall, cpu = timed(lambda: renderer.render(tmp / "native", SEED))
-                runs.append((cpu, wall))
-            cpu, wall = min(runs)
-            np.savez_compressed(cache / f"{nkey}.npz", depth=out.depth, T=T, K=camera.K)
-            meta[nkey] = {"wall": wall, "cpu": cpu}
-            meta_path.write_text(json.dumps(meta, indent=1))
+            wall, cpu = cache_native_render(renderer, camera, T, cfg, tmp, cache, nkey, meta, meta_path)
             log(f"  native: {wall:.1f} s wall, {cpu:.1f} CPU s")
         for variant, (mode, dseed, min_gain) in VARIANTS.items():
             mcs = [c for c in todo if c[2] == variant]
@@ -283,10 +277,7 @@ def report(rows, demo, out_dir: Path, elapsed: float):
                      f"{d['cpu'] / base['cpu']:.2f}x | {d['stages'].get('structured_light', 0.0):.1f} | "
                      f"{', '.join(f'{v:.3f}' for v in d['valid']) or '-'} |")
     L.append("\n![fringe modes](sl_fringe_modes.png)\n")
-    notes = out_dir / "sl_fringe_modes_notes.md"
-    if notes.is_file():
-        L.append(notes.read_text())
-    (out_dir / "sl_fringe_modes.md").write_text("\n".join(L) + "\n")
+    write_with_notes(out_dir / "sl_fringe_modes.md", L)
 
 
 def main(argv=None):

@@ -35,7 +35,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_sl_render import build_world, timed  # noqa: E402
+from bench_sl_render import build_world, timed, write_with_notes  # noqa: E402
 from datapipe import config as C  # noqa: E402
 
 SEED, REF_SEED, REF_SAMPLES = 1234, 99, 1024
@@ -243,10 +243,7 @@ def report(rows, meta, out_dir: Path, elapsed: float):
         for k, v in pd.items():
             L.append(f"| {k} | {', '.join(f'{x:.2f}' for x in v)} | {sum(v):.2f} |")
     L.append("\n![rgb quality](rgb_quality.png)\n")
-    notes = out_dir / "rgb_quality_notes.md"
-    if notes.is_file():
-        L.append(notes.read_text())
-    (out_dir / "rgb_quality.md").write_text("\n".join(L) + "\n")
+    write_with_notes(out_dir / "rgb_quality.md", L)
 
 
 def main(argv=None):

@@ -161,6 +161,29 @@ def timed(fn):
     return out, time.perf_counter() - t0, time.process_time() - c0
 
 
+def cache_native_render(renderer, camera, T, cfg, tmp: Path, cache: Path, nkey: str, meta: dict,
+                        meta_path: Path) -> tuple[float, float]:
+    """The native render timed (best of 2), its depth/mask/pose cached as `nkey`.npz and its times
+    in `meta` (written at once, so a killed sweep keeps it); returns (wall s, CPU s)."""
+    runs = []
+    for _ in range(2):
+        out, wall, cpu = timed(lambda: renderer.render(tmp / "native", SEED))
+        runs.append((cpu, wall))
+    cpu, wall = min(runs)
+    np.savez_compressed(cache / f"{nkey}.npz", depth=out.depth, mask=out.mask, T=T, K=camera.K)
+    meta[nkey] = {"wall": wall, "cpu": cpu, "samples": cfg.render.samples}
+    meta_path.write_text(json.dumps(meta, indent=1))
+    return wall, cpu
+
+
+def write_with_notes(path: Path, lines: list[str]) -> None:
+    """Write a generated report with the hand-written findings of `<stem>_notes.md` appended."""
+    notes = path.with_name(f"{path.stem}_notes.md")
+    if notes.is_file():
+        lines = [*lines, notes.read_text()]
+    path.write_text("\n".join(lines) + "\n")
+
+
 def render_all(cases, cache: Path, log):
     from datapipe.core.structured_light import StructuredLightCamera
 
@@ -178,14 +201,7 @@ def render_all(cases, cache: Path, log):
         log(f"building {scene_kind} {res}")
         cfg, bscene, camera, renderer, T = build_world(scene_kind, RES[res], tmp)
         if nkey not in meta:
-            runs = []
-            for _ in range(2):
-                out, wall, cpu = timed(lambda: renderer.render(tmp / "native", SEED))
-                runs.append((cpu, wall))
-            cpu, wall = min(runs)
-            np.savez_compressed(cache / f"{nkey}.npz", depth=out.depth, mask=out.mask, T=T, K=camera.K)
-            meta[nkey] = {"wall": wall, "cpu": cpu, "samples": cfg.render.samples}
-            meta_path.write_text(json.dumps(meta, indent=1))
+            wall, cpu = cache_native_render(renderer, camera, T, cfg, tmp, cache, nkey, meta, meta_path)
             log(f"  native {scene_kind} {res}: {wall:.1f} s wall, {cpu:.1f} CPU s")
         by_pat: dict = {}
         for c in todo:
