@@ -597,12 +597,9 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if c.clip_end <= c.clip_start:
         ck.add("camera.clip_end", f"clip_end ({c.clip_end}) <= clip_start ({c.clip_start})",
                "make clip_end > clip_start")
-    if not ck.has("camera.focal_length") and not ck.has("camera.sensor_width"):
-        fov = 2 * math.degrees(math.atan(c.sensor_width / (2 * c.focal_length)))
-        if fov > MAX_FIELD_OF_VIEW_DEG:
-            ck.add("camera.focal_length", f"{c.focal_length} mm on a {c.sensor_width} mm sensor sees {fov:.1f} deg "
-                   f"across (more than {MAX_FIELD_OF_VIEW_DEG:g}: parts would be a few pixels or less)",
-                   "give a focal length of a real lens (industrial cameras: 4-50 mm)")
+    _check_field_of_view(ck, "camera", c.focal_length, c.sensor_width, "sensor sees",
+                         ": parts would be a few pixels or less",
+                         "give a focal length of a real lens (industrial cameras: 4-50 mm)")
     pool = c.sampler.kind == "pool"
     if not c.poses and pool:
         ck.add("camera.poses", "no camera poses", "add at least one pose (location + quaternion wxyz)")
@@ -616,6 +613,17 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
                f"{s.max_renders_per_scene} renders per scene but only {len(c.poses)} camera poses "
                "(poses are drawn without replacement within a scene)",
                "add camera poses or lower max_renders_per_scene")
+
+
+def _check_field_of_view(ck: "_Checks", device: str, focal: float, sensor: float, verb: str, why: str,
+                         fix: str) -> None:
+    """A lens wider than MAX_FIELD_OF_VIEW_DEG (once focal length and sensor width are valid)."""
+    if ck.has(f"{device}.focal_length") or ck.has(f"{device}.sensor_width"):
+        return
+    fov = 2 * math.degrees(math.atan(sensor / (2 * focal)))
+    if fov > MAX_FIELD_OF_VIEW_DEG:
+        ck.add(f"{device}.focal_length", f"{focal} mm on a {sensor} mm {verb} {fov:.1f} deg across "
+               f"(more than {MAX_FIELD_OF_VIEW_DEG:g}{why})", fix)
 
 
 def _split_fix(text: str) -> tuple[str, str | None]:
@@ -638,12 +646,8 @@ def _check_projector(ck: _Checks, cfg: Config, check_files: bool) -> None:
     elif len(pr.rotation) == 4 and math.sqrt(sum(q * q for q in pr.rotation)) < 1e-6:
         ck.add("projector.rotation", "zero quaternion", "give a unit quaternion (w, x, y, z)")
     ck.positive("projector.power", pr.power)
-    if not ck.has("projector.focal_length") and not ck.has("projector.sensor_width"):
-        fov = 2 * math.degrees(math.atan(pr.sensor_width / (2 * pr.focal_length)))
-        if fov > MAX_FIELD_OF_VIEW_DEG:
-            ck.add("projector.focal_length", f"{pr.focal_length} mm on a {pr.sensor_width} mm DMD throws "
-                   f"{fov:.1f} deg across (more than {MAX_FIELD_OF_VIEW_DEG:g})",
-                   "give the focal length of a real projector lens (8-50 mm)")
+    _check_field_of_view(ck, "projector", pr.focal_length, pr.sensor_width, "DMD throws", "",
+                         "give the focal length of a real projector lens (8-50 mm)")
 
 
 def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None:
