@@ -5,7 +5,9 @@ scene 0), the camera straight down from `height` m above the bin floor, and the 
 `rig`: 'default' (the preset: 0.15 m baseline, 8.5 deg toe-in) or 'gui' (where the original
 DataPipe GUI puts it: 0.12 m, 8.5 deg). The preset is made the way a user of the original add-on
 makes it: an original-layout pickle (camera pose, projector pose, is_structured_light) loaded with
-`config.load_legacy_pickle`, everything else default.
+`config.load_legacy_pickle`, everything else default (tests/sl_scenes.py, shared with
+tests/blender/test_sl_working_distance.py, which checks the working distance with the default
+fringe mode; the cases here pin the path-traced one).
 
 Per case the cache holds the linear fringe stack (`rad`), the z-buffer depth, the instance mask,
 the camera pose/intrinsics and `direct`: the pixels the projector lights directly and the camera
@@ -15,34 +17,25 @@ ray cast, independent of the fringe render), plus render times.
 from __future__ import annotations
 
 import json
-import math
-import pickle
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from datapipe import config as C
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from datapipe import config as C  # noqa: E402
+from sl_scenes import RIGS, direct_mask, rig_config  # noqa: E402,F401  (RIGS: part of this module's API)
 
 SEED = 1234
-RIGS = {"default": ([-0.15, 0.0, 0.0], [0.0, math.radians(-8.5), 0.0]),
-        "gui": ([-0.12, 0.0, 0.0], [0.0, math.radians(-8.5), 0.0])}
 
 
 def case_config(rig: str, height: float, material=None, res=(320, 240)) -> C.Config:
-    """The original-layout pickle preset of a case (see the module doc), loaded as a user would."""
-    base = C.default_config()
-    d = C.to_legacy_dict(base)
-    d["camera"]["world2cam_pose_list"] = [{"location": [0.0, 0.0, float(height)], "rotation": [1.0, 0.0, 0.0, 0.0]}]
-    d["camera"]["resolution"] = [int(res[1]), int(res[0])]
-    d["camera"]["is_structured_light"] = True
-    loc, rot = RIGS[rig]
-    d["projector"]["proj2cam_pose"] = {"location": list(loc), "rotation": list(rot)}
-    cfg = C.load_legacy_pickle(pickle.dumps(d), base_dir=C.presets_dir())
-    cfg.render.samples = 8                   # native layer: its depth and mask are what is used
-    cfg.render.threads = 2
-    cfg.render.outputs = ["rgb", "depth", "mask"]
+    """The original-layout pickle preset of a case (tests/sl_scenes.rig_config), with the fringes
+    path-traced (the reference, as cached) and the parts' material."""
+    cfg = rig_config(rig, height, res)
     cfg.structured_light.fringe_mode = "render"   # the reference path (sharp glossy bounces), as cached
     if material is not None:
         for o in cfg.objects:
@@ -52,36 +45,6 @@ def case_config(rig: str, height: float, material=None, res=(320, 240)) -> C.Con
 
 def case_key(rig: str, height: float, material=None) -> str:
     return f"{rig}_h{height:.2f}_{material or 'file'}"
-
-
-def direct_mask(bscene, cfg, T_world_cam, K, depth) -> np.ndarray:
-    """Pixels whose z-buffer point is inside the projector image with a free line to the projector
-    centre (Blender ray cast from the point towards the projector)."""
-    import bpy
-    from mathutils import Vector
-
-    from datapipe.core.projector import projector_matrix
-
-    H, W = depth.shape
-    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
-    Xc = np.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth], -1)
-    Xw = Xc @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
-    P = projector_matrix(cfg, T_world_cam)
-    p = np.concatenate([Xw, np.ones((H, W, 1))], -1) @ P.T
-    x, y = p[..., 0] / p[..., 2], p[..., 1] / p[..., 2]
-    Wp, Hp = cfg.projector.resolution
-    inside = np.isfinite(depth) & (p[..., 2] > 0) & (x > 0.5) & (x < Wp - 1.5) & (y > 0.5) & (y < Hp - 1.5)
-    centre = -np.linalg.solve(P[:, :3], P[:, 3])
-    dg = bpy.context.evaluated_depsgraph_get()
-    out = np.zeros((H, W), bool)
-    for i, j in zip(*np.nonzero(inside)):
-        d = centre - Xw[i, j]
-        dist = float(np.linalg.norm(d))
-        d /= dist
-        o = Xw[i, j] + d * 1e-4
-        hit = bscene.ray_cast(dg, Vector(o.tolist()), Vector(d.tolist()), distance=dist - 2e-4)[0]
-        out[i, j] = not hit
-    return out
 
 
 def render_cases(cases, cache: Path, log=print) -> dict:
