@@ -9,7 +9,9 @@ makes it: an original-layout pickle (camera pose, projector pose, is_structured_
 tests/blender/test_sl_working_distance.py, which checks the working distance with the default
 fringe mode; the cases here pin the path-traced one).
 
-Per case the cache holds the linear fringe stack (`rad`), the z-buffer depth, the instance mask,
+Per case the cache holds the linear fringe stack (`rad`: the F*N fringe images, then the global
+reflection filter's row code, rendered for every case so its residual can be measured on diffuse
+scenes too; `renders.json` says whether the product would render it), the z-buffer depth, the instance mask,
 the camera pose/intrinsics and `direct`: the pixels the projector lights directly and the camera
 sees (z-buffer point inside the projector image, nothing between it and the projector: a Blender
 ray cast, independent of the fringe render), plus render times.
@@ -34,12 +36,15 @@ SEED = 1234
 
 def case_config(rig: str, height: float, material=None, res=(320, 240)) -> C.Config:
     """The original-layout pickle preset of a case (tests/sl_scenes.rig_config), with the fringes
-    path-traced (the reference, as cached) and the parts' material."""
+    path-traced (the reference, as cached) and the parts' material ("NAME+bin": the bin's too)."""
     cfg = rig_config(rig, height, res)
     cfg.structured_light.fringe_mode = "render"   # the reference path (sharp glossy bounces), as cached
     if material is not None:
+        name = material.removesuffix("+bin")
         for o in cfg.objects:
-            o.material = material
+            o.material = name
+        if name != material:
+            cfg.scene.bin_material = name
     return cfg
 
 
@@ -60,7 +65,7 @@ def render_cases(cases, cache: Path, log=print) -> dict:
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
     groups: dict = {}
     for rig, h, mat in cases:
-        if case_key(rig, h, mat) not in meta:
+        if not meta.get(case_key(rig, h, mat), {}).get("rows"):       # rendered before the row code: again
             groups.setdefault((rig, mat), []).append(h)
     for (rig, mat), heights in groups.items():
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -76,13 +81,17 @@ def render_cases(cases, cache: Path, log=print) -> dict:
             out = world.renderer.render(tmp / "native", SEED)
             t1 = time.perf_counter()
             world.sl.set_sharp_glossy(has_shiny_surface(world.blend.scene))   # as process() does
-            rad, fringe_s = world.sl.render_fringes(tmp / "fringes", SEED)
+            rows = world.sl.wants_rows()                                       # what the product renders
+            t2 = time.perf_counter()
+            rad, _ = world.sl.render_fringes(tmp / "fringes", SEED, rows=True)  # every case: the row code's
+            fringe_s = time.perf_counter() - t2                                # residual on diffuse bins too
             direct = direct_mask(world.blend.scene, cfg, T, world.camera.K, out.depth)
             key = case_key(rig, h, mat)
             np.savez_compressed(cache / f"{key}.npz", rad=rad, depth=out.depth, mask=out.mask, T=T,
                                 K=world.camera.K, direct=direct, rgb=out.rgb)
             meta[key] = {"rig": rig, "height": h, "material": mat or "file", "native_s": t1 - t0,
-                         "fringe_s": fringe_s, "images": int(rad.shape[0]), "sharp_glossy": world.sl.sharp_glossy}
+                         "fringe_s": fringe_s, "images": int(rad.shape[0]), "sharp_glossy": world.sl.sharp_glossy,
+                         "rows": True, "product_rows": rows}
             meta_path.write_text(json.dumps(meta, indent=1))
             log(f"  {key}: native {t1 - t0:.1f} s, fringes {fringe_s:.1f} s")
     return meta

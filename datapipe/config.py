@@ -40,6 +40,7 @@ UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")  
 SAMPLER_KINDS = ("pool", "bin_view")
 FRINGE_MODES = ("auto", "fast", "render")   # structured_light.fringe_mode (core/fringe_fast.py);
                                             # auto: render when a configured material is shiny, else fast
+REFLECTION_FILTERS = ("auto", "local", "global", "off")   # structured_light.reflection_filter (sl/filters.py)
 MAX_RESOLUTION = 8192
 # Upper limits: beyond them a preset is a typo, not a dataset (validate() says so before any work).
 MAX_RENDERS = 1_000_000            # ~12 days of Cycles at 1 s per render (= seeds.MAX_PLAN_RENDERS)
@@ -156,6 +157,11 @@ class StructuredLightConfig:
                                        # metered per render from the fringes (datapipe.sl.exposure)
     hdr: list[float] = field(default_factory=list)   # relative exposure factors fused per pixel,
                                        # e.g. [1, 4, 16]; empty = one exposure
+    reflection_filter: str = "auto"    # "local": drop pixels whose frequencies disagree in modulation (light
+                                       # of two paths); "global": also render a row code with the fringes
+                                       # (+steps path-traced patterns) and drop mirror ghosts whose light
+                                       # left the projector from another row; "auto": global on renders
+                                       # with shiny surfaces (render mode), local otherwise; "off"
     debug: bool = False                # also write wrapped/absolute phase, modulation, reasons
     projector_gamma: float = 1.0       # projector response exponent (emits pattern ** gamma; 1 = linear);
                                        # the decoder corrects the phase ripple it causes
@@ -665,6 +671,11 @@ def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None
         _check_sl_periods(sl, pr, ck.add)
     ck.choice("structured_light.unwrap", sl.unwrap, UNWRAP_METHODS)
     ck.choice("structured_light.fringe_mode", sl.fringe_mode, FRINGE_MODES)
+    ck.choice("structured_light.reflection_filter", sl.reflection_filter, REFLECTION_FILTERS)
+    if sl.reflection_filter == "global" and sl.fringe_mode == "fast":
+        ck.add("structured_light.reflection_filter", "'global' checks a path-traced row code, and fast mode "
+               "synthesises the patterns (no mirrored light to find)", "set structured_light.fringe_mode to "
+               "'render' or 'auto', or reflection_filter to 'local'")
     if not (0.2 <= sl.projector_gamma <= 5.0):
         ck.add("structured_light.projector_gamma", f"must be a number in [0.2, 5], got {sl.projector_gamma!r}",
                "use 1.0 for a linear projector, ~2.2 for a typical DLP/LCD response")
@@ -678,15 +689,21 @@ def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None
 
 
 def _fringe_frames(cfg: Config) -> int:
-    return len(cfg.structured_light.periods) * cfg.structured_light.steps
+    """Fringe images per render: F*N, plus the row code (N) where the global reflection filter may
+    run (an upper bound: "auto" renders it only on shiny scenes in render mode)."""
+    s = cfg.structured_light
+    rows = s.steps if s.reflection_filter in ("auto", "global") and s.fringe_mode != "fast" else 0
+    return len(s.periods) * s.steps + rows
 
 
 def fringe_memory_bytes(cfg: Config) -> int:
     """Peak memory of one render's fringe work: every pattern as a float RGBA Blender image plus the
-    rendered stack read back at FRINGE_SUPERSAMPLE x the camera resolution (float32) and its mean."""
+    rendered stack read back at FRINGE_SUPERSAMPLE x the camera resolution (float32) and its mean;
+    with `hdr`, the fused float32 stack and one exposure's sensor output besides."""
     (Wp, Hp), (W, H) = cfg.projector.resolution, cfg.camera.resolution
     ss = FRINGE_SUPERSAMPLE
-    return _fringe_frames(cfg) * (Wp * Hp * 16 + W * H * ss * ss * 4 + W * H * 4)
+    hdr = 8 * W * H if cfg.structured_light.hdr else 0
+    return _fringe_frames(cfg) * (Wp * Hp * 16 + W * H * ss * ss * 4 + W * H * 4 + hdr)
 
 
 def _check_fringe_memory(ck: _Checks, cfg: Config) -> None:
@@ -697,7 +714,7 @@ def _check_fringe_memory(ck: _Checks, cfg: Config) -> None:
         ck.add("structured_light.steps", f"{len(cfg.structured_light.periods)} frequencies x {cfg.structured_light.steps} "
                f"steps need about {need / 2**30:.1f} GiB for the fringe stack (limit "
                f"{MAX_FRINGE_BYTES / 2**30:.0f} GiB)", "use fewer steps or frequencies, or a smaller projector or "
-               "camera resolution")
+               "camera resolution (the row code of reflection_filter 'global'/'auto' and hdr add to it)")
 
 
 def fringe_period_camera_px(cfg: Config) -> float:

@@ -161,6 +161,11 @@ CASES = [
     (lambda c: setattr(c.scene, "bin_material", []), "scene.bin_material", "empty list"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "quick")),
      "structured_light.fringe_mode", "unknown value"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "reflection_filter", "on")),
+     "structured_light.reflection_filter", "unknown value"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "fast"),
+                setattr(c.structured_light, "reflection_filter", "global")),
+     "structured_light.reflection_filter", "fast mode"),
     (lambda c: setattr(c.render, "adaptive_threshold", -0.01), "render.adaptive_threshold", "must be in [0, 1)"),
     (lambda c: setattr(c.render, "samples", 0), "render.samples", ">= 1"),
     (lambda c: setattr(c.render, "outputs", ["rgb", "thermal"]), "render.outputs[1]", "unknown value"),
@@ -301,3 +306,19 @@ def test_materials_round_trip(cfg, tmp_path):
     back = C.load(tmp_path / "m.json")
     assert [o.material for o in back.objects] == [o.material for o in cfg.objects]
     assert back.scene.bin_material == "matte_plastic"
+
+
+def test_fringe_memory_counts_the_row_code_and_hdr():
+    """The memory check sees what a render holds: F*N fringe images, the row code's N more where the
+    global reflection filter may run (render mode), and with `hdr` the fused stack besides."""
+    cfg = C.default_config()
+    s = cfg.structured_light
+    s.enabled, s.fringe_mode = True, "fast"
+    fast = C.fringe_memory_bytes(cfg)
+    s.fringe_mode = "render"
+    rows = C.fringe_memory_bytes(cfg)
+    assert rows == fast * (len(s.periods) + 1) // len(s.periods)
+    s.reflection_filter = "local"
+    assert C.fringe_memory_bytes(cfg) == fast
+    s.hdr = [1.0, 4.0, 16.0]
+    assert C.fringe_memory_bytes(cfg) > fast

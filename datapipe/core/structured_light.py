@@ -53,9 +53,14 @@ switch. Direct light is unchanged (tested byte-for-byte).
 Sensor, decode and filters
 --------------------------
 `sl.Scanner` (datapipe/sl/scanner.py): exposure (fixed, auto, HDR: sl.exposure), the seeded
-sensor model, the decoder, the multipath filter (reason MULTIPATH = 8), the projector-border and
-edge/speckle filters (reason FILTERED = 7), and the maps written per render. This module only
-renders the fringes.
+sensor model, the decoder, the local reflection (multipath) filter (reason MULTIPATH = 8), the
+global reflection filter (reason REFLECTION = 10), the projector-border and edge/speckle filters
+(reason FILTERED = 7), and the maps written per render. This module only renders the fringes,
+and for the global reflection filter a row code (one period of row fringes, `steps` images, built
+as more pattern lights and view layers in render mode) on the renders that need it:
+`structured_light.reflection_filter` "global", or "auto" when the render has sharp glossy fringes
+(a shiny surface: the only renders that can show mirror ghosts). Its view layers are left out of
+the Cycles call on the other renders, so they cost nothing there.
 
 Timing: `last_seconds` holds the fringe call's and the scan's wall time of the last render (the
 pipeline reports both as its "structured_light" stage); they are kept out of the annotations so
@@ -108,8 +113,10 @@ class StructuredLightCamera:
         self.flat = None                       # FlatLitRender in fast mode
         self.bounce_min_gain = None            # fast mode: periods with bounce layers (None: its default)
         self._profiles = sl.pattern_profiles(self.proj_size[0], self.periods, self.steps)
+        self.reflection_filter = s.reflection_filter
+        self.row_code = self.fringe_mode == "render" and s.reflection_filter in ("auto", "global")
         self.layers: list = []
-        self.layer_names: list[str] = []
+        self.layer_names: list[str] = []      # the fringe layers, then the row code's (when `row_code`)
         self.file_output = None
         self._rl_nodes: list = []
         self.last_seconds: dict = {}     # {"render": s, "decode": s} of the last process() (not annotated:
@@ -129,13 +136,14 @@ class StructuredLightCamera:
             self.set_samples(self.samples)
             return
         Wp, Hp = self.proj_size
-        patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps,
-                                      gamma=self.cfg.structured_light.projector_gamma)
+        gamma = self.cfg.structured_light.projector_gamma
+        patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps, gamma=gamma)
+        if self.row_code:                  # the global reflection filter's row code (sl.Scanner.scan)
+            patterns = np.concatenate([patterns, self.scanner.row_patterns(gamma)])
         self.projector = Projector(self.cfg, self.scene, self.camera.obj)
         self.projector.build(patterns)
-        for i, ob in enumerate(self.projector.lights):
-            K = self.periods[i // self.steps]
-            regularize_indirect(ob.data.node_tree, indirect_gain(K, Wp, self.indirect_blur_px))
+        for ob, (K, length) in zip(self.projector.lights, self._light_frequencies()):
+            regularize_indirect(ob.data.node_tree, indirect_gain(K, length, self.indirect_blur_px))
         self.layers = self.projector.make_view_layers(exclude=[LIGHTS_COLLECTION])
         self.layer_names = [vl.name for vl in self.layers]
         tree = self.renderer.tree
@@ -157,10 +165,22 @@ class StructuredLightCamera:
         self.indirect_blur_px = float(blur_px)
         if self.flat is not None:            # fast mode: bounced light is offset only, nothing to blur
             return
-        for i, ob in enumerate(self.projector.lights):
-            K = self.periods[i // self.steps]
-            _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE],
-                      indirect_gain(K, self.proj_size[0], self.indirect_blur_px))
+        for ob, (K, length) in zip(self.projector.lights, self._light_frequencies()):
+            _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE], indirect_gain(K, length, self.indirect_blur_px))
+
+    def _light_frequencies(self) -> list[tuple[float, int]]:
+        """(periods, projector px they span) of each pattern light: the fringes across the width,
+        then the row code's over the height."""
+        Wp, Hp = self.proj_size
+        out = [(float(K), Wp) for K in self.periods for _ in range(self.steps)]
+        if self.row_code:
+            out += [(float(K), Hp) for K in sl.scanner.ROW_PERIODS for _ in range(self.steps)]
+        return out
+
+    def wants_rows(self) -> bool:
+        """Whether this render needs the row code: reflection_filter "global", or "auto" with sharp
+        glossy fringes (a shiny surface in the scene: the only renders that can show mirror ghosts)."""
+        return self.row_code and (self.reflection_filter == "global" or self.sharp_glossy)
 
     def set_sharp_glossy(self, sharp: bool) -> None:
         """Glossy bounces see the sharp pattern (True) or the blurred one like diffuse bounces."""
@@ -182,11 +202,12 @@ class StructuredLightCamera:
             vl.samples = self.layer_samples
 
     # -- once per render --------------------------------------------------------------------------
-    def render_fringes(self, render_dir, seed: int, T_world_cam=None) -> tuple[np.ndarray, float]:
+    def render_fringes(self, render_dir, seed: int, T_world_cam=None, rows: bool | None = None
+                       ) -> tuple[np.ndarray, float]:
         """Render the fringe layers (own Cycles call, see the module doc) -> ((F*N, H, W) float32
-        linear radiance, frequency-major; wall seconds of the call, and in fast mode of the
-        synthesis). `T_world_cam` (fast mode: the pose P_proj is made from) defaults to the
-        camera's current pose."""
+        linear radiance, frequency-major, followed by the row code's N images when `rows` (default
+        `wants_rows()`); wall seconds of the call, and in fast mode of the synthesis). `T_world_cam`
+        (fast mode: the pose P_proj is made from) defaults to the camera's current pose."""
         from . import compat
 
         ss = int(self.supersample)
@@ -202,11 +223,17 @@ class StructuredLightCamera:
             if bounce is not None:
                 stack += bounce
             return stack, seconds + time.perf_counter() - t0
-        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, self.layer_names,
+        if rows is None:
+            rows = self.wants_rows()
+        if rows and not self.row_code:
+            raise ValueError("render_fringes(rows=True) without a row code (structured_light.reflection_filter "
+                             "'auto' or 'global' in render mode builds one)")
+        names = self.layer_names if rows else self.layer_names[:len(self.periods) * self.steps]
+        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
                                   filter_width=self.filter_width)
         ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe")
-        stack = np.stack([ch[f"{name}.V"] for name in self.layer_names]).astype(np.float32)
+        stack = np.stack([ch[f"{name}.V"] for name in names]).astype(np.float32)
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
             F, h, w = stack.shape
             stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
@@ -226,7 +253,7 @@ class StructuredLightCamera:
         return files, {
             "periods": self.periods, "steps": self.steps, "unwrap": summary["unwrap"], "samples": int(s.samples),
             "fringe_mode": self.fringe_mode, "sensor": s.sensor, "exposure": summary["exposure"], "exposure_mode": summary["exposure_mode"],
-            "hdr": summary["hdr"], "glossy_fringes": ("offset" if self.flat is not None
+            "hdr": summary["hdr"], "reflection_filter": summary["reflection_filter"], "glossy_fringes": ("offset" if self.flat is not None
                                                         else "sharp" if self.sharp_glossy else "blurred"),
             "power": float(self.cfg.projector.power),
             "filter_width": float(self.filter_width), "P_proj": scan.P_proj,
@@ -255,13 +282,16 @@ def resolve_fringe_mode(cfg) -> str:
     """`structured_light.fringe_mode` with "auto" decided from the configured materials: "render"
     when any of them (bin, or any choice of any object entry) has roughness below SHINY_ROUGHNESS,
     since only path-traced patterns carry the fringes that shiny parts mirror (ghosts, holes);
-    "fast" otherwise, where the two modes agree (sl_fringe_modes.md). Materials that come from the
+    "fast" otherwise, where the two modes agree (sl_fringe_modes.md); "render" as well for
+    reflection_filter "global" (a path-traced row code). Materials that come from the
     mesh file ("file") count as diffuse: set "render" for meshes that carry shiny materials."""
     from . import materials
 
     mode = cfg.structured_light.fringe_mode
     if mode != "auto":
         return mode
+    if cfg.structured_light.reflection_filter == "global":   # its row code must be path-traced
+        return "render"
     b = cfg.scene.bin_material
     specs = list(b) if isinstance(b, list) else [b]
     for entry in cfg.objects:

@@ -72,6 +72,9 @@ class Reason(IntEnum):
     MULTIPATH = 8           # removed by the reflection/multipath filter (sl.filters.multipath_filter)
     INCONSISTENT = 9        # the frequencies disagree by more than the noise allows (aliasing, mixed pixel,
                             # inter-reflection, tone curve): see datapipe.sl.confidence
+    REFLECTION = 10         # removed by the global reflection filter: the row-coded patterns say the light
+                            # left the projector from another row than the decoded point's (a mirror ghost,
+                            # sl.filters.reflection_filter)
 
 
 _NO_ORDER = (Reason.NO_LIGHT, Reason.SATURATED, Reason.INVALID_INPUT)   # no order decoded at all

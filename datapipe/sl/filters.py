@@ -71,3 +71,74 @@ def multipath_filter(modulation, offset, periods, steps: int, noise_sigma, valid
     sigma_b = np.sqrt(2.0 / int(steps)) * np.asarray(sig, np.float64)
     with np.errstate(invalid="ignore"):
         return valid & (B.min(axis=0) < ratio * B.max(axis=0) - sigmas * np.sqrt(1.0 + ratio * ratio) * sigma_b)
+
+
+# -- global reflection filter: row-coded patterns (epipolar consistency) ----------------------------
+ROW_SIGMAS = 5.0                 # noise part of the row tolerance, in sigmas of the decoded row
+ROW_MIN_PX = 12.0                # projector px: bias of the one-period row phase that direct light
+                                 # still shows (diffuse inter-reflections keep 98% of its modulation;
+                                 # measured on bin scenes: benchmarks/results/sl_materials.md)
+
+
+def row_from_phase(row_phase, proj_height: int) -> np.ndarray:
+    """Projector row (pixel centres at integers) coded by one period of row fringes over the
+    projector height (`fringe_patterns(axis='y', periods=[1])`): y = phase / 2 pi * height."""
+    return np.asarray(row_phase, np.float64) * (float(proj_height) / (2.0 * np.pi))
+
+
+def projector_rows(points_cam, P_proj_cam) -> np.ndarray:
+    """Rows at which the projector sees camera-frame points (H, W, 3): NaN where a point is NaN
+    or behind the projector."""
+    X = np.asarray(points_cam, np.float64)
+    P = np.asarray(P_proj_cam, np.float64)
+    w = X @ P[2, :3] + P[2, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        y = (X @ P[1, :3] + P[1, 3]) / w
+    return np.where(w > 0, y, np.nan)
+
+
+def row_residual(measured_row, predicted_row, proj_height: int) -> np.ndarray:
+    """Signed difference measured - predicted row, wrapped to [-height/2, height/2) (the one-period
+    code is periodic over the projector height)."""
+    h = float(proj_height)
+    return np.mod(np.asarray(measured_row, np.float64) - predicted_row + h / 2.0, h) - h / 2.0
+
+
+def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int, steps: int, noise_sigma,
+                      valid, *, checkable=None, sigmas: float = ROW_SIGMAS, min_px: float = ROW_MIN_PX) -> np.ndarray:
+    """Pixels whose light left the projector from another row than the row at which the projector
+    sees their decoded point: light that reached the camera over a mirror path (the scanners'
+    global "reflection filter"); returns the bool mask of pixels to remove.
+
+    Why this test: vertical fringes code only the projector column, so a pixel that sees only a
+    mirror image of a lit surface point W decodes W's column, every frequency sharp and
+    consistent, and triangulates a ghost G on its own camera ray (multipath_filter cannot see it:
+    one path). G lies in W's column plane but, unless the mirror keeps the light in the pixel's
+    epipolar plane, not on W's projector ray: the row the projector sees G at differs from W's row,
+    which one period of row fringes (`steps` extra patterns, no unwrapping) measures. Direct light
+    always agrees (G = W). Not caught, by any single projector-camera check: mirror paths inside
+    the epipolar plane (the ghost lies on W's projector ray).
+
+    A valid pixel is removed when |row measured - row predicted| (wrapped) exceeds
+
+        tol = sqrt((sigmas * sigma_y)^2 + min_px^2),  sigma_y = H_proj / 2 pi * sqrt(2/N) * sigma_I / B_row
+
+    (the least-squares phase noise of the row code; `min_px` the bias diffuse inter-reflections
+    leave in a one-period phase). Pixels whose row code cannot be read (`checkable` False: no
+    modulation, saturated) are kept.
+
+    row_phase, row_modulation: (H, W) wrapped phase and modulation of the row code; predicted_row:
+    (H, W) from `projector_rows`; noise_sigma: the sensor noise of one sample at each pixel (a
+    number or an (H, W) array, image units)."""
+    valid = np.asarray(valid, bool)
+    B = np.asarray(row_modulation, np.float64)
+    sig = np.asarray(noise_sigma, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sigma_y = float(proj_height) / (2.0 * np.pi) * np.sqrt(2.0 / int(steps)) * sig / B
+        tol = np.sqrt((sigmas * sigma_y) ** 2 + float(min_px) ** 2)
+        res = np.abs(row_residual(row_from_phase(row_phase, proj_height), predicted_row, proj_height))
+        bad = res > tol
+    ok = np.isfinite(res) & np.isfinite(tol) & (B > 0)
+    if checkable is not None:
+        ok &= np.asarray(checkable, bool)
+    return valid & ok & bad

@@ -24,6 +24,14 @@ Validity (what "valid" means)
    second path pulls the coarse phase and so the fringe order (e.g. the projector's shadow next to
    a bin wall, lit by the wall). On the demo bin it removes what B/A >= 0.5 removed, without
    punishing ambient light (benchmarks/results/sl_materials.md).
+1c. global reflection filter (`sl.filters.reflection_filter`, reason REFLECTION = 10): only when
+   the radiance stack carries `steps` row-coded images after the F*N fringe images (one period of
+   row fringes over the projector height; the Blender side renders them when
+   `structured_light.reflection_filter` is "global", or "auto" on a scene with shiny surfaces):
+   the projector row the row code measures must be the row the projector sees the decoded point
+   at. A pixel that sees only a mirror image of a lit surface decodes a consistent but wrong
+   column (a ghost point); its light left the projector from another row. Mirror paths inside the
+   pixel's epipolar plane keep the row and stay (no single projector-camera check sees them).
 2. projector border: pixels within BORDER_PX camera pixel of the projector image's left/right
    edge (their sub-samples straddle the edge of the lit area).
 3. edge / speckle filter (`sl.filters.edge_speckle_filter`): a camera pixel that straddles a depth
@@ -45,10 +53,14 @@ from typing import Sequence
 import numpy as np
 
 from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
+from ._errors import bad_value
 from .decode import DecodeResult, Reason, decode
 from .exposure import Capture, auto_exposure, capture, check_exposure, check_hdr, exposure_set
-from .filters import edge_speckle_filter, multipath_filter
+from .filters import edge_speckle_filter, multipath_filter, projector_rows, reflection_filter
+from .gamma import correct_cycles, gamma_phase_lut
 from .metrics import pixel_depth_sigma
+from .patterns import fringe_patterns, phase_shifts
+from .phase import phase_shift
 from .sensor import SensorModel
 from .unwrap import plan_unwrap
 
@@ -56,6 +68,8 @@ MIN_CONTRAST = 0.05              # decode(min_contrast=): a sanity floor; global
 BORDER_PX = 1.0                  # camera px kept free at the projector image's left/right border
 FILTERED = int(Reason.FILTERED)  # reason code of pixels removed by the border and edge/speckle filters
 MULTIPATH = int(Reason.MULTIPATH)  # reason code of pixels removed by the multipath filter
+REFLECTION = int(Reason.REFLECTION)  # reason code of pixels removed by the global reflection filter
+ROW_PERIODS = [1]                # the row code: one period over the projector height (no unwrapping)
 REASON_NAMES = {r.value: r.name for r in Reason}
 
 
@@ -72,6 +86,7 @@ class Scan:
     capture: Capture | None = None   # the exposures used (.exposures, .reference = base, .chosen per pixel)
     exposure_mode: str = "fixed"     # "fixed" or "auto"
     multipath: np.ndarray | None = None   # bool: removed by the multipath filter
+    reflection: np.ndarray | None = None  # bool: removed by the global reflection filter (None: no row code)
 
     @property
     def exposure(self) -> float:
@@ -100,7 +115,9 @@ class Scan:
         return {"unwrap": res.method, "valid_fraction": float(res.valid.mean()),
                 "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
                 "median_sigma_z": _nanmedian(self.sigma_z), "exposure": self.exposure,
-                "exposure_mode": self.exposure_mode, "hdr": [float(f) for f in factors]}
+                "exposure_mode": self.exposure_mode, "hdr": [float(f) for f in factors],
+                "reflection_filter": ("global" if self.reflection is not None
+                                      else "local" if self.multipath is not None else "off")}
 
 
 class Scanner:
@@ -108,12 +125,15 @@ class Scanner:
 
     `K_proj`, `T_cam_proj`: the projector's intrinsics and its pose in the camera frame (OpenCV);
     `sensor`: a SensorModel or a preset name; `exposure`: gain on the radiance before the sensor,
-    or "auto"; `hdr`: relative exposure factors fused per pixel (empty: one exposure)."""
+    or "auto"; `hdr`: relative exposure factors fused per pixel (empty: one exposure);
+    `multipath_filter`: the local reflection filter; `row_check`: the global one, applied when
+    the radiance carries the row-coded images (`row_images`)."""
 
     def __init__(self, periods: Sequence[float], steps: int, proj_size: tuple[int, int], K_proj, T_cam_proj_, *,
                  unwrap: str = "auto", sensor: SensorModel | str = "industrial", exposure: float | str = "auto",
                  hdr: Sequence[float] = (), min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX,
-                 edge_filter: bool = True, multipath_filter: bool = True, projector_gamma: float = 1.0):
+                 edge_filter: bool = True, multipath_filter: bool = True, row_check: bool = True,
+                 projector_gamma: float = 1.0):
         self.periods, self.steps = list(periods), int(steps)
         self.proj_size = tuple(int(v) for v in proj_size)
         self.K_proj = np.asarray(K_proj, dtype=np.float64)
@@ -123,6 +143,7 @@ class Scanner:
         self.exposure = check_exposure(exposure)
         self.hdr = check_hdr(list(hdr)) or []
         self.multipath_filter = bool(multipath_filter)
+        self.row_check = bool(row_check)
         self.min_contrast = float(min_contrast)
         self.border_px = float(border_px)
         self.edge_filter = bool(edge_filter)
@@ -133,7 +154,8 @@ class Scanner:
     def from_config(cls, cfg, **overrides) -> "Scanner":
         """The scanner a Config describes (structured_light + projector sections)."""
         s = cfg.structured_light
-        kw = dict(unwrap=s.unwrap, sensor=s.sensor, exposure=s.exposure, hdr=s.hdr, projector_gamma=s.projector_gamma)
+        kw = dict(unwrap=s.unwrap, sensor=s.sensor, exposure=s.exposure, hdr=s.hdr, projector_gamma=s.projector_gamma,
+                  multipath_filter=s.reflection_filter != "off", row_check=s.reflection_filter != "off")
         kw.update(overrides)
         return cls(s.periods, s.steps, cfg.projector.resolution, projector_intrinsics(cfg), T_cam_proj(cfg), **kw)
 
@@ -142,30 +164,69 @@ class Scanner:
         T_world_proj = np.asarray(T_world_cam, dtype=np.float64) @ self.T_cam_proj
         return self.K_proj @ np.linalg.inv(T_world_proj)[:3]
 
+    @property
+    def n_fringe(self) -> int:
+        """Images of the column-coded fringes (F*N); a stack may carry `row_images` more."""
+        return len(self.periods) * self.steps
+
+    @property
+    def row_images(self) -> int:
+        """Row-coded images the global reflection filter reads (after the fringe images)."""
+        return len(ROW_PERIODS) * self.steps
+
+    def row_patterns(self, gamma: float = 1.0) -> np.ndarray:
+        """The row code as projector images ((N, H_proj, W_proj) float32), for the Blender side."""
+        Wp, Hp = self.proj_size
+        return fringe_patterns(Wp, Hp, ROW_PERIODS, self.steps, axis="y", gamma=gamma)
+
     def scan(self, radiance, seed: int, K_cam, T_world_cam) -> Scan:
-        """(F*N, H, W) linear radiance (frequency-major) seen from `T_world_cam` -> Scan."""
+        """(F*N, H, W) linear radiance (frequency-major) seen from `T_world_cam` -> Scan. With
+        `row_images` more images after them (the row code), the global reflection filter runs."""
         t0 = time.perf_counter()
         model = self.sensor
         radiance = np.clip(np.asarray(radiance, dtype=np.float32), 0.0, None)
-        base = auto_exposure(radiance, model) if self.exposure == "auto" else self.exposure
+        n = self.n_fringe
+        if radiance.ndim != 3 or radiance.shape[0] not in (n, n + self.row_images):
+            raise bad_value("radiance", f"has shape {radiance.shape}",
+                            f"pass the {n} fringe images (frequency-major), optionally followed by the "
+                            f"{self.row_images} row-coded images")
+        base = auto_exposure(radiance[:n], model) if self.exposure == "auto" else self.exposure
         cap = capture(radiance, model, exposure_set(base, self.hdr), seed, reference=base)
         P_cam = projection_matrix(K_cam, T_world_cam)
         P_proj = self.projector_matrix(T_world_cam)
-        res = decode(cap.images, periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
+        res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
                      proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=cap.noise_sigma,
                      saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma)
         sigma_z = pixel_depth_sigma(res, cap.noise_sigma, self.proj_size[0], self.steps)
-        multipath = np.zeros(res.valid.shape, bool)
+        multipath = None
         if self.multipath_filter:
             multipath = multipath_filter(res.modulation, res.offset, res.periods, self.steps, cap.noise_sigma,
                                          res.valid)
             _remove(res, multipath, MULTIPATH)
+        reflection = None
+        if self.row_check and cap.images.shape[0] > n:
+            reflection = self._row_check(res, cap)
+            _remove(res, reflection, REFLECTION)
         filtered = np.zeros(res.valid.shape, bool)
         if self.edge_filter:
             filtered = self._filter(res, sigma_z, float(np.asarray(K_cam)[0, 0]))
         sigma_z[~res.valid] = np.nan
         return Scan(res, sigma_z, filtered, P_cam, P_proj, model, time.perf_counter() - t0, cap,
-                    "auto" if self.exposure == "auto" else "fixed", multipath)
+                    "auto" if self.exposure == "auto" else "fixed", multipath, reflection)
+
+    def _row_check(self, res: DecodeResult, cap) -> np.ndarray:
+        """The global reflection filter on the row-coded images of `cap` (see the module doc)."""
+        rows = phase_shift(cap.images[self.n_fringe:], saturation=cap.saturation)
+        phase = rows.phase
+        if self.projector_gamma != 1.0:
+            lut = gamma_phase_lut(self.projector_gamma, phase_shifts(self.steps))
+            phase = correct_cycles(phase / np.float32(2 * np.pi), lut) * np.float32(2 * np.pi)
+        sig = cap.noise_sigma
+        sig = sig(np.maximum(rows.offset.astype(np.float64), 0)) if callable(sig) else sig
+        P_proj_cam = self.K_proj @ np.linalg.inv(self.T_cam_proj)[:3]
+        predicted = projector_rows(res.points, P_proj_cam)
+        return reflection_filter(phase, rows.modulation, predicted, self.proj_size[1], self.steps, sig, res.valid,
+                                 checkable=~(rows.saturated | rows.invalid))
 
     def _filter(self, res: DecodeResult, sigma_z: np.ndarray, fx: float) -> np.ndarray:
         """Projector-border and edge/speckle filters; removed pixels become FILTERED, NaN."""

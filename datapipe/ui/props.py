@@ -418,6 +418,11 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
     hdr: StringProperty(name="HDR Factors", description="Relative exposure factors fused per pixel, e.g. "
                         "'1, 4, 16' (shiny or high-contrast scenes); empty: one exposure", get=_get_hdr,
                         set=_set_hdr)
+    reflection_filter: EnumProperty(name="Reflection Filter", description="local: drop pixels whose fringe "
+                                    "frequencies disagree in modulation (light of two paths); global: also render a "
+                                    "row code and drop mirror ghosts (+Steps path-traced images); auto: global on "
+                                    "renders with shiny surfaces, else local; off",
+                                    items=_items(C.REFLECTION_FILTERS), default=default(_L, "reflection_filter"))
     debug: BoolProperty(name="Debug Maps", description="Also write wrapped/absolute phase, modulation and "
                         "reason codes", default=default(_L, "debug"))
     projector_gamma: FloatProperty(name="Projector Gamma", description="Projector response exponent (it emits "

@@ -104,6 +104,9 @@ def test_auto_mode_renders_the_fringes_only_where_a_material_is_shiny():
     assert SLM.resolve_fringe_mode(cfg) == "render"
     cfg.scene.bin_material = {"base_color": [0.5, 0.5, 0.5], "roughness": SLM.SHINY_ROUGHNESS}
     assert SLM.resolve_fringe_mode(cfg) == "fast"                    # the threshold itself is diffuse
+    cfg.structured_light.reflection_filter = "global"               # its row code is path-traced
+    assert SLM.resolve_fringe_mode(cfg) == "render"
+    cfg.structured_light.reflection_filter = "auto"
     cfg.structured_light.fringe_mode = "fast"
     cfg.scene.bin_material = "steel"
     assert SLM.resolve_fringe_mode(cfg) == "fast"                    # an explicit choice wins

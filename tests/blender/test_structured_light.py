@@ -307,7 +307,8 @@ def test_second_setup_in_one_session_replaces_the_first(tmp_path):
     cfg = plane_config(res=(32, 24))
     cfg.structured_light.fringe_mode = "render"
     blend, cam, ren, slc, T = build(tmp_path, cfg)
-    n = len(cfg.structured_light.periods) * cfg.structured_light.steps
+    n_fringe = len(cfg.structured_light.periods) * cfg.structured_light.steps
+    n = n_fringe + cfg.structured_light.steps          # + the row code (reflection_filter "auto", render mode)
     again = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
     again.setup()
     assert len([ld for ld in bpy.data.lights if ld.type == "SPOT"]) == n
@@ -316,7 +317,9 @@ def test_second_setup_in_one_session_replaces_the_first(tmp_path):
         [f"sl_{i:02d}" for i in range(n)]
     assert len([nd for nd in ren.tree.nodes if nd.bl_idname == "CompositorNodeOutputFile"]) == 2
     stack, _ = again.render_fringes(tmp_path / "r", SEED)
-    assert stack.shape == (n, 24, 32) and stack.max() > 0.1
+    assert stack.shape == (n_fringe, 24, 32) and stack.max() > 0.1     # a plane, no shiny surface: no rows
+    rows, _ = again.render_fringes(tmp_path / "r", SEED, rows=True)
+    assert rows.shape == (n, 24, 32) and np.array_equal(rows[:n_fringe], stack)
 
 
 def test_indirect_regularisation_leaves_direct_light_alone(tmp_path):

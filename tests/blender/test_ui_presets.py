@@ -127,6 +127,15 @@ def test_exposure_and_hdr_round_trip(registered, exposure, hdr):
     assert (back.exposure, back.hdr) == (exposure, hdr)
 
 
+@pytest.mark.parametrize("mode", C.REFLECTION_FILTERS)
+def test_reflection_filter_round_trip(registered, mode):
+    cfg = C.default_config()
+    cfg.structured_light.reflection_filter = mode
+    config_to_props(cfg, registered)
+    assert registered.structured_light.reflection_filter == mode
+    assert props_to_config(registered).structured_light.reflection_filter == mode
+
+
 def test_materials_round_trip_through_the_sidebar(registered):
     cfg = C.default_config()
     cfg.objects[0].material = "steel"

@@ -1,5 +1,6 @@
 """The edge/speckle and multipath filters the pipeline applies after decoding (no bpy)."""
 import numpy as np
+import pytest
 import synth
 from sl_helpers import PERIODS, STEPS, decode_kw
 
@@ -69,3 +70,66 @@ def test_multipath_filter_removes_inter_reflected_orders_not_ambient(rig):
     # heterodyne-like sets (finest / coarsest < 4) have no coarse fringe to compare: nothing removed
     assert not sl.multipath_filter(res.modulation, res.offset, (70, 64, 59), STEPS, cap.noise_sigma,
                                    res.valid).any()
+
+
+def _scanner(cam, proj, **kw):
+    return sl.Scanner(PERIODS, STEPS, proj.size, proj.K, np.linalg.inv(cam.T) @ proj.T, **kw)
+
+
+def test_reflection_filter_removes_mirror_ghosts_off_the_epipolar_plane(rig):
+    """Box on a plane, fringes plus the row code (one period of row fringes, synth.render axis='y').
+    A 20 x 25 px patch of floor pixels sees, as through a mirror, only the light of the pixels 10
+    columns and 30 rows away (box top and floor): one path, every frequency sharp, so the decoder
+    and the local (multipath) filter trust it and triangulate ghosts > 5 mm off. Its light left the
+    projector ~90 rows from the row at which the projector sees the ghost: the row code removes
+    every ghost (reason REFLECTION) and no directly lit pixel (1% noise, sensor model)."""
+    cam, proj = rig
+    scene = synth.box_scene()
+    cols = synth.render(scene, cam, proj, PERIODS, STEPS)
+    rows = synth.render(scene, cam, proj, [1], STEPS, axis="y")
+    clean = np.concatenate([cols.images, rows.images]).astype(np.float32)
+    stack = clean.copy()
+    patch = (slice(5, 25), slice(5, 30))
+    stack[:, patch[0], patch[1]] = clean[:, 35:55, 15:40]              # the mirror image
+    ghost = np.zeros(cols.depth.shape, bool)
+    ghost[patch] = True
+    local = _scanner(cam, proj, row_check=False).scan(stack, 3, cam.K, cam.T)
+    assert local.reflection is None and local.summary()["reflection_filter"] == "local"
+    wrong = local.result.valid & ghost & (np.abs(local.result.depth - cols.depth) > 5e-3)
+    assert wrong.sum() > 0.9 * ghost.sum()                            # trusted ghosts
+    scan = _scanner(cam, proj).scan(stack, 3, cam.K, cam.T)
+    res = scan.result
+    assert scan.summary()["reflection_filter"] == "global"
+    assert not (res.valid & ghost).any() and (res.reason[wrong] == sl.Reason.REFLECTION).all()
+    assert not scan.reflection[~ghost].any()                          # direct light always agrees
+    assert (res.valid == local.result.valid)[~ghost].all()
+    # the decoded depth of the kept pixels is untouched, and without the row code nothing changes
+    plain = _scanner(cam, proj).scan(stack[:len(PERIODS) * STEPS], 3, cam.K, cam.T)
+    assert plain.reflection is None
+    assert np.array_equal(plain.result.valid, local.result.valid)
+    with pytest.raises(ValueError, match="row-coded"):                # neither stack length
+        _scanner(cam, proj).scan(stack[:-1], 3, cam.K, cam.T)
+
+
+def test_reflection_filter_tolerance_follows_the_row_code_noise():
+    """The test itself: a residual beyond sqrt((5 sigma_y)^2 + min_px^2) is removed, below kept;
+    sigma_y grows as the row code's modulation falls (a dark pixel is not removed for noise); the
+    code is periodic over the projector height (a row near 0 and one near H agree); pixels whose
+    row code cannot be read are kept."""
+    Hp, N = 600, 4
+    sig, B = 2.0, np.array([[400.0, 400.0, 400.0, 8.0, 400.0]])
+    sigma_y = Hp / (2 * np.pi) * np.sqrt(2 / N) * sig / B
+    tol = np.sqrt((sl.filters.ROW_SIGMAS * sigma_y) ** 2 + sl.filters.ROW_MIN_PX ** 2)
+    pred = np.full((1, 5), 300.0)
+    meas = pred + np.array([[0.9, 1.1, 0.0, 0.0, 0.0]]) * tol
+    meas[0, 2] = Hp - 0.4                                          # predicted 0.3, measured -0.4 (wrapped)
+    pred[0, 2] = 0.3
+    meas[0, 3] = pred[0, 3] + 0.9 * tol[0, 3]                      # dark: a wide tolerance (> 60 px)
+    meas[0, 4] = pred[0, 4] + 200.0
+    phase = meas * 2 * np.pi / Hp
+    valid = np.ones((1, 5), bool)
+    checkable = np.array([[True, True, True, True, False]])
+    bad = sl.reflection_filter(phase, B, pred, Hp, N, sig, valid, checkable=checkable)
+    assert bad.tolist() == [[False, True, False, False, False]]
+    assert tol[0, 3] > 60
+    assert not sl.reflection_filter(phase, B, pred, Hp, N, sig, ~valid).any()
