@@ -126,9 +126,12 @@ def _command(args) -> int:
         from .part_fit import part_fit_warnings
         for w in part_fit_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
+        cams = (f"{len(cfg.camera.poses)} camera poses" if cfg.camera.sampler.kind == "pool"
+                else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
+        sl = cfg.structured_light
+        sl_text = (f"on ({'; '.join(_sl_plan(cfg))})" if sl.enabled else "off")
         print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
-              f"{len(cfg.camera.poses)} camera poses, structured light "
-              f"{'on' if cfg.structured_light.enabled else 'off'})")
+              f"{cams}, structured light {sl_text})")
         return 0
     if args.command == "show":
         from . import show
@@ -151,6 +154,22 @@ def _command(args) -> int:
         return _run(cfg, args, preset_path=None)
     cfg = config_mod.load(args.preset)
     return _run(cfg, args, preset_path=args.preset)
+
+
+def _sl_plan(cfg) -> list[str]:
+    """What the structured-light camera will do, as `validate` tells it: the fringe mode "auto"
+    resolves to, the images per render, exposure and the reflection filter."""
+    from .core.structured_light import resolve_fringe_mode
+    s = cfg.structured_light
+    mode = resolve_fringe_mode(cfg)
+    n = len(s.periods) * s.steps
+    rows = mode == "render" and s.reflection_filter in ("auto", "global")
+    images = f"{n} fringe images" + (f" (+{s.steps} row code{' on shiny renders' if s.reflection_filter == 'auto' else ''})"
+                                      if rows else "")
+    why = " (a configured material is shiny)" if s.fringe_mode == "auto" and mode == "render" else ""
+    hdr = f", HDR {s.hdr}" if s.hdr else ""
+    return [f"fringe mode {mode}{why}", images, f"exposure {s.exposure}{hdr}",
+            f"reflection filter {s.reflection_filter}"]
 
 
 def _run(cfg, args, preset_path) -> int:

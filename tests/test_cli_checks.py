@@ -13,6 +13,17 @@ def _run(*args, cwd=None):
 def test_validate_ok_and_bad(tmp_path):
     r = _run("validate", str(C.presets_dir() / "default.json"))
     assert r.returncode == 0 and "OK" in r.stdout
+    # what the structured-light camera will do: "auto" resolved from the materials, the images
+    shiny = C.load(C.presets_dir() / "default.json")
+    shiny.structured_light.enabled = True
+    shiny.objects[0].material = "steel"
+    shiny.camera.sampler.kind = "bin_view"
+    C.save(shiny, tmp_path / "shiny.json")
+    r = _run("validate", str(tmp_path / "shiny.json"))
+    assert r.returncode == 0, r.stderr
+    assert "fringe mode render (a configured material is shiny)" in r.stdout
+    assert "12 fringe images (+4 row code on shiny renders)" in r.stdout
+    assert "bin_view sampler" in r.stdout and "camera poses," not in r.stdout
     bad = C.Config().to_dict()
     bad["scene"]["num_renders"] = 0
     (tmp_path / "bad.json").write_text(json.dumps(bad))
