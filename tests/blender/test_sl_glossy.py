@@ -149,5 +149,8 @@ def test_global_reflection_filter_removes_ghosts_that_leave_the_epipolar_plane(t
     assert (glob.reason[ghost] == sl.Reason.REFLECTION).mean() >= 0.9
     floor = np.abs(local.depth - 0.8) < 1e-3                      # the floor plane, 0.8 m below the camera
     assert (glob.valid & floor).sum() >= 0.98 * (local.valid & floor).sum()
-    # the process() path: "auto" renders the row code on this shiny scene and records the filter
-    assert slc.wants_rows() and cfg.structured_light.reflection_filter == "auto"
+    # the product's path: "auto" renders the row code on this shiny scene, filters, records it
+    assert cfg.structured_light.reflection_filter == "auto"
+    _, info = slc.process(tmp_path / "p", SEED, slc.camera.T_world_cam())
+    assert info["reflection_filter"] == "global" and info["glossy_fringes"] == "sharp"
+    assert info["reasons"]["REFLECTION"] == int((glob.reason == sl.Reason.REFLECTION).sum()) >= 0.9 * ghost.sum()
