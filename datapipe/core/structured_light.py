@@ -56,7 +56,7 @@ Sensor, decode and filters
 sensor model, the decoder, the local reflection (multipath) filter (reason MULTIPATH = 8), the
 global reflection filter (reason REFLECTION = 10), the projector-border and edge/speckle filters
 (reason FILTERED = 7), and the maps written per render. This module only renders the fringes,
-and for the global reflection filter a row code (one period of row fringes, `steps` images, built
+and for the global reflection filter a row code (8 periods of row fringes, `steps` images, built
 as more pattern lights and view layers in render mode) on the renders that need it:
 `structured_light.reflection_filter` "global", or "auto" when the render has sharp glossy fringes
 (a shiny surface: the only renders that can show mirror ghosts). Its view layers are left out of

@@ -75,15 +75,14 @@ def multipath_filter(modulation, offset, periods, steps: int, noise_sigma, valid
 
 # -- global reflection filter: row-coded patterns (epipolar consistency) ----------------------------
 ROW_SIGMAS = 5.0                 # noise part of the row tolerance, in sigmas of the decoded row
-ROW_MIN_PX = 12.0                # projector px: bias of the one-period row phase that direct light
-                                 # still shows (diffuse inter-reflections keep 98% of its modulation;
-                                 # measured on bin scenes: benchmarks/results/sl_materials.md)
+ROW_MIN_PX = 2.0                 # projector px always allowed (benchmarks/results/sl_materials.md)
 
 
-def row_from_phase(row_phase, proj_height: int) -> np.ndarray:
-    """Projector row (pixel centres at integers) coded by one period of row fringes over the
-    projector height (`fringe_patterns(axis='y', periods=[1])`): y = phase / 2 pi * height."""
-    return np.asarray(row_phase, np.float64) * (float(proj_height) / (2.0 * np.pi))
+def row_from_phase(row_phase, proj_height: int, periods: float = 1.0) -> np.ndarray:
+    """Projector row (pixel centres at integers) coded by `periods` periods of row fringes over
+    the projector height (`fringe_patterns(axis='y')`): y = phase / 2 pi * height / periods, known
+    modulo one period (height / periods rows)."""
+    return np.asarray(row_phase, np.float64) * (float(proj_height) / float(periods) / (2.0 * np.pi))
 
 
 def projector_rows(points_cam, P_proj_cam) -> np.ndarray:
@@ -97,15 +96,16 @@ def projector_rows(points_cam, P_proj_cam) -> np.ndarray:
     return np.where(w > 0, y, np.nan)
 
 
-def row_residual(measured_row, predicted_row, proj_height: int) -> np.ndarray:
-    """Signed difference measured - predicted row, wrapped to [-height/2, height/2) (the one-period
-    code is periodic over the projector height)."""
-    h = float(proj_height)
-    return np.mod(np.asarray(measured_row, np.float64) - predicted_row + h / 2.0, h) - h / 2.0
+def row_residual(measured_row, predicted_row, period: float) -> np.ndarray:
+    """Signed difference measured - predicted row, wrapped to [-period/2, period/2) (the row code
+    repeats every `period` = height / periods rows)."""
+    p = float(period)
+    return np.mod(np.asarray(measured_row, np.float64) - predicted_row + p / 2.0, p) - p / 2.0
 
 
 def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int, steps: int, noise_sigma,
-                      valid, *, checkable=None, sigmas: float = ROW_SIGMAS, min_px: float = ROW_MIN_PX) -> np.ndarray:
+                      valid, *, periods: float = 1.0, checkable=None, sigmas: float = ROW_SIGMAS,
+                      min_px: float = ROW_MIN_PX) -> np.ndarray:
     """Pixels whose light left the projector from another row than the row at which the projector
     sees their decoded point: light that reached the camera over a mirror path (the scanners'
     global "reflection filter"); returns the bool mask of pixels to remove.
@@ -115,17 +115,22 @@ def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int
     consistent, and triangulates a ghost G on its own camera ray (multipath_filter cannot see it:
     one path). G lies in W's column plane but, unless the mirror keeps the light in the pixel's
     epipolar plane, not on W's projector ray: the row the projector sees G at differs from W's row,
-    which one period of row fringes (`steps` extra patterns, no unwrapping) measures. Direct light
-    always agrees (G = W). Not caught, by any single projector-camera check: mirror paths inside
-    the epipolar plane (the ghost lies on W's projector ray).
+    which `periods` periods of row fringes (`steps` extra patterns) measure. Direct light always
+    agrees (G = W). The row code is *fine* on purpose, and unwrapped by the prediction (only the
+    residual within one period matters): a diffuse bounce averages a fine pattern away (Nayar et
+    al. 2006), so inter-reflected light in a bin does not bias it -- one period over the height
+    kept 94% of its modulation after a bounce, and its bias removed 2-7% of the correct pixels of
+    the bin scenes at any useful tolerance (benchmarks/results/sl_materials.md). Not caught: a
+    ghost whose row mismatch is within the tolerance of a whole number of periods (probability
+    ~ 2 tol periods / height, ~10% at 8 periods), and, by any single projector-camera check, mirror
+    paths inside the epipolar plane (the ghost lies on W's projector ray).
 
-    A valid pixel is removed when |row measured - row predicted| (wrapped) exceeds
+    A valid pixel is removed when |row measured - row predicted| (wrapped to one period) exceeds
 
-        tol = sqrt((sigmas * sigma_y)^2 + min_px^2),  sigma_y = H_proj / 2 pi * sqrt(2/N) * sigma_I / B_row
+        tol = sqrt((sigmas * sigma_y)^2 + min_px^2),  sigma_y = H_proj / (2 pi periods) * sqrt(2/N) * sigma_I / B_row
 
-    (the least-squares phase noise of the row code; `min_px` the bias diffuse inter-reflections
-    leave in a one-period phase). Pixels whose row code cannot be read (`checkable` False: no
-    modulation, saturated) are kept.
+    (the least-squares phase noise of the row code). Pixels whose row code cannot be read
+    (`checkable` False: saturated, invalid) are kept.
 
     row_phase, row_modulation: (H, W) wrapped phase and modulation of the row code; predicted_row:
     (H, W) from `projector_rows`; noise_sigma: the sensor noise of one sample at each pixel (a
@@ -133,10 +138,11 @@ def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int
     valid = np.asarray(valid, bool)
     B = np.asarray(row_modulation, np.float64)
     sig = np.asarray(noise_sigma, np.float64)
+    period = float(proj_height) / float(periods)
     with np.errstate(invalid="ignore", divide="ignore"):
-        sigma_y = float(proj_height) / (2.0 * np.pi) * np.sqrt(2.0 / int(steps)) * sig / B
+        sigma_y = period / (2.0 * np.pi) * np.sqrt(2.0 / int(steps)) * sig / B
         tol = np.sqrt((sigmas * sigma_y) ** 2 + float(min_px) ** 2)
-        res = np.abs(row_residual(row_from_phase(row_phase, proj_height), predicted_row, proj_height))
+        res = np.abs(row_residual(row_from_phase(row_phase, proj_height, periods), predicted_row, period))
         bad = res > tol
     ok = np.isfinite(res) & np.isfinite(tol) & (B > 0)
     if checkable is not None:

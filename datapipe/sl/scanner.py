@@ -25,8 +25,8 @@ Validity (what "valid" means)
    a bin wall, lit by the wall). On the demo bin it removes what B/A >= 0.5 removed, without
    punishing ambient light (benchmarks/results/sl_materials.md).
 1c. global reflection filter (`sl.filters.reflection_filter`, reason REFLECTION = 10): only when
-   the radiance stack carries `steps` row-coded images after the F*N fringe images (one period of
-   row fringes over the projector height; the Blender side renders them when
+   the radiance stack carries `steps` row-coded images after the F*N fringe images (ROW_PERIODS
+   periods of row fringes over the projector height; the Blender side renders them when
    `structured_light.reflection_filter` is "global", or "auto" on a scene with shiny surfaces):
    the projector row the row code measures must be the row the projector sees the decoded point
    at. A pixel that sees only a mirror image of a lit surface decodes a consistent but wrong
@@ -69,7 +69,8 @@ BORDER_PX = 1.0                  # camera px kept free at the projector image's 
 FILTERED = int(Reason.FILTERED)  # reason code of pixels removed by the border and edge/speckle filters
 MULTIPATH = int(Reason.MULTIPATH)  # reason code of pixels removed by the multipath filter
 REFLECTION = int(Reason.REFLECTION)  # reason code of pixels removed by the global reflection filter
-ROW_PERIODS = [1]                # the row code: one period over the projector height (no unwrapping)
+ROW_PERIODS = [8]                # the row code: 8 periods over the projector height, unwrapped by the
+                                 # decoded point's predicted row (sl.filters.reflection_filter)
 REASON_NAMES = {r.value: r.name for r in Reason}
 
 
@@ -226,7 +227,7 @@ class Scanner:
         P_proj_cam = self.K_proj @ np.linalg.inv(self.T_cam_proj)[:3]
         predicted = projector_rows(res.points, P_proj_cam)
         return reflection_filter(phase, rows.modulation, predicted, self.proj_size[1], self.steps, sig, res.valid,
-                                 checkable=~(rows.saturated | rows.invalid))
+                                 periods=ROW_PERIODS[0], checkable=~(rows.saturated | rows.invalid))
 
     def _filter(self, res: DecodeResult, sigma_z: np.ndarray, fx: float) -> np.ndarray:
         """Projector-border and edge/speckle filters; removed pixels become FILTERED, NaN."""

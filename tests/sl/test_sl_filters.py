@@ -77,20 +77,21 @@ def _scanner(cam, proj, **kw):
 
 
 def test_reflection_filter_removes_mirror_ghosts_off_the_epipolar_plane(rig):
-    """Box on a plane, fringes plus the row code (one period of row fringes, synth.render axis='y').
-    A 20 x 25 px patch of floor pixels sees, as through a mirror, only the light of the pixels 10
-    columns and 30 rows away (box top and floor): one path, every frequency sharp, so the decoder
-    and the local (multipath) filter trust it and triangulate ghosts > 5 mm off. Its light left the
-    projector ~90 rows from the row at which the projector sees the ghost: the row code removes
+    """Box on a plane, fringes plus the row code (8 periods of row fringes over the projector
+    height, synth.render axis='y'). A 20 x 25 px patch of floor pixels sees, as through a mirror,
+    only the light of the pixels 10 columns and 25 rows away (box top and floor): one path, every
+    frequency sharp, so the decoder and the local (multipath) filter trust it and triangulate
+    ghosts > 5 mm off. Its light left the projector 72-74 rows from the row at which the projector
+    sees the ghost (analytic), 22-24 rows from a whole row period (48 rows): the row code removes
     every ghost (reason REFLECTION) and no directly lit pixel (1% noise, sensor model)."""
     cam, proj = rig
     scene = synth.box_scene()
     cols = synth.render(scene, cam, proj, PERIODS, STEPS)
-    rows = synth.render(scene, cam, proj, [1], STEPS, axis="y")
+    rows = synth.render(scene, cam, proj, sl.scanner.ROW_PERIODS, STEPS, axis="y")
     clean = np.concatenate([cols.images, rows.images]).astype(np.float32)
     stack = clean.copy()
     patch = (slice(5, 25), slice(5, 30))
-    stack[:, patch[0], patch[1]] = clean[:, 35:55, 15:40]              # the mirror image
+    stack[:, patch[0], patch[1]] = clean[:, 30:50, 15:40]              # the mirror image
     ghost = np.zeros(cols.depth.shape, bool)
     ghost[patch] = True
     local = _scanner(cam, proj, row_check=False).scan(stack, 3, cam.K, cam.T)
@@ -112,24 +113,24 @@ def test_reflection_filter_removes_mirror_ghosts_off_the_epipolar_plane(rig):
 
 
 def test_reflection_filter_tolerance_follows_the_row_code_noise():
-    """The test itself: a residual beyond sqrt((5 sigma_y)^2 + min_px^2) is removed, below kept;
-    sigma_y grows as the row code's modulation falls (a dark pixel is not removed for noise); the
-    code is periodic over the projector height (a row near 0 and one near H agree); pixels whose
-    row code cannot be read are kept."""
-    Hp, N = 600, 4
-    sig, B = 2.0, np.array([[400.0, 400.0, 400.0, 8.0, 400.0]])
-    sigma_y = Hp / (2 * np.pi) * np.sqrt(2 / N) * sig / B
+    """The test itself, 8 row periods over 600 rows (75-row period): a residual beyond
+    sqrt((5 sigma_y)^2 + min_px^2) is removed, below kept; sigma_y grows as the row code's
+    modulation falls (a dark pixel is not removed for noise); residuals wrap at the period (the
+    prediction unwraps the code: one whole period off is an alias, kept); pixels whose row code
+    cannot be read are kept."""
+    Hp, N, K = 600, 4, 8
+    period = Hp / K
+    sig, B = 2.0, np.array([[400.0, 400.0, 400.0, 4.0, 400.0, 400.0]])
+    sigma_y = period / (2 * np.pi) * np.sqrt(2 / N) * sig / B
     tol = np.sqrt((sl.filters.ROW_SIGMAS * sigma_y) ** 2 + sl.filters.ROW_MIN_PX ** 2)
-    pred = np.full((1, 5), 300.0)
-    meas = pred + np.array([[0.9, 1.1, 0.0, 0.0, 0.0]]) * tol
-    meas[0, 2] = Hp - 0.4                                          # predicted 0.3, measured -0.4 (wrapped)
-    pred[0, 2] = 0.3
-    meas[0, 3] = pred[0, 3] + 0.9 * tol[0, 3]                      # dark: a wide tolerance (> 60 px)
-    meas[0, 4] = pred[0, 4] + 200.0
-    phase = meas * 2 * np.pi / Hp
-    valid = np.ones((1, 5), bool)
-    checkable = np.array([[True, True, True, True, False]])
-    bad = sl.reflection_filter(phase, B, pred, Hp, N, sig, valid, checkable=checkable)
-    assert bad.tolist() == [[False, True, False, False, False]]
-    assert tol[0, 3] > 60
-    assert not sl.reflection_filter(phase, B, pred, Hp, N, sig, ~valid).any()
+    pred = np.full((1, 6), 300.0)
+    meas = pred + np.array([[0.9, 1.1, 0.0, 0.9, 30.0, 0.0]]) * np.array([[*tol[0, :2], 1, tol[0, 3], 1, 1]])
+    meas[0, 2] = pred[0, 2] + period + 0.5 * tol[0, 2]             # one period off: an alias, kept
+    meas[0, 5] = pred[0, 5] + 30.0                                 # off, but its row code is unreadable
+    phase = np.mod(meas * 2 * np.pi * K / Hp, 2 * np.pi)
+    valid = np.ones((1, 6), bool)
+    checkable = np.array([[True, True, True, True, True, False]])
+    bad = sl.reflection_filter(phase, B, pred, Hp, N, sig, valid, periods=K, checkable=checkable)
+    assert bad.tolist() == [[False, True, False, False, True, False]]
+    assert tol[0, 3] > 20 > 4 > tol[0, 0]                          # a dark pixel's noise widens it
+    assert not sl.reflection_filter(phase, B, pred, Hp, N, sig, ~valid, periods=K).any()
