@@ -40,7 +40,8 @@ UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")  
 SAMPLER_KINDS = ("pool", "bin_view")
 FRINGE_MODES = ("auto", "fast", "render")   # structured_light.fringe_mode (core/fringe_fast.py);
                                             # auto: render when a configured material is shiny, else fast
-REFLECTION_FILTERS = ("auto", "local", "global", "off")   # structured_light.reflection_filter (sl/filters.py)
+REFLECTION_FILTERS = ("auto", "local", "global", "off")
+OTHER_OBJECTS = ("auto", "hide", "keep")   # scene.other_objects (core/scene.py)   # structured_light.reflection_filter (sl/filters.py)
 MAX_RESOLUTION = 8192
 # Upper limits: beyond them a preset is a typo, not a dataset (validate() says so before any work).
 MAX_RENDERS = 1_000_000            # ~12 days of Cycles at 1 s per render (= seeds.MAX_PLAN_RENDERS)
@@ -73,6 +74,9 @@ class SceneConfig:
                                                    # factor from [min, max] (datapipe.bin_shape)
     bin_wall_scale: list[float] = _vec(1.0, 1.0)   # per scene: wall height (the zone's) times [min, max]
     blend_file: str | None = None      # open this .blend first; its object "drop_zone" wins over the above
+    other_objects: str = "auto"        # objects of the open scene DataPipe did not make (Blender's startup
+                                       # cube and light...): "hide" them from the renders for the run,
+                                       # "keep" them in; "auto": keep with a blend_file, else hide
     seed: int = 0                      # base seed; scene i derives its own (see datapipe.seeds)
     bin_material: Any = "file"         # floor + walls: "file" (built-in 0.5 grey, roughness 0.6), a
                                        # preset name, a dict of Principled BSDF values, or a list of
@@ -541,6 +545,7 @@ def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
     ck.vector("scene.drop_zone_loc", s.drop_zone_loc, 3)
     ck.vector("scene.drop_zone_scale", s.drop_zone_scale, 3, pos=True)
     ck.positive("scene.bin_wall_thickness", s.bin_wall_thickness)
+    ck.choice("scene.other_objects", s.other_objects, OTHER_OBJECTS)
     if not 0 <= s.seed < 2**32:
         ck.add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
     if s.blend_file and check_files:

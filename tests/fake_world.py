@@ -28,6 +28,7 @@ class BoxWorld:
         self.crash_at = crash_at
         self.renders = 0
         self.import_count = 0
+        self.setup_notes: list[str] = []
         self.closed = False
         self.objs: list = []
         BoxWorld.instances.append(self)

@@ -161,6 +161,7 @@ CASES = [
     (lambda c: setattr(c.scene, "bin_material", []), "scene.bin_material", "empty list"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "quick")),
      "structured_light.fringe_mode", "unknown value"),
+    (lambda c: setattr(c.scene, "other_objects", "delete"), "scene.other_objects", "unknown value"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "reflection_filter", "on")),
      "structured_light.reflection_filter", "unknown value"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "fast"),

@@ -149,6 +149,8 @@ class Pipeline:
         yield Progress("setup", done, self.total, message="setting up Blender scene")
         world = self._build_world()
         try:
+            for note in world.setup_notes:
+                yield Progress("setup", done, self.total, message=note)
             for i in todo:
                 if self._cancel:
                     yield from self._cancelled(done, i)

@@ -323,7 +323,8 @@ def _raise_on_leaks(bpy_scene, layers, lights_collections) -> None:
     if leaks:
         raise DataPipeError("light would leak into the fringe view layers: " + "; ".join(
             f"{vl}: {', '.join(obs)}" for vl, obs in leaks.items()) +
-            " (fix: put those lights in a collection passed in `exclude`; make the world black)")
+            " (fix: hide those lights from rendering, or set scene.other_objects to 'hide' so a run hides the "
+            "open scene's own objects; in code: put them in a collection passed in `exclude`)")
 
 
 def _world_emits(world) -> bool:

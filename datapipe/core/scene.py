@@ -45,6 +45,8 @@ STATIC_MARGIN = 0.0005      # m, collision margin of the bin's boxes
 GROUND_HALF_SIZE = 2.0      # m, the floor reaches at least this far from the zone's centre ...
 GROUND_FACTOR = 10.0        # ... and at least 10x the bin's half size
 
+RENDERED_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT", "VOLUME", "POINTCLOUD", "CURVES", "LIGHT",
+                  "GPENCIL", "GREASEPENCIL", "EMPTY"}   # EMPTY: only collection instances render
 _BOX_FACES = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
 
 
@@ -117,6 +119,7 @@ class BlendScene:
         self.drop_zone_center = np.asarray(cfg.scene.drop_zone_loc, dtype=np.float64).copy()
         self.drop_zone_half = np.asarray(cfg.scene.drop_zone_scale, dtype=np.float64).copy()
         self.drop_zone_source = "config"      # or "blend" when the .blend's drop_zone object is used
+        self.hidden_others: list[str] = []     # objects of the open scene hidden from the renders (restored)
         self.static: bpy.types.Collection | None = None
         self.lights: bpy.types.Collection | None = None
         self.floor: bpy.types.Object | None = None
@@ -156,6 +159,37 @@ class BlendScene:
         p = np.asarray(location, dtype=np.float64)
         return self.inside_footprint(p, margin) and bool(p[2] >= self.floor_z - margin)
 
+    # -- other objects of the open scene ----------------------------------------------------------
+    def hide_other_objects(self, scene) -> list[str]:
+        """Hide from rendering the render-visible objects of `scene` that DataPipe did not make (not
+        in a `datapipe_*` collection), per `scene.other_objects`; returns their names. In the add-on
+        the run renders into the user's open scene: Blender's startup cube encloses the camera (every
+        render black) and its light lights the bin and leaks into the fringe layers. Nothing is
+        deleted; `restore_other_objects` shows them again when the run ends."""
+        mode = self.cfg.scene.other_objects
+        if mode == "keep" or (mode == "auto" and self.cfg.scene.blend_file):
+            return []
+        hidden = []
+        for obj in scene.objects:
+            if obj.hide_render or obj.name.startswith("datapipe") or obj.type not in RENDERED_TYPES:
+                continue
+            if obj.type == "EMPTY" and obj.instance_type != "COLLECTION":
+                continue
+            if any(c.name.startswith("datapipe") for c in obj.users_collection):
+                continue
+            obj.hide_render = True
+            hidden.append(obj.name)
+        self.hidden_others = hidden
+        return hidden
+
+    def restore_other_objects(self) -> None:
+        """Render again what `hide_other_objects` hid (objects deleted meanwhile are skipped)."""
+        for name in self.hidden_others:
+            obj = bpy.data.objects.get(name)
+            if obj is not None:
+                obj.hide_render = False
+        self.hidden_others = []
+
     # -- setup ------------------------------------------------------------------------------------
     def setup(self) -> "BlendScene":
         sc_cfg = self.cfg.scene
@@ -169,6 +203,7 @@ class BlendScene:
         self.scene = scene
         for name in (STATIC_COLLECTION, LIGHTS_COLLECTION):
             _remove_collection(name)
+        self.hide_other_objects(scene)
 
         us = scene.unit_settings
         us.system = 'METRIC'

@@ -59,6 +59,7 @@ class View:
 
 class World(Protocol):
     import_count: int                   # mesh files read this run
+    setup_notes: list[str]              # what setup() did that the user should hear about
 
     def setup(self) -> None: ...
 
@@ -80,7 +81,9 @@ class BlenderWorld:
     def __init__(self, cfg: Config, out: Path):
         self.cfg, self.out = cfg, out
         self.sl = None
+        self.blend = None
         self.instances: list = []
+        self.setup_notes: list[str] = []
 
     @property
     def import_count(self) -> int:
@@ -96,6 +99,11 @@ class BlenderWorld:
 
         self.blend = BlendScene(self.cfg)
         self.blend.setup()
+        if self.blend.hidden_others:
+            names = self.blend.hidden_others
+            self.setup_notes.append(f"hid {len(names)} object(s) of the open scene from the renders for this run: "
+                                    f"{', '.join(names[:8])}{' ...' if len(names) > 8 else ''} (scene.other_objects "
+                                    "'keep' renders them)")
         bscene = self.blend.scene
         self.camera = BlendCamera(self.cfg, bscene)
         self.camera.setup()
@@ -156,10 +164,13 @@ class BlenderWorld:
         self.objects.clear()
 
     def close(self) -> None:
-        """Remove the projector lights, patterns and fringe layers (nothing left in the user's scene)."""
+        """Remove the projector lights, patterns and fringe layers (nothing left in the user's scene)
+        and render the scene's other objects again."""
         if self.sl is not None:
             self.sl.teardown()
             self.sl = None
+        if self.blend is not None:
+            self.blend.restore_other_objects()
 
 
 def _part(inst, material: str) -> Part:

@@ -114,6 +114,7 @@ class DATAPIPE_PT_scene(_DataPipePanel, Panel):
         _draw_ranges(sub, s, (("bin_size_scale", "Size Scale"), ("bin_wall_scale", "Wall Scale")))
         col.prop(s, "bin_material")
         layout.prop(s, "blend_file")
+        layout.prop(s, "other_objects")
 
 
 def _draw_ranges(col, grp, names) -> None:

@@ -137,6 +137,10 @@ class DATAPIPE_PG_scene(PropertyGroup):
         name="Blend File", description="Open this .blend as the base scene (empty: a fresh scene); its "
         "object 'drop_zone', when present, overrides the drop zone above",
         subtype="FILE_PATH", default=default(_S, "blend_file") or "")
+    other_objects: EnumProperty(
+        name="Other Objects", description="Objects of the open scene DataPipe did not make (e.g. the startup "
+        "cube and light): hide them from the renders for the run (shown again afterwards), or keep them in; "
+        "auto: keep with a Blend File, else hide", items=_items(C.OTHER_OBJECTS), default=default(_S, "other_objects"))
     seed: IntProperty(
         name="Seed", description="Base seed of the run: scene i derives its own seed from it, so any scene "
         "can be re-made alone and shards match a single run",

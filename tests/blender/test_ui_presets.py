@@ -156,6 +156,8 @@ def test_save_then_load_into_fresh_scene_is_identical(registered, tmp_path):
     d = bpy.context.scene.datapipe
     # edit a bit of everything, as a user would
     d.scene.seed = 1234
+    d.scene.other_objects = "keep"
+    d.structured_light.reflection_filter = "global"
     d.scene.drop_zone_scale = (0.2, 0.12, 0.08)
     d.objects[1].scale = 0.001
     d.objects[1].mass = 0.123
