@@ -605,7 +605,8 @@ def main():
     lines += [
         "",
         "Targets: 2 x 4 at 1920x1080 <= 150 ms and peak extra memory <= 3x the input stack (tracemalloc, "
-        "outputs included: 38 bytes per pixel for F = 2, i.e. 2.4x a uint16 stack by themselves; `points` are "
+        "outputs included: 42 bytes per pixel for F = 2 since the confidence map, i.e. 2.6x a uint16 stack by "
+        "themselves; `points` are "
         "computed on first access). 'first call' also builds the per-pixel triangulation coefficient "
         "(4 bytes/pixel); 'cached' reuses it (`Triangulator.cached`). Wall time is the best of "
         f"{rep} runs; CPU = best process time of all threads (other jobs on this shared machine inflate wall time; "
@@ -656,6 +657,10 @@ def main():
             lines.append(f"| {r['noise']:g} | {r['images']} | {r['rmse_mm']:.4f} | {r['theory_mm']:.4f} | "
                          f"{r['ratio']:.3f} | {r['decoded_fraction']:.4f} | {r['order_error_fraction']:.0e} |")
     lines.append("")
+    notes = os.path.join(RESULTS, "sl_decoder_notes.md")       # hand-written findings of the last run
+    if os.path.isfile(notes):
+        with open(notes) as fh:
+            lines += ["", fh.read()]
     with open(os.path.join(RESULTS, "sl_decoder.md"), "w") as fh:
         fh.write("\n".join(lines))
     print("\n".join(lines))

@@ -554,7 +554,7 @@ def _assemble(st: _Setup, out: _Out) -> DecodeResult:
     nan = np.float32(np.nan)
     for a in (out.depth, out.proj_x, out.phase):
         np.copyto(a, nan, where=inv)
-    conf = np.subtract(np.float32(1), out.p_wrong)
+    conf = np.subtract(np.float32(1), out.p_wrong, out=out.p_wrong)   # in place: p_wrong is not returned
     np.nan_to_num(conf, copy=False, nan=0.0)
     plan = st.plan
     return DecodeResult(depth=out.depth, valid=valid, proj_x=out.proj_x, modulation=out.modulation,
