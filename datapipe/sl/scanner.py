@@ -56,7 +56,8 @@ from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from ._errors import bad_value
 from .decode import DecodeResult, Reason, decode
 from .exposure import Capture, auto_exposure, capture, check_exposure, check_hdr, exposure_set
-from .filters import edge_speckle_filter, multipath_filter, projector_rows, reflection_filter
+from .filters import (edge_speckle_filter, multipath_filter, projector_rows, reflection_filter, row_from_phase,
+                      row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
 from .metrics import pixel_depth_sigma
 from .patterns import fringe_patterns, phase_shifts
@@ -88,6 +89,7 @@ class Scan:
     exposure_mode: str = "fixed"     # "fixed" or "auto"
     multipath: np.ndarray | None = None   # bool: removed by the multipath filter
     reflection: np.ndarray | None = None  # bool: removed by the global reflection filter (None: no row code)
+    row_residual: np.ndarray | None = None  # float32 projector rows, measured - predicted (row code only)
 
     @property
     def exposure(self) -> float:
@@ -103,6 +105,8 @@ class Scan:
             ch = {"phase": res.phase, "offset": res.offset, "proj_x": res.proj_x,
                   "reason": res.reason.astype(np.float32), "order_error": res.order_error,
                   "confidence": res.confidence, "sigma_z": self.sigma_z.astype(np.float32)}
+            if self.row_residual is not None:      # why a pixel is REFLECTION: its row code disagrees
+                ch["row_residual"] = self.row_residual
             for k, (w, m) in enumerate(zip(res.wrapped, res.modulation)):
                 ch[f"wrapped_{k}"], ch[f"modulation_{k}"] = w, m
             out["sl_debug"] = ch
@@ -204,19 +208,20 @@ class Scanner:
             multipath = multipath_filter(res.modulation, res.offset, res.periods, self.steps, cap.noise_sigma,
                                          res.valid)
             _remove(res, multipath, MULTIPATH)
-        reflection = None
+        reflection = residual = None
         if self.row_check and cap.images.shape[0] > n:
-            reflection = self._row_check(res, cap)
+            reflection, residual = self._row_check(res, cap)
             _remove(res, reflection, REFLECTION)
         filtered = np.zeros(res.valid.shape, bool)
         if self.edge_filter:
             filtered = self._filter(res, sigma_z, float(np.asarray(K_cam)[0, 0]))
         sigma_z[~res.valid] = np.nan
         return Scan(res, sigma_z, filtered, P_cam, P_proj, model, time.perf_counter() - t0, cap,
-                    "auto" if self.exposure == "auto" else "fixed", multipath, reflection)
+                    "auto" if self.exposure == "auto" else "fixed", multipath, reflection, residual)
 
-    def _row_check(self, res: DecodeResult, cap) -> np.ndarray:
-        """The global reflection filter on the row-coded images of `cap` (see the module doc)."""
+    def _row_check(self, res: DecodeResult, cap) -> tuple[np.ndarray, np.ndarray]:
+        """The global reflection filter on the row-coded images of `cap` (see the module doc) ->
+        (pixels to remove, row residual map: measured - predicted projector rows, NaN unchecked)."""
         rows = phase_shift(cap.images[self.n_fringe:], saturation=cap.saturation)
         phase = rows.phase
         if self.projector_gamma != 1.0:
@@ -226,8 +231,14 @@ class Scanner:
         sig = sig(np.maximum(rows.offset.astype(np.float64), 0)) if callable(sig) else sig
         P_proj_cam = self.K_proj @ np.linalg.inv(self.T_cam_proj)[:3]
         predicted = projector_rows(res.points, P_proj_cam)
-        return reflection_filter(phase, rows.modulation, predicted, self.proj_size[1], self.steps, sig, res.valid,
-                                 periods=ROW_PERIODS[0], checkable=~(rows.saturated | rows.invalid))
+        Hp, K = self.proj_size[1], ROW_PERIODS[0]
+        readable = ~(rows.saturated | rows.invalid)
+        remove = reflection_filter(phase, rows.modulation, predicted, Hp, self.steps, sig, res.valid, periods=K,
+                                   checkable=readable)
+        with np.errstate(invalid="ignore"):
+            residual = row_residual(row_from_phase(phase, Hp, K), predicted, Hp / K).astype(np.float32)
+        residual[~(res.valid & readable)] = np.nan
+        return remove, residual
 
     def _filter(self, res: DecodeResult, sigma_z: np.ndarray, fx: float) -> np.ndarray:
         """Projector-border and edge/speckle filters; removed pixels become FILTERED, NaN."""
