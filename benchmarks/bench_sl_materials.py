@@ -11,7 +11,9 @@ product's own fringe call) and cached; the exposure modes reuse the same radianc
 
 - fixed 0.5: the former default exposure;
 - auto: metered per render (sl.exposure.auto_exposure, the new default);
-- HDR x3: auto base x [1, 4, 16], fused per pixel (sl.exposure).
+- HDR x3: auto base x [1, 4, 16], fused per pixel (sl.exposure);
+- HDR 1/4..4: auto base x [0.25, 1, 4];
+- HDR auto: shorter exposures added per render while highlights clip (sl.exposure.auto_hdr).
 
 Metrics per case and mode, against the z-buffer of the same render: valid fraction on parts
 (mask > 0) and on the floor/bin; `part_ok` = fraction of the part pixels the projector lights
@@ -50,7 +52,7 @@ MATERIALS = ("file", "matte_plastic", "dark_plastic", "painted", "steel", "alumi
 HEIGHTS = (0.4, 0.6, 0.8, 1.2)
 WD_HEIGHTS = (0.35, 0.55, 0.8, 1.2, 1.5)          # working distance sweep, both rigs, 'file' parts
 MODES = {"fixed 0.5": (0.5, []), "auto": ("auto", []), "HDR x3": ("auto", [1.0, 4.0, 16.0]),
-         "HDR 1/4..4": ("auto", [0.25, 1.0, 4.0])}
+         "HDR 1/4..4": ("auto", [0.25, 1.0, 4.0]), "HDR auto": ("auto", "auto")}
 ORDER = [*MODES, "auto, local filter"]
 MAT_ORDER = [*MATERIALS, "matte_plastic+bin"]
 REASONS = [r.name for r in sl.Reason]

@@ -159,8 +159,10 @@ class StructuredLightConfig:
     sensor: str = "industrial"         # datapipe.sl.sensor preset
     exposure: float | str = "auto"     # scale on linear radiance before the sensor model, or "auto":
                                        # metered per render from the fringes (datapipe.sl.exposure)
-    hdr: list[float] = field(default_factory=list)   # relative exposure factors fused per pixel,
-                                       # e.g. [1, 4, 16]; empty = one exposure
+    hdr: list[float] | str = "auto"    # "auto": shorter exposures added per render while highlights
+                                       # clip (none on scenes without: one exposure, no extra work);
+                                       # or relative exposure factors fused per pixel, e.g. [1, 4, 16];
+                                       # empty = always one exposure
     reflection_filter: str = "auto"    # "local": drop pixels whose frequencies disagree in modulation (light
                                        # of two paths); "global": also render a row code with the fringes
                                        # (+steps path-traced patterns) and drop mirror ghosts whose light

@@ -153,6 +153,8 @@ CASES = [
      "structured_light.hdr", "factor 1"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", [1, 1])),
      "structured_light.hdr", "repeats"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", "bright")),
+     "structured_light.hdr", "unknown mode"),
     (lambda c: setattr(c.objects[0], "material", "chrome"), "objects[0].material", "unknown material"),
     (lambda c: setattr(c.objects[1], "material", {"roughnes": 0.2}), "objects[1].material", "unknown key"),
     (lambda c: setattr(c.objects[1], "material", {"base_color": [2, 0, 0]}), "objects[1].material", "base_color"),
@@ -273,11 +275,11 @@ def test_predicted_fringe_period_matches_the_default_comment(cfg):
     assert C.fringe_period_camera_px(cfg) == pytest.approx(5 * (d + 0.35) / d, rel=1e-9)
 
 
-@pytest.mark.parametrize("exposure, hdr", [("auto", []), (0.7, [1.0, 4.0, 16.0]), (2, [])])
+@pytest.mark.parametrize("exposure, hdr", [("auto", []), (0.7, [1.0, 4.0, 16.0]), (2, []), ("auto", "auto")])
 def test_exposure_modes_round_trip(cfg, tmp_path, exposure, hdr):
-    """structured_light.exposure is a number or "auto" (the default), hdr a list of factors: both
-    survive a JSON round trip with their types."""
-    assert C.StructuredLightConfig().exposure == "auto" and C.StructuredLightConfig().hdr == []
+    """structured_light.exposure is a number or "auto" (the default), hdr a list of factors or
+    "auto" (the default): both survive a JSON round trip with their types."""
+    assert C.StructuredLightConfig().exposure == "auto" and C.StructuredLightConfig().hdr == "auto"
     cfg.structured_light.enabled = True
     cfg.structured_light.exposure = exposure
     cfg.structured_light.hdr = hdr

@@ -16,13 +16,25 @@ Auto exposure (:func:`auto_exposure`)
 
 HDR (:func:`capture` with several exposures)
     Every exposure gets the sensor model with its own noise (independent random streams of one
-    seed). Fusion is per pixel, as multi-exposure scanners do it: the highest exposure in which no
-    sample of the pixel is saturated (signal grows as the exposure, noise at most as its square
-    root, so that is the highest-SNR usable one), rescaled to the units of the *reference*
-    exposure (DN at the base exposure), with that exposure's noise sigma rescaled the same way.
-    Pixels saturated in every exposure keep the lowest one; the fused saturation level (the
-    lowest exposure's, rescaled) is the highest of all, so only those pixels can reach it.
+    seed). Fusion is per pixel, as multi-exposure scanners do it: the highest exposure in which the
+    pixel decodes (signal grows as the exposure, noise at most as its square root, so that is the
+    highest-SNR usable one), rescaled to the units of the *reference* exposure (DN at the base
+    exposure), with that exposure's noise sigma rescaled the same way. "Decodes": with `steps`
+    given, every group of `steps` images (one fringe frequency) keeps >= 3 unclipped samples --
+    the decoder fits the phase without the clipped ones, which keep the fused saturation level so
+    it knows them; without `steps`, no sample may clip. Moving a pixel with one clipped sample to
+    a 4x shorter exposure would cost it 2-4x its SNR. Pixels saturated in every exposure keep the
+    lowest one; the fused saturation level (the lowest exposure's, rescaled) is the highest of all.
     One exposure: no fusion work at all (the sensor model's own output, byte for byte).
+
+Auto HDR (:func:`auto_hdr`, ``hdr="auto"``)
+    Like a scanner's capture assistant, from the one render: auto exposure leaves ~1% of the lit
+    pixels clipped, but on shiny parts those are the highlights, i.e. the parts (blooming holes).
+    Shorter exposures are added (x 1/4 each, at most ``AUTO_HDR_MAX`` in all) while more than
+    ``AUTO_HDR_CLIP`` of the lit pixels would still clip; a scene with fewer keeps its single
+    exposure and costs nothing more. Longer exposures are not added: at the fused images' lower
+    noise the coarse fringes' multipath bias becomes significant and dark parts lost more to
+    INCONSISTENT than they gained (benchmarks/results/sl_materials.md).
 """
 from __future__ import annotations
 
@@ -34,7 +46,7 @@ import numpy as np
 from ._errors import bad_value
 from .sensor import SensorModel
 
-__all__ = ["AUTO_PERCENTILE", "AUTO_TARGET", "Capture", "auto_exposure", "capture", "exposure_set",
+__all__ = ["AUTO_PERCENTILE", "AUTO_TARGET", "Capture", "auto_exposure", "auto_hdr", "capture", "exposure_set",
            "check_exposure", "check_hdr", "exposure_problem", "hdr_problem"]
 
 AUTO_PERCENTILE = 99.0           # % of the metered (lit) pixels' peaks ...
@@ -43,6 +55,9 @@ LIT_SWING = 0.2                  # peak - trough >= this x peak: the projector v
 DARK_FRACTION = 1e-3             # peaks below this x the brightest (99.9th percentile) are not metered
 FALLBACK_EXPOSURE = 0.5          # nothing to meter (no lit pixel): the shipped fixed exposure
 EXPOSURE_LIMITS = (1e-3, 1e3)    # auto exposure is clamped to this range
+AUTO_HDR_CLIP = 0.002            # share of the lit pixels allowed to clip before a shorter exposure is added
+AUTO_HDR_STEP = 0.25             # each added exposure is this x the previous one
+AUTO_HDR_MAX = 3                 # exposures at most (Mech-Mind: 1-3; Zivid: "shiny scenes typically need 3")
 
 
 def exposure_problem(value) -> tuple[str, str] | None:
@@ -58,10 +73,12 @@ def exposure_problem(value) -> tuple[str, str] | None:
 
 
 def hdr_problem(factors) -> tuple[str, str] | None:
-    """(what is wrong, the fix) unless `factors` is None/empty or distinct positive numbers."""
-    fix = "give relative exposure factors, e.g. [1, 4, 16], or leave it empty"
-    if factors is None:
+    """(what is wrong, the fix) unless `factors` is None/empty, "auto" or distinct positive numbers."""
+    fix = 'give relative exposure factors, e.g. [0.25, 1, 4], "auto", or leave it empty'
+    if factors is None or factors == "auto":
         return None
+    if isinstance(factors, str):
+        return f"unknown mode {factors!r}", fix
     if not isinstance(factors, (list, tuple)):
         return f"must be a list of numbers, got {type(factors).__name__}", fix
     for i, f in enumerate(factors):
@@ -80,11 +97,13 @@ def check_exposure(value, arg: str = "exposure") -> float | str:
     return value if isinstance(value, str) else float(value)
 
 
-def check_hdr(factors, arg: str = "hdr") -> list[float] | None:
-    """None (one exposure) for None/empty, else the factors as floats; SLValueError if bad."""
+def check_hdr(factors, arg: str = "hdr") -> list[float] | str | None:
+    """None (one exposure) for None/empty, "auto", else the factors as floats; SLValueError if bad."""
     p = hdr_problem(factors)
     if p is not None:
         raise bad_value(arg, *p)
+    if factors == "auto":
+        return "auto"
     return [float(f) for f in factors] if factors else None
 
 
@@ -118,6 +137,28 @@ def auto_exposure(radiance, sensor: SensorModel, *, percentile: float = AUTO_PER
     return float(np.clip(e, *EXPOSURE_LIMITS))
 
 
+def auto_hdr(radiance, sensor: SensorModel, base: float, *, steps: int | None = None, clip: float = AUTO_HDR_CLIP,
+             step: float = AUTO_HDR_STEP, most: int = AUTO_HDR_MAX) -> list[float]:
+    """Relative exposure factors for `base` (see the module doc): [1], or [1, 1/4, ...] while more
+    than `clip` of the lit pixels would not decode for clipping at the shortest exposure so far
+    (`steps`: images per frequency, see `decodable`)."""
+    fw = sensor.full_well
+    x = np.asarray(radiance)
+    if fw is None or not np.isfinite(fw) or x.ndim != 3:
+        return [1.0]
+    peak = x.max(axis=0).astype(np.float64)
+    lit = np.isfinite(peak) & (peak > 0) & (peak - x.min(axis=0) >= LIT_SWING * peak)
+    if not lit.any():
+        return [1.0]
+    clips_at = (fw / sensor.electrons_per_unit) / float(base)      # radiance that fills the well at factor 1
+    samples = x[:, lit]                                            # (n, lit pixels)
+    factors = [1.0]
+    while len(factors) < most and \
+            float(np.mean(~decodable(samples * factors[-1] >= clips_at, steps))) > clip:
+        factors.append(factors[-1] * float(step))
+    return factors
+
+
 @dataclass
 class Capture:
     """What the camera hands the decoder: images and how to read them."""
@@ -146,11 +187,13 @@ def _stream(seed, k: int):
 
 
 def capture(radiance, sensor: SensorModel, exposures: Sequence[float], seed,
-            reference: float | None = None) -> Capture:
+            reference: float | None = None, steps: int | None = None) -> Capture:
     """Apply the sensor model at each exposure and fuse (see the module doc).
 
-    radiance: (F*N, H, W) linear, non-negative. exposures: absolute scales (>= 1). reference: the
-    exposure whose DN units the fused images are in (default: the first)."""
+    radiance: (F*N, H, W) linear, non-negative. exposures: absolute scales (> 0). reference: the
+    exposure whose DN units the fused images are in (default: the first). steps: images per
+    frequency (fusion keeps a pixel at an exposure where each frequency has >= 3 unclipped
+    samples); None: no clipped sample allowed."""
     exposures = [float(e) for e in exposures]
     if not exposures:
         raise bad_value("exposures", "is empty", "give at least one exposure")
@@ -161,10 +204,20 @@ def capture(radiance, sensor: SensorModel, exposures: Sequence[float], seed,
     if len(exposures) == 1:
         dn, sat = sensor.apply(x * np.float32(exposures[0]), seed)
         return Capture(dn, sensor.noise_sigma, sat, exposures, exposures[0])
-    return _fuse(x, sensor, exposures, seed, ref)
+    return _fuse(x, sensor, exposures, seed, ref, steps)
 
 
-def _fuse(x, sensor: SensorModel, exposures, seed, ref: float) -> Capture:
+def decodable(clipped: np.ndarray, steps: int | None) -> np.ndarray:
+    """(H, W) bool from per-sample clipping (n, H, W): every group of `steps` images keeps >= 3
+    unclipped samples (no clipped sample at all when `steps` is None or does not divide n)."""
+    n = clipped.shape[0]
+    if not steps or n % int(steps) or int(steps) < 3:
+        return ~clipped.any(axis=0)
+    per = clipped.reshape((n // int(steps), int(steps)) + clipped.shape[1:]).sum(axis=1)
+    return (per <= int(steps) - 3).all(axis=0)
+
+
+def _fuse(x, sensor: SensorModel, exposures, seed, ref: float, steps: int | None = None) -> Capture:
     """Highest unsaturated exposure per pixel, rescaled to `ref` units (one exposure in memory at
     a time besides the fused stack)."""
     black = np.float32(sensor.black_level)
@@ -175,17 +228,22 @@ def _fuse(x, sensor: SensorModel, exposures, seed, ref: float) -> Capture:
     sat_fused = None
     for rank, k in enumerate(order):
         dn, sat = sensor.apply(x * np.float32(exposures[k]), _stream(seed, k))
+        if sat_fused is None:       # the lowest exposure's level, rescaled: the highest of all
+            sat_fused = (sat - black) * (ref / min(exposures)) + black if np.isfinite(sat) else np.inf
         open_ = chosen == 255
-        if rank < len(order) - 1:
-            take = open_ & (dn.max(axis=0) < sat) if np.isfinite(sat) else open_
+        clipped = dn >= sat if np.isfinite(sat) else None
+        if rank < len(order) - 1 and clipped is not None:
+            take = open_ & decodable(clipped, steps)
         else:
             take = open_                                # saturated everywhere: the lowest exposure
-            sat_fused = (sat - black) * (ref / exposures[k]) + black if np.isfinite(sat) else np.inf
         if not take.any():
             continue
         scale = np.float32(ref / exposures[k])
         vals = dn[:, take].astype(np.float32)
-        fused[:, take] = (vals - black) * scale + black
         sigma[take] = sensor.noise_sigma(vals.mean(axis=0)) * scale
+        vals = (vals - black) * scale + black
+        if clipped is not None:
+            vals[clipped[:, take]] = np.float32(sat_fused)     # the decoder leaves these samples out
+        fused[:, take] = vals
         chosen[take] = k
     return Capture(fused, sigma, float(sat_fused), list(exposures), ref, chosen)

@@ -15,7 +15,9 @@ Validity (what "valid" means)
 0. exposure (`sl.exposure`): a fixed number, or "auto" (the default): metered per render from the
    fringe radiance (99th percentile of the lit pixels' peaks at 80% of the full well); with `hdr`
    factors one sensor-model capture per exposure (independent noise), fused per pixel (highest
-   unsaturated exposure, rescaled, with its noise). `Scan.exposure` is the base exposure used.
+   unsaturated exposure, rescaled, with its noise); `hdr="auto"` adds shorter exposures per render
+   while highlights clip (`sl.exposure.auto_hdr`). `Scan.exposure` is the base exposure used, the
+   summary's `hdr` the factors used.
 1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated.
    Contrast B/A >= MIN_CONTRAST = 0.05 is only a sanity floor: ambient light (the key light on a
    part) lowers B/A without harming the phase; a fixed 0.5 discarded lit parts near the camera.
@@ -55,7 +57,7 @@ import numpy as np
 from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from ._errors import bad_value
 from .decode import DecodeResult, Reason, decode
-from .exposure import Capture, auto_exposure, capture, check_exposure, check_hdr, exposure_set
+from .exposure import Capture, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set
 from .filters import (edge_speckle_filter, multipath_filter, projector_rows, reflection_filter, row_from_phase,
                       row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
@@ -130,13 +132,14 @@ class Scanner:
 
     `K_proj`, `T_cam_proj`: the projector's intrinsics and its pose in the camera frame (OpenCV);
     `sensor`: a SensorModel or a preset name; `exposure`: gain on the radiance before the sensor,
-    or "auto"; `hdr`: relative exposure factors fused per pixel (empty: one exposure);
+    or "auto"; `hdr`: relative exposure factors fused per pixel (empty: one exposure), or "auto"
+    (shorter exposures added per render while highlights clip: sl.exposure.auto_hdr);
     `multipath_filter`: the local reflection filter; `row_check`: the global one, applied when
     the radiance carries the row-coded images (`row_images`)."""
 
     def __init__(self, periods: Sequence[float], steps: int, proj_size: tuple[int, int], K_proj, T_cam_proj_, *,
                  unwrap: str = "auto", sensor: SensorModel | str = "industrial", exposure: float | str = "auto",
-                 hdr: Sequence[float] = (), min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX,
+                 hdr: Sequence[float] | str = (), min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX,
                  edge_filter: bool = True, multipath_filter: bool = True, row_check: bool = True,
                  projector_gamma: float = 1.0):
         self.periods, self.steps = list(periods), int(steps)
@@ -146,7 +149,7 @@ class Scanner:
         self.unwrap = unwrap
         self.sensor = SensorModel.preset(sensor) if isinstance(sensor, str) else sensor
         self.exposure = check_exposure(exposure)
-        self.hdr = check_hdr(list(hdr)) or []
+        self.hdr = check_hdr(hdr if isinstance(hdr, str) else list(hdr)) or []
         self.multipath_filter = bool(multipath_filter)
         self.row_check = bool(row_check)
         self.min_contrast = float(min_contrast)
@@ -196,7 +199,8 @@ class Scanner:
                             f"pass the {n} fringe images (frequency-major), optionally followed by the "
                             f"{self.row_images} row-coded images")
         base = auto_exposure(radiance[:n], model) if self.exposure == "auto" else self.exposure
-        cap = capture(radiance, model, exposure_set(base, self.hdr), seed, reference=base)
+        factors = auto_hdr(radiance[:n], model, base, steps=self.steps) if self.hdr == "auto" else self.hdr
+        cap = capture(radiance, model, exposure_set(base, factors), seed, reference=base, steps=self.steps)
         P_cam = projection_matrix(K_cam, T_world_cam)
         P_proj = self.projector_matrix(T_world_cam)
         res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,

@@ -43,8 +43,11 @@ def format_periods(values) -> str:
     return ", ".join(str(int(v)) for v in values)
 
 
-def parse_factors(text: str) -> list[float]:
-    """'1, 4, 16' -> [1.0, 4.0, 16.0]; '' -> [] (one exposure). ValueError unless numbers > 0."""
+def parse_factors(text: str) -> list[float] | str:
+    """'1, 4, 16' -> [1.0, 4.0, 16.0]; '' -> [] (one exposure); 'auto' -> 'auto'. ValueError unless
+    numbers > 0."""
+    if text.strip().lower() == "auto":
+        return "auto"
     tokens = [t for t in text.replace(",", " ").replace(";", " ").replace("[", " ").replace("]", " ").split()]
     values = [float(t) for t in tokens]
     if any(not (math.isfinite(v) and v > 0) for v in values):
@@ -53,6 +56,8 @@ def parse_factors(text: str) -> list[float]:
 
 
 def format_factors(values) -> str:
+    if values == "auto":
+        return "auto"
     return ", ".join(f"{float(v):g}" for v in values)
 
 

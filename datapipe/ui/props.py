@@ -374,8 +374,8 @@ def _set_hdr(self, value):
     try:
         self.hdr_text = format_factors(parse_factors(value))
     except ValueError as e:        # keep the last valid list; the field shows it again
-        print(f"DataPipe: structured_light.hdr: ignored {value!r} ({e}); give factors > 0, e.g. '1, 4, 16', "
-              "or nothing for one exposure")
+        print(f"DataPipe: structured_light.hdr: ignored {value!r} ({e}); give factors > 0, e.g. '0.25, 1, 4', "
+              "'auto', or nothing for one exposure")
 
 
 def _sensor_search(self, context, edit_text):
@@ -420,7 +420,8 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
                             default=_FIXED_EXPOSURE)
     hdr_text: StringProperty(default=format_factors(default(_L, "hdr")), options={"HIDDEN"})
     hdr: StringProperty(name="HDR Factors", description="Relative exposure factors fused per pixel, e.g. "
-                        "'1, 4, 16' (shiny or high-contrast scenes); empty: one exposure", get=_get_hdr,
+                        "'0.25, 1, 4' (metal parts); 'auto': shorter exposures added per render while "
+                        "highlights clip; empty: one exposure", get=_get_hdr,
                         set=_set_hdr)
     reflection_filter: EnumProperty(name="Reflection Filter", description="local: drop pixels whose fringe "
                                     "frequencies disagree in modulation (light of two paths); global: also render a "

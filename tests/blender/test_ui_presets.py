@@ -117,7 +117,7 @@ def test_quaternion_projector_round_trip(registered):
     assert props_to_config(registered).projector.rotation == [0.5, 0.5, 0.5, 0.5]
 
 
-@pytest.mark.parametrize("exposure, hdr", [("auto", []), (0.7, [1.0, 4.0, 16.0])])
+@pytest.mark.parametrize("exposure, hdr", [("auto", []), (0.7, [1.0, 4.0, 16.0]), ("auto", "auto")])
 def test_exposure_and_hdr_round_trip(registered, exposure, hdr):
     cfg = C.default_config()
     cfg.structured_light.exposure, cfg.structured_light.hdr = exposure, hdr

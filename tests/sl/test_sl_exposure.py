@@ -171,6 +171,77 @@ def test_check_exposure(value, ok):
 def test_check_hdr():
     assert X.check_hdr(None) is None and X.check_hdr([]) is None
     assert X.check_hdr([1, 4, 16]) == [1.0, 4.0, 16.0]
-    for bad in ([1, 1], [1, 0], ["auto"], "1,4"):
+    assert X.check_hdr("auto") == "auto"
+    for bad in ([1, 1], [1, 0], ["auto"], "1,4", "AUTO"):
         with pytest.raises(DataPipeError, match="hdr"):
             X.check_hdr(bad)
+
+
+# -- auto HDR ------------------------------------------------------------------------------------
+
+def _highlight(r, factor, share):
+    """The plane's stack with a patch of `share` of the lit pixels `factor` x brighter (a specular
+    highlight on a shiny part): below 1%, so auto exposure meters the matte rest."""
+    gain = np.ones(r.lit.shape)
+    rows, cols = np.nonzero(r.lit)
+    n = int(share * rows.size)
+    sel = np.argsort(rows * r.lit.shape[1] + cols)[r.lit.sum() // 2:][:n]      # a block of lit pixels
+    gain[rows[sel], cols[sel]] = factor
+    hl = np.zeros(r.lit.shape, bool)
+    hl[rows[sel], cols[sel]] = True
+    return (r.images * gain).astype(np.float32), hl
+
+
+def test_auto_hdr_adds_short_exposures_only_for_clipping_highlights(plane):
+    """A matte scene keeps its one exposure (no fusion work, the same bytes as hdr=[]). A highlight
+    on 0.5% of the lit pixels, 3x the metered level, clips at the auto exposure (every highlight
+    pixel SATURATED): auto HDR adds 1/4 (3 x 0.8 x 1/4 = 0.6 of the well) and the decoder gets
+    their depth back; 10x needs 1/4 and 1/16 (10 x 0.8 / 16 = 0.5); 200x would need a fourth
+    exposure: at most AUTO_HDR_MAX."""
+    cam, proj, r = plane
+    matte = r.images.astype(np.float32)
+    assert X.auto_hdr(matte, IND, X.auto_exposure(matte, IND)) == [1.0]
+    kw = dict(K_cam=cam.K, T_world_cam=cam.T)
+    T_cp = np.linalg.inv(cam.T) @ proj.T
+
+    def scan(stack, hdr):
+        s = sl.Scanner(PERIODS, STEPS, proj.size, proj.K, T_cp, hdr=hdr, min_contrast=0.05)
+        return s.scan(stack, 5, kw["K_cam"], kw["T_world_cam"])
+
+    one, auto = scan(matte, []), scan(matte, "auto")
+    assert np.array_equal(one.result.depth, auto.result.depth, equal_nan=True) and auto.capture.chosen is None
+    stack, hl = _highlight(r, 3.0, 0.005)
+    base = X.auto_exposure(stack, IND)
+    assert X.auto_hdr(stack, IND, base) == [1.0, 0.25]
+    single, fused = scan(stack, []), scan(stack, "auto")
+    assert (single.result.reason[hl] == sl.Reason.SATURATED).all()
+    assert fused.result.valid[hl].mean() > 0.99 and fused.summary()["hdr"] == [1.0, 0.25]
+    assert np.nanmedian(np.abs(fused.result.depth - r.depth)[hl]) < 1e-3
+    assert fused.result.valid[r.lit & ~hl].mean() >= single.result.valid[r.lit & ~hl].mean() - 0.001
+    assert X.auto_hdr(*_highlight(r, 10.0, 0.005)[:1], IND, base) == [1.0, 0.25, 0.0625]
+    assert len(X.auto_hdr(_highlight(r, 200.0, 0.005)[0], IND, base)) == X.AUTO_HDR_MAX
+
+
+def test_hdr_fusion_keeps_partly_clipped_pixels_at_the_longer_exposure(plane):
+    """With `steps`, a pixel whose frequencies each keep >= 3 unclipped samples stays at the longer
+    exposure (its clipped samples set to the fused saturation level, which the decoder leaves out)
+    instead of moving to a 4x shorter one: more pixels at full signal, the same depth, less noise."""
+    cam, proj, r = plane
+    gain = reflectance_ramp(r.lit.shape, 0.3, 3.0)
+    stack = (r.images * gain).astype(np.float32)
+    base = X.auto_exposure(r.images.astype(np.float32) * 0.3, IND)      # metered on the dim end
+    e = X.exposure_set(base, [1.0, 0.25])
+    old, new = X.capture(stack, IND, e, 2), X.capture(stack, IND, e, 2, steps=STEPS)
+    lit = r.lit
+    assert (new.chosen == 0)[lit].mean() > (old.chosen == 0)[lit].mean() + 0.05
+    partly = lit & (new.chosen == 0) & (new.images >= new.saturation).any(axis=0)
+    assert partly.sum() > 100                                   # kept long, with clipped samples
+    assert (old.chosen[partly] == 1).all()                      # the old rule moved them down
+    kw = decode_kw(cam, proj, min_contrast=0.05)
+    ro = sl.decode(old.images, noise_sigma=old.noise_sigma, saturation=old.saturation, **kw)
+    rn = sl.decode(new.images, noise_sigma=new.noise_sigma, saturation=new.saturation, **kw)
+    assert rn.valid[partly].mean() > 0.99 and ro.valid[partly].mean() > 0.99
+    err_o = np.abs(ro.depth - r.depth)[partly]
+    err_n = np.abs(rn.depth - r.depth)[partly]
+    assert np.median(err_n) < 0.75 * np.median(err_o)           # longer exposure: less noise
+    assert rn.valid[lit].mean() >= ro.valid[lit].mean() - 0.001
