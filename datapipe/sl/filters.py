@@ -122,7 +122,7 @@ def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int
     kept 94% of its modulation after a bounce, and its bias removed 2-7% of the correct pixels of
     the bin scenes at any useful tolerance (benchmarks/results/sl_materials.md). Not caught: a
     ghost whose row mismatch is within the tolerance of a whole number of periods (probability
-    ~ 2 tol periods / height, ~10% at 8 periods), and, by any single projector-camera check, mirror
+    ~ 2 tol periods / height: 5-10% at 8 periods), and, by any single projector-camera check, mirror
     paths inside the epipolar plane (the ghost lies on W's projector ray).
 
     A valid pixel is removed when |row measured - row predicted| (wrapped to one period) exceeds
