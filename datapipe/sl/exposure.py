@@ -47,6 +47,7 @@ from ._errors import bad_value
 from .sensor import SensorModel
 
 __all__ = ["AUTO_PERCENTILE", "AUTO_TARGET", "Capture", "auto_exposure", "auto_hdr", "capture", "exposure_set",
+           "lit_pixels",
            "check_exposure", "check_hdr", "exposure_problem", "hdr_problem"]
 
 AUTO_PERCENTILE = 99.0           # % of the metered (lit) pixels' peaks ...
@@ -112,25 +113,34 @@ def exposure_set(base: float, hdr: Sequence[float] | None) -> list[float]:
     return [float(base)] if not hdr else [float(base) * float(f) for f in hdr]
 
 
-def auto_exposure(radiance, sensor: SensorModel, *, percentile: float = AUTO_PERCENTILE,
-                  target: float = AUTO_TARGET) -> float:
-    """Exposure (scale on linear radiance) that puts the metered fringe peaks at `target` of the
-    sensor's full well (see the module doc). `radiance`: the (F*N, H, W) linear fringe stack."""
+def lit_pixels(radiance) -> tuple[np.ndarray, np.ndarray]:
+    """(per-pixel fringe peak, lit mask) of an (F*N, H, W) stack: the pixels the projector visibly
+    modulates, not lost in the dark (module doc). One pass over the stack, shared by auto exposure
+    and auto HDR."""
     x = np.asarray(radiance)
     if x.ndim != 3 or x.shape[0] < 2:
         raise bad_value("radiance", f"has shape {x.shape}", "pass the (F*N, H, W) fringe stack")
+    peak = x.max(axis=0).astype(np.float64)
+    swing = peak - x.min(axis=0)
+    bright = np.percentile(peak, 99.9) if peak.size else 0.0
+    lit = np.isfinite(peak) & (peak > DARK_FRACTION * bright) & (swing >= LIT_SWING * peak) & (bright > 0)
+    return peak, lit
+
+
+def auto_exposure(radiance, sensor: SensorModel, *, percentile: float = AUTO_PERCENTILE,
+                  target: float = AUTO_TARGET, lit=None) -> float:
+    """Exposure (scale on linear radiance) that puts the metered fringe peaks at `target` of the
+    sensor's full well (see the module doc). `radiance`: the (F*N, H, W) linear fringe stack;
+    `lit`: its `lit_pixels` when already known."""
     if not 0 < target <= 1:
         raise bad_value("target", f"must be in (0, 1], got {target}", "give a fraction of the full well")
     if not 0 < percentile <= 100:
         raise bad_value("percentile", f"must be in (0, 100], got {percentile}", "give a percentile")
+    peak, lit = lit_pixels(radiance) if lit is None else lit
     fw = sensor.full_well
     if fw is None or not np.isfinite(fw):
         return 1.0                                  # nothing can clip: the sensor's unit exposure
-    peak = x.max(axis=0).astype(np.float64)
-    swing = peak - x.min(axis=0)
-    bright = np.percentile(peak, 99.9) if peak.size else 0.0
-    lit = np.isfinite(peak) & (peak > DARK_FRACTION * bright) & (swing >= LIT_SWING * peak)
-    if bright <= 0 or not lit.any():
+    if not lit.any():
         return FALLBACK_EXPOSURE
     metered = float(np.percentile(peak[lit], percentile))
     e = target * (fw / sensor.electrons_per_unit) / metered
@@ -138,16 +148,15 @@ def auto_exposure(radiance, sensor: SensorModel, *, percentile: float = AUTO_PER
 
 
 def auto_hdr(radiance, sensor: SensorModel, base: float, *, steps: int | None = None, clip: float = AUTO_HDR_CLIP,
-             step: float = AUTO_HDR_STEP, most: int = AUTO_HDR_MAX) -> list[float]:
+             step: float = AUTO_HDR_STEP, most: int = AUTO_HDR_MAX, lit=None) -> list[float]:
     """Relative exposure factors for `base` (see the module doc): [1], or [1, 1/4, ...] while more
     than `clip` of the lit pixels would not decode for clipping at the shortest exposure so far
-    (`steps`: images per frequency, see `decodable`)."""
+    (`steps`: images per frequency, see `decodable`; `lit`: `lit_pixels` when already known)."""
     fw = sensor.full_well
-    x = np.asarray(radiance)
-    if fw is None or not np.isfinite(fw) or x.ndim != 3:
+    if fw is None or not np.isfinite(fw):
         return [1.0]
-    peak = x.max(axis=0).astype(np.float64)
-    lit = np.isfinite(peak) & (peak > 0) & (peak - x.min(axis=0) >= LIT_SWING * peak)
+    x = np.asarray(radiance)
+    _, lit = lit_pixels(x) if lit is None else lit
     if not lit.any():
         return [1.0]
     clips_at = (fw / sensor.electrons_per_unit) / float(base)      # radiance that fills the well at factor 1
