@@ -103,8 +103,8 @@ def row_residual(measured_row, predicted_row, period: float) -> np.ndarray:
     return np.mod(np.asarray(measured_row, np.float64) - predicted_row + p / 2.0, p) - p / 2.0
 
 
-def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int, steps: int, noise_sigma,
-                      valid, *, periods: float = 1.0, checkable=None, sigmas: float = ROW_SIGMAS,
+def reflection_filter(residual, row_modulation, proj_height: int, steps: int, noise_sigma, valid, *,
+                      periods: float = 1.0, checkable=None, sigmas: float = ROW_SIGMAS,
                       min_px: float = ROW_MIN_PX) -> np.ndarray:
     """Pixels whose light left the projector from another row than the row at which the projector
     sees their decoded point: light that reached the camera over a mirror path (the scanners'
@@ -132,9 +132,10 @@ def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int
     (the least-squares phase noise of the row code). Pixels whose row code cannot be read
     (`checkable` False: saturated, invalid) are kept.
 
-    row_phase, row_modulation: (H, W) wrapped phase and modulation of the row code; predicted_row:
-    (H, W) from `projector_rows`; noise_sigma: the sensor noise of one sample at each pixel (a
-    number or an (H, W) array, image units)."""
+    residual: (H, W) `row_residual` of the measured row (`row_from_phase` of the row code's wrapped
+    phase) and the predicted one (`projector_rows`), NaN where unknown; row_modulation: (H, W) the
+    row code's modulation; noise_sigma: the sensor noise of one sample at each pixel (a number or
+    an (H, W) array, image units)."""
     valid = np.asarray(valid, bool)
     B = np.asarray(row_modulation, np.float64)
     sig = np.asarray(noise_sigma, np.float64)
@@ -142,7 +143,7 @@ def reflection_filter(row_phase, row_modulation, predicted_row, proj_height: int
     with np.errstate(invalid="ignore", divide="ignore"):
         sigma_y = period / (2.0 * np.pi) * np.sqrt(2.0 / int(steps)) * sig / B
         tol = np.sqrt((sigmas * sigma_y) ** 2 + float(min_px) ** 2)
-        res = np.abs(row_residual(row_from_phase(row_phase, proj_height, periods), predicted_row, period))
+        res = np.abs(np.asarray(residual, np.float64))
         bad = res > tol
     ok = np.isfinite(res) & np.isfinite(tol) & (B > 0)
     if checkable is not None:

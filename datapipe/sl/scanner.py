@@ -57,7 +57,7 @@ import numpy as np
 from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from ._errors import bad_value
 from .decode import DecodeResult, Reason, decode
-from .exposure import Capture, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set
+from .exposure import Capture, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set, lit_pixels
 from .filters import (edge_speckle_filter, multipath_filter, projector_rows, reflection_filter, row_from_phase,
                       row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
@@ -75,6 +75,15 @@ REFLECTION = int(Reason.REFLECTION)  # reason code of pixels removed by the glob
 ROW_PERIODS = [8]                # the row code: 8 periods over the projector height, unwrapped by the
                                  # decoded point's predicted row (sl.filters.reflection_filter)
 REASON_NAMES = {r.value: r.name for r in Reason}
+
+
+@dataclass
+class RowCode:
+    """The global reflection filter's row code, read: what `reflection_filter` tests."""
+    residual: np.ndarray        # float32 projector rows, measured - predicted (one period), NaN unknown
+    modulation: np.ndarray      # the row code's modulation
+    noise_sigma: np.ndarray     # sensor noise of one sample per pixel
+    readable: np.ndarray        # bool: enough unclipped, finite samples
 
 
 @dataclass
@@ -198,8 +207,9 @@ class Scanner:
             raise bad_value("radiance", f"has shape {radiance.shape}",
                             f"pass the {n} fringe images (frequency-major), optionally followed by the "
                             f"{self.row_images} row-coded images")
-        base = auto_exposure(radiance[:n], model) if self.exposure == "auto" else self.exposure
-        factors = auto_hdr(radiance[:n], model, base, steps=self.steps) if self.hdr == "auto" else self.hdr
+        lit = lit_pixels(radiance[:n]) if "auto" in (self.exposure, self.hdr) else None   # one metering pass
+        base = auto_exposure(radiance[:n], model, lit=lit) if self.exposure == "auto" else self.exposure
+        factors = auto_hdr(radiance[:n], model, base, steps=self.steps, lit=lit) if self.hdr == "auto" else self.hdr
         cap = capture(radiance, model, exposure_set(base, factors), seed, reference=base, steps=self.steps)
         P_cam = projection_matrix(K_cam, T_world_cam)
         P_proj = self.projector_matrix(T_world_cam)
@@ -214,7 +224,10 @@ class Scanner:
             _remove(res, multipath, MULTIPATH)
         reflection = residual = None
         if self.row_check and cap.images.shape[0] > n:
-            reflection, residual = self._row_check(res, cap)
+            code = self.row_code(res, cap)
+            residual = code.residual
+            reflection = reflection_filter(residual, code.modulation, self.proj_size[1], self.steps, code.noise_sigma,
+                                           res.valid, periods=ROW_PERIODS[0], checkable=code.readable)
             _remove(res, reflection, REFLECTION)
         filtered = np.zeros(res.valid.shape, bool)
         if self.edge_filter:
@@ -223,9 +236,9 @@ class Scanner:
         return Scan(res, sigma_z, filtered, P_cam, P_proj, model, time.perf_counter() - t0, cap,
                     "auto" if self.exposure == "auto" else "fixed", multipath, reflection, residual)
 
-    def _row_check(self, res: DecodeResult, cap) -> tuple[np.ndarray, np.ndarray]:
-        """The global reflection filter on the row-coded images of `cap` (see the module doc) ->
-        (pixels to remove, row residual map: measured - predicted projector rows, NaN unchecked)."""
+    def row_code(self, res: DecodeResult, cap: Capture) -> RowCode:
+        """Read the row-coded images of `cap` (after the fringe images) against the rows at which the
+        projector sees the decoded points of `res` (see the module doc)."""
         rows = phase_shift(cap.images[self.n_fringe:], saturation=cap.saturation)
         phase = rows.phase
         if self.projector_gamma != 1.0:
@@ -233,16 +246,14 @@ class Scanner:
             phase = correct_cycles(phase / np.float32(2 * np.pi), lut) * np.float32(2 * np.pi)
         sig = cap.noise_sigma
         sig = sig(np.maximum(rows.offset.astype(np.float64), 0)) if callable(sig) else sig
-        P_proj_cam = self.K_proj @ np.linalg.inv(self.T_cam_proj)[:3]
-        predicted = projector_rows(res.points, P_proj_cam)
+        predicted = projector_rows(res.points, self.K_proj @ np.linalg.inv(self.T_cam_proj)[:3])
         Hp, K = self.proj_size[1], ROW_PERIODS[0]
         readable = ~(rows.saturated | rows.invalid)
-        remove = reflection_filter(phase, rows.modulation, predicted, Hp, self.steps, sig, res.valid, periods=K,
-                                   checkable=readable)
         with np.errstate(invalid="ignore"):
             residual = row_residual(row_from_phase(phase, Hp, K), predicted, Hp / K).astype(np.float32)
-        residual[~(res.valid & readable)] = np.nan
-        return remove, residual
+        residual[~readable] = np.nan
+        return RowCode(residual, rows.modulation, np.broadcast_to(np.asarray(sig, np.float64), readable.shape),
+                       readable)
 
     def _filter(self, res: DecodeResult, sigma_z: np.ndarray, fx: float) -> np.ndarray:
         """Projector-border and edge/speckle filters; removed pixels become FILTERED, NaN."""

@@ -133,7 +133,8 @@ def test_reflection_filter_tolerance_follows_the_row_code_noise():
     phase = np.mod(meas * 2 * np.pi * K / Hp, 2 * np.pi)
     valid = np.ones((1, 6), bool)
     checkable = np.array([[True, True, True, True, True, False]])
-    bad = sl.reflection_filter(phase, B, pred, Hp, N, sig, valid, periods=K, checkable=checkable)
+    residual = sl.filters.row_residual(sl.filters.row_from_phase(phase, Hp, K), pred, period)
+    bad = sl.reflection_filter(residual, B, Hp, N, sig, valid, periods=K, checkable=checkable)
     assert bad.tolist() == [[False, True, False, False, True, False]]
     assert tol[0, 3] > 20 > 4 > tol[0, 0]                          # a dark pixel's noise widens it
-    assert not sl.reflection_filter(phase, B, pred, Hp, N, sig, ~valid, periods=K).any()
+    assert not sl.reflection_filter(residual, B, Hp, N, sig, ~valid, periods=K).any()
