@@ -163,7 +163,7 @@ def _sl_plan(cfg) -> list[str]:
     s = cfg.structured_light
     mode = resolve_fringe_mode(cfg)
     n = len(s.periods) * s.steps
-    rows = mode == "render" and s.reflection_filter in ("auto", "global")
+    rows = config_mod.builds_row_code(s, mode)
     images = f"{n} fringe images" + (f" (+{s.steps} row code{' on shiny renders' if s.reflection_filter == 'auto' else ''})"
                                       if rows else "")
     why = " (a configured material is shiny)" if s.fringe_mode == "auto" and mode == "render" else ""

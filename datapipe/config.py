@@ -695,11 +695,18 @@ def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None
     _check_fringe_size(ck, cfg)
 
 
+def builds_row_code(sl: "StructuredLightConfig", fringe_mode: str) -> bool:
+    """Whether the structured-light camera builds the global reflection filter's row code: the
+    patterns are path-traced (`fringe_mode`, resolved) and reflection_filter is "auto" (rendered on
+    shiny renders) or "global" (every render)."""
+    return fringe_mode == "render" and sl.reflection_filter in ("auto", "global")
+
+
 def _fringe_frames(cfg: Config) -> int:
     """Fringe images per render: F*N, plus the row code (N) where the global reflection filter may
-    run (an upper bound: "auto" renders it only on shiny scenes in render mode)."""
+    run (an upper bound: fringe_mode "auto" may resolve to render)."""
     s = cfg.structured_light
-    rows = s.steps if s.reflection_filter in ("auto", "global") and s.fringe_mode != "fast" else 0
+    rows = s.steps if builds_row_code(s, "fast" if s.fringe_mode == "fast" else "render") else 0
     return len(s.periods) * s.steps + rows
 
 

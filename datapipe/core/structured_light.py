@@ -74,6 +74,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import sl
+from ..config import builds_row_code
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
 from ..io.native import write_render_maps
 from . import projector as _pj
@@ -114,7 +115,7 @@ class StructuredLightCamera:
         self.bounce_min_gain = None            # fast mode: periods with bounce layers (None: its default)
         self._profiles = sl.pattern_profiles(self.proj_size[0], self.periods, self.steps)
         self.reflection_filter = s.reflection_filter
-        self.row_code = self.fringe_mode == "render" and s.reflection_filter in ("auto", "global")
+        self.row_code = builds_row_code(s, self.fringe_mode)
         self.layers: list = []
         self.layer_names: list[str] = []      # the fringe layers, then the row code's (when `row_code`)
         self.file_output = None
