@@ -13,25 +13,14 @@ bpy = pytest.importorskip("bpy")
 from datapipe.core import structured_light as SLM  # noqa: E402
 from datapipe.core.fringe_fast import FLAT_NODE  # noqa: E402
 
-from datapipe.core.camera import BlendCamera  # noqa: E402
-from datapipe.core.renderer import Renderer  # noqa: E402
-from datapipe.core.scene import BlendScene  # noqa: E402
-from test_structured_light import BOX_HI, BOX_LO, SEED, _add_box, plane_config  # noqa: E402
+from test_structured_light import SEED, build, plane_config  # noqa: E402
 
 
 def fringes(tmp_path, cfg, mode, box=True, bounce_min_gain=None):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cfg = cfg.copy()
     cfg.structured_light.fringe_mode = mode
-    blend = BlendScene(cfg).setup()
-    if box:
-        _add_box(blend.scene, BOX_LO, BOX_HI)
-    cam = BlendCamera(cfg, blend.scene).setup()
-    ren = Renderer(cfg, blend.scene, cam).setup()
-    slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
-    slc.bounce_min_gain = bounce_min_gain
-    slc.setup()
-    T = cam.set_pose(0)
+    blend, _, _, slc, T = build(tmp_path, cfg, box=box, bounce_min_gain=bounce_min_gain)
     stack, _ = slc.render_fringes(tmp_path / mode, SEED, T)
     return stack, slc, blend
 

@@ -27,12 +27,9 @@ bpy = pytest.importorskip("bpy")
 from datapipe import sl  # noqa: E402
 from datapipe.core import materials as M  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
-from datapipe.core.camera import BlendCamera  # noqa: E402
 from datapipe.core.projector import projector_matrix  # noqa: E402
-from datapipe.core.renderer import Renderer  # noqa: E402
-from datapipe.core.scene import BlendScene  # noqa: E402
 
-from test_structured_light import SEED, _add_box, plane_config  # noqa: E402
+from test_structured_light import SEED, _add_box, build, plane_config  # noqa: E402
 
 C_PLATE, HALF, WALL_X, WALL_TOP = np.array([0.0, 0.0, 0.05]), 0.03, 0.10, 0.15
 S2 = np.sqrt(0.5)
@@ -48,20 +45,19 @@ def _scene(kind):
     cfg.structured_light.periods = [1, 4, 32]            # ~5 camera px per finest period at 160 px
     cfg.structured_light.fringe_mode = "render"          # mirrored fringes need path-traced patterns; the
                                                          # plate is built here, not configured, so auto cannot see it
-    blend = BlendScene(cfg).setup()
-    corners = [tuple(C_PLATE + su * HALF * u_ax + sv * HALF * v_ax) for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    me = bpy.data.meshes.new("plate")
-    me.from_pydata(corners, [], [(0, 1, 2, 3)])
-    me.update()
-    plate = bpy.data.objects.new("plate", me)
-    blend.scene.collection.objects.link(plate)
-    M.assign(plate, M.build({"name": "mirror", "base_color": [0.9, 0.9, 0.9], "metallic": 1.0, "roughness": 0.05}))
-    _add_box(blend.scene, (WALL_X, y0, 0.0), (WALL_X + 0.02, y1, WALL_TOP))
-    cam = BlendCamera(cfg, blend.scene).setup()
-    ren = Renderer(cfg, blend.scene, cam).setup()
-    slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
-    slc.setup()
-    return cfg, cam, ren, slc, cam.set_pose(0)
+
+    def add_plate_and_wall(scene):
+        corners = [tuple(C_PLATE + su * HALF * u_ax + sv * HALF * v_ax) for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        me = bpy.data.meshes.new("plate")
+        me.from_pydata(corners, [], [(0, 1, 2, 3)])
+        me.update()
+        plate = bpy.data.objects.new("plate", me)
+        scene.collection.objects.link(plate)
+        M.assign(plate, M.build({"name": "mirror", "base_color": [0.9, 0.9, 0.9], "metallic": 1.0, "roughness": 0.05}))
+        _add_box(scene, (WALL_X, y0, 0.0), (WALL_X + 0.02, y1, WALL_TOP))
+
+    _, cam, ren, slc, T = build(None, cfg, add=add_plate_and_wall)
+    return cfg, cam, ren, slc, T
 
 
 def _mirror_geometry(cfg, K, T, shape, kind):

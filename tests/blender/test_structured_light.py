@@ -42,13 +42,18 @@ def plane_config(res=RES):
     return cfg
 
 
-def build(tmp_path, cfg, box=False):
+def build(tmp_path, cfg, box=False, add=None, bounce_min_gain=None):
+    """Scene (+ the test box, + whatever `add(bpy_scene)` builds), camera, renderer and the
+    structured-light camera, set up, at pose 0: (blend, cam, ren, slc, T_world_cam)."""
     blend = BlendScene(cfg).setup()
     if box:
         _add_box(blend.scene, BOX_LO, BOX_HI)
+    if add is not None:
+        add(blend.scene)
     cam = BlendCamera(cfg, blend.scene).setup()
     ren = Renderer(cfg, blend.scene, cam).setup()
     slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
+    slc.bounce_min_gain = bounce_min_gain
     slc.setup()
     T = cam.set_pose(0)
     return blend, cam, ren, slc, T
