@@ -355,27 +355,22 @@ _L = C.StructuredLightConfig
 _FIXED_EXPOSURE = 0.5        # the Exposure field's value while Auto Exposure is on (the former default)
 
 
-def _get_periods(self):
-    return self.periods_text
+def _list_text(name: str, parse, fmt, hint: str):
+    """Getter and setter of a list typed as text (stored normalised in the hidden `<name>_text`)."""
+    def get(self):
+        return getattr(self, f"{name}_text")
+
+    def set_(self, value):
+        try:
+            setattr(self, f"{name}_text", fmt(parse(value)))
+        except ValueError as e:        # keep the last valid list; the field shows it again
+            print(f"DataPipe: structured_light.{name}: ignored {value!r} ({e}); {hint}")
+    return get, set_
 
 
-def _set_periods(self, value):
-    try:
-        self.periods_text = format_periods(parse_periods(value))
-    except ValueError as e:        # keep the last valid list; the field shows it again
-        print(f"DataPipe: structured_light.periods: ignored {value!r} ({e}); give integers >= 1, e.g. '1, 8, 64'")
-
-
-def _get_hdr(self):
-    return self.hdr_text
-
-
-def _set_hdr(self, value):
-    try:
-        self.hdr_text = format_factors(parse_factors(value))
-    except ValueError as e:        # keep the last valid list; the field shows it again
-        print(f"DataPipe: structured_light.hdr: ignored {value!r} ({e}); give factors > 0, e.g. '0.25, 1, 4', "
-              "'auto', or nothing for one exposure")
+_get_periods, _set_periods = _list_text("periods", parse_periods, format_periods, "give integers >= 1, e.g. '1, 8, 64'")
+_get_hdr, _set_hdr = _list_text("hdr", parse_factors, format_factors,
+                                "give factors > 0, e.g. '0.25, 1, 4', 'auto', or nothing for one exposure")
 
 
 def _sensor_search(self, context, edit_text):
