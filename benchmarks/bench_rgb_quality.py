@@ -21,7 +21,6 @@ Writes benchmarks/results/rgb_quality.md, rgb_quality.csv and rgb_quality.png.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import tempfile
@@ -35,7 +34,8 @@ RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_sl_render import build_world, timed, write_with_notes  # noqa: E402
+from bench_sl_render import build_world, timed  # noqa: E402
+from report_util import log_x_frame, write_rows_csv, write_with_notes  # noqa: E402
 from datapipe import config as C  # noqa: E402
 
 SEED, REF_SEED, REF_SAMPLES = 1234, 99, 1024
@@ -165,22 +165,12 @@ def plot(rows, front, chosen, path):
     import cv2
 
     W, H, m = 960, 600, 80
-    img = np.full((H, W, 3), 255, np.uint8)
     xs = np.log10([r["cpu_s"] for r in rows])
     ys = np.array([r["psnr_db"] for r in rows])
     x0, x1 = np.floor(xs.min() * 4) / 4, np.ceil(xs.max() * 4) / 4
     y0, y1 = np.floor(ys.min()) - 1, np.ceil(ys.max()) + 1
     font = cv2.FONT_HERSHEY_SIMPLEX
-
-    def px(x, y):
-        return int(m + (x - x0) / (x1 - x0) * (W - 2 * m)), int(H - m - (y - y0) / (y1 - y0) * (H - 2 * m))
-
-    cv2.rectangle(img, (m, m), (W - m, H - m), (0, 0, 0), 1)
-    for v in (0.2, 0.3, 0.5, 1, 2, 3, 5, 10, 20, 30, 50):
-        if x0 <= np.log10(v) <= x1:
-            p = px(np.log10(v), y0)
-            cv2.line(img, (p[0], m), (p[0], H - m), (225, 225, 225), 1)
-            cv2.putText(img, f"{v:g}", (p[0] - 8, H - m + 18), font, 0.45, (0, 0, 0), 1)
+    img, px = log_x_frame((W, H), m, (x0, x1), (y0, y1), (0.2, 0.3, 0.5, 1, 2, 3, 5, 10, 20, 30, 50))
     for v in range(int(y0), int(y1) + 1, 2):
         p = px(x0, v)
         cv2.line(img, (m, p[1]), (W - m, p[1]), (235, 235, 235), 1)
@@ -209,10 +199,7 @@ def plot(rows, front, chosen, path):
 
 def report(rows, meta, out_dir: Path, elapsed: float):
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / "rgb_quality.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows_csv(out_dir / "rgb_quality.csv", rows)
     front = pareto(rows)
     D = C.RenderConfig()
     chosen = next((r for r in rows if r["samples"] == D.samples and r["adaptive"] == D.adaptive_threshold

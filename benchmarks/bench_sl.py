@@ -25,6 +25,7 @@ import platform
 import sys
 import time
 import tracemalloc
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -32,8 +33,10 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests", "sl"))
+sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
 
 import synth  # noqa: E402
+from report_util import write_with_notes  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.sl import Triangulator  # noqa: E402
 from datapipe.sl.metrics import effective_period, theoretical_phase_sigma  # noqa: E402
@@ -657,12 +660,7 @@ def main():
             lines.append(f"| {r['noise']:g} | {r['images']} | {r['rmse_mm']:.4f} | {r['theory_mm']:.4f} | "
                          f"{r['ratio']:.3f} | {r['decoded_fraction']:.4f} | {r['order_error_fraction']:.0e} |")
     lines.append("")
-    notes = os.path.join(RESULTS, "sl_decoder_notes.md")       # hand-written findings of the last run
-    if os.path.isfile(notes):
-        with open(notes) as fh:
-            lines += ["", fh.read()]
-    with open(os.path.join(RESULTS, "sl_decoder.md"), "w") as fh:
-        fh.write("\n".join(lines))
+    write_with_notes(Path(RESULTS) / "sl_decoder.md", lines)
     print("\n".join(lines))
 
 

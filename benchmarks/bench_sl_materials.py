@@ -44,6 +44,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import sl_bench_scenes as S  # noqa: E402
+from report_util import write_with_notes  # noqa: E402
 
 from datapipe import sl  # noqa: E402
 from datapipe.sl import filters as SLF  # noqa: E402
@@ -89,26 +90,19 @@ def row_filter_sweep(c: dict, rig: str, height: float) -> dict:
     the share of correct pixels (valid after the local filter, within 1 mm of the z-buffer) it
     removes, and the share of wrong ones (> 5 mm) it removes; and the row residual's percentiles
     on the correct pixels (projector px)."""
-    F = SLF
     res, scan, _ = decode_case(c, rig, height, "auto", [], rows=True)
     scanner = sl.Scanner.from_config(S.case_config(rig, height))
     loc, _, _ = decode_case(c, rig, height, "auto", [])
-    cap = scan.capture
-    code = sl.phase_shift(cap.images[scanner.n_fringe:], saturation=cap.saturation)
-    P = scanner.K_proj @ np.linalg.inv(scanner.T_cam_proj)[:3]
-    pred = F.projector_rows(loc.points, P)
-    K = sl.scanner.ROW_PERIODS[0]
+    code = scanner.row_code(loc, scan.capture)                # the row code read against the local result
     err = np.abs(loc.depth - c["depth"])
     good, bad = loc.valid & (err <= 1e-3), loc.valid & (err > 5e-3)
-    sig = cap.noise_sigma
-    sig = sig(np.maximum(code.offset.astype(np.float64), 0)) if callable(sig) else sig
-    Hp = scanner.proj_size[1]
     out = {"good_px": int(good.sum()), "bad_px": int(bad.sum())}
-    r = np.abs(F.row_residual(F.row_from_phase(code.phase, Hp, K), pred, Hp / K))[good]
+    r = np.abs(code.residual)[good & code.readable]
     out.update({f"res_p{q}": float(np.percentile(r, q)) if r.size else float("nan") for q in (50, 99, 99.9)})
     for m in ROW_MIN_PX_SWEEP:
-        rm = F.reflection_filter(code.phase, code.modulation, pred, Hp, scanner.steps, sig, loc.valid, periods=K,
-                                 checkable=~(code.saturated | code.invalid), min_px=m)
+        rm = SLF.reflection_filter(code.residual, code.modulation, scanner.proj_size[1], scanner.steps,
+                                   code.noise_sigma, loc.valid, periods=sl.scanner.ROW_PERIODS[0],
+                                   checkable=code.readable, min_px=m)
         out[f"good_removed_{m:g}"] = float(rm[good].mean()) if good.any() else float("nan")
         out[f"bad_removed_{m:g}"] = float(rm[bad].mean()) if bad.any() else float("nan")
     return out
@@ -148,13 +142,17 @@ def point_precision(c: dict, rig: str, height: float) -> dict:
             float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2) * 1e6), "pixels": int(floor.sum())}
 
 
-def run_decodes(cases, cache: Path, meta: dict, log):
-    rows = []
+def cached_cases(cases, cache: Path, meta: dict):
+    """(rig, height, material, key, cached case) of the cases that were rendered, in plan order."""
     for rig, h, mat in cases:
         key = S.case_key(rig, h, mat)
-        if key not in meta:
-            continue
-        c = S.load_case(cache, rig, h, mat)
+        if key in meta:
+            yield rig, h, mat, key, S.load_case(cache, rig, h, mat)
+
+
+def run_decodes(cases, cache: Path, meta: dict, log):
+    rows = []
+    for rig, h, mat, key, c in cached_cases(cases, cache, meta):
         product_rows = bool(meta[key].get("product_rows"))
         variants = [(mode, e, hdr, product_rows) for mode, (e, hdr) in MODES.items()]
         if product_rows:                       # shiny: what the local filter alone would have left
@@ -235,11 +233,7 @@ def grid_png(cases, cache: Path, meta: dict, path: Path) -> None:
     import cv2
 
     tiles = []
-    for rig, h, mat in cases:
-        key = S.case_key(rig, h, mat)
-        if key not in meta:
-            continue
-        c = S.load_case(cache, rig, h, mat)
+    for rig, h, mat, key, c in cached_cases(cases, cache, meta):
         rgb = np.asarray(c["rgb"], np.float32)
         rgb = rgb[..., :3] if rgb.ndim == 3 else np.repeat(rgb[..., None], 3, -1)
         if rgb.max() <= 1.0:
@@ -310,10 +304,7 @@ def write_report(rows, prec, cache, meta, render_wall):
          f"{prec['pixels']} floor pixels. Not like for like: 320x240 camera and 912x570 projector vs Zivid's "
          "2448x2048; the floor is 0.5 grey with roughness 0.6 (not a Lambertian 80% target); key light on "
          "(not 0 lux).", "", "![grid](sl_materials_grid.png)", ""]
-    notes = RESULTS / "sl_materials_notes.md"
-    if notes.is_file():
-        L += ["", notes.read_text()]
-    (RESULTS / "sl_materials.md").write_text("\n".join(L) + "\n")
+    write_with_notes(RESULTS / "sl_materials.md", L)
 
 
 def main(argv=None):

@@ -39,6 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT))
 
+from report_util import write_with_notes  # noqa: E402
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
@@ -174,14 +175,6 @@ def cache_native_render(renderer, camera, T, cfg, tmp: Path, cache: Path, nkey: 
     meta[nkey] = {"wall": wall, "cpu": cpu, "samples": cfg.render.samples}
     meta_path.write_text(json.dumps(meta, indent=1))
     return wall, cpu
-
-
-def write_with_notes(path: Path, lines: list[str]) -> None:
-    """Write a generated report with the hand-written findings of `<stem>_notes.md` appended."""
-    notes = path.with_name(f"{path.stem}_notes.md")
-    if notes.is_file():
-        lines = [*lines, notes.read_text()]
-    path.write_text("\n".join(lines) + "\n")
 
 
 def render_all(cases, cache: Path, log):
@@ -519,10 +512,7 @@ def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: boo
                      + "; ".join(f"{label(sel[i])} ({sel[i]['fringe_cpu_s']:.1f} s, {sel[i]['rmse_mm']:.3f} mm, "
                                  f"{sel[i]['miss_robust']:.3f})" for i in sorted(nd, key=lambda i: sel[i]["fringe_cpu_s"]))
                      + ".\n")
-    notes = RESULTS / "sl_render_notes.md"
-    if notes.is_file():
-        L.append(notes.read_text())
-    (out_dir / "sl_render.md").write_text("\n".join(L))
+    write_with_notes(out_dir / "sl_render.md", L)
 
 
 def main():

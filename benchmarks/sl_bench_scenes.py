@@ -29,11 +29,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from datapipe import config as C
-from datapipe.sl.scanner import ROW_PERIODS as ROW_PERIODS_  # noqa: E402
+from datapipe.sl.scanner import ROW_PERIODS     # the row code the cache holds (renders again when it changes)  # noqa: E402
 from sl_scenes import RIGS, direct_mask, rig_config  # noqa: E402,F401  (RIGS: part of this module's API)
 
 SEED = 1234
-ROW_PERIODS = list(ROW_PERIODS_)            # the row code the cache holds (renders again when it changes)
 
 
 def case_config(rig: str, height: float, material=None, res=(320, 240)) -> C.Config:
@@ -67,7 +66,7 @@ def render_cases(cases, cache: Path, log=print) -> dict:
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
     groups: dict = {}
     for rig, h, mat in cases:
-        if meta.get(case_key(rig, h, mat), {}).get("row_periods") != ROW_PERIODS:   # another row code: again
+        if meta.get(case_key(rig, h, mat), {}).get("row_periods") != list(ROW_PERIODS):   # another row code: again
             groups.setdefault((rig, mat), []).append(h)
     for (rig, mat), heights in groups.items():
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -93,7 +92,7 @@ def render_cases(cases, cache: Path, log=print) -> dict:
                                 K=world.camera.K, direct=direct, rgb=out.rgb)
             meta[key] = {"rig": rig, "height": h, "material": mat or "file", "native_s": t1 - t0,
                          "fringe_s": fringe_s, "images": int(rad.shape[0]), "sharp_glossy": world.sl.sharp_glossy,
-                         "row_periods": ROW_PERIODS, "product_rows": rows}
+                         "row_periods": list(ROW_PERIODS), "product_rows": rows}
             meta_path.write_text(json.dumps(meta, indent=1))
             log(f"  {key}: native {t1 - t0:.1f} s, fringes {fringe_s:.1f} s")
     return meta
