@@ -298,7 +298,7 @@ def write_report(rows, prec, cache, meta, render_wall):
          *sweep_table(sorted(rows, key=lambda r: (r["rig"], MAT_ORDER.index(r["material"]), r["height"]))), "",
          "## Point precision against a data sheet", "",
          f"Zivid 2+ M60 data sheet: point precision 80 um (1 sigma, consecutive captures, 600 mm, Lambertian "
-         f"target, 0 lux; second-hand, /work/shared/scanner-facts.md). Ours, same definition (two captures = "
+         f"target, 0 lux; second-hand; sources in docs/STRUCTURED_LIGHT.md). Ours, same definition (two captures = "
          f"two sensor-noise draws of one render; floor of the demo bin, camera 0.55 m above it, GUI rig, auto "
          f"exposure): sigma {prec['sigma_um']:.0f} um (robust {prec['robust_sigma_um']:.0f} um) over "
          f"{prec['pixels']} floor pixels. Not like for like: 320x240 camera and 912x570 projector vs Zivid's "

@@ -1,8 +1,8 @@
 """Every bpy 4.2 .. 5.x difference DataPipe relies on, in one place.
 
 Callers never test `bpy.app.version` themselves: they call these helpers. Each fact here was
-observed by running both bpy 4.2.0 and 5.0.1 (see shared/bpy-notes.md); where only 5.0.1 could be
-re-checked in this repository's venv, the 4.2 branch follows those notes.
+observed by running both bpy 4.2.0 and 5.0.1; where only 5.0.1 could be re-checked in this
+repository's venv, the 4.2 branch follows what was observed on 4.2.0 then (noted at each helper).
 
 Topics: engine ids, the compositor node tree and its sink (Composite vs. Group Output), the File
 Output node (paths, items, multilayer 32-bit EXR, the file name it writes), Render Layers socket

@@ -1,4 +1,4 @@
-"""The original DataPipe's output_dict.pickle (shared/design.md), plus the OpenCV-frame T_cam_obj:
+"""The original DataPipe's output_dict.pickle (layout in docs/ARCHITECTURE.md), plus the OpenCV-frame T_cam_obj:
 
     {'scene.0001': {'render.0001': {'wrld2cam_pose': 4x4, 'objects_in_scene': [{'name', 'filename',
      'mask_index', 'cam2obj_pose': 4x4 (Blender camera frame), 'T_cam_obj': 4x4 (OpenCV)}]}}}

@@ -12,7 +12,7 @@ directly and the camera sees (z-buffer point inside the projector image with a f
 projector: Blender ray cast, sl_scenes.direct_mask; part = instance mask > 0), the fraction whose
 sl_depth.exr is within `tolerance(z)` of the native z-buffer depth.
 
-Tolerance: the phase-shift depth noise is sigma_Z = Z^2 / (f_p b) * sigma_x (shared/sl-notes.md),
+Tolerance: the phase-shift depth noise is sigma_Z = Z^2 / (f_p b) * sigma_x (docs/CONVENTIONS.md; the standard fringe-projection error propagation),
 and auto exposure keeps the signal, hence sigma_x, about constant over distance (metered 0.10 at
 0.35 m, 2.4 at 1.5 m: ~Z^2), so errors grow as Z^2 / b. `tolerance` = TOL_1M at 1 m depth over a
 0.12 m baseline, x z^2 / b: 0.17-0.22 mm on the parts at 0.35 m, 3.5-4.4 mm at 1.5 m, ~10x the
