@@ -96,17 +96,21 @@ class BlenderLog:
     def __enter__(self) -> "BlenderLog":
         if self._active:
             raise RuntimeError("BlenderLog is already capturing")
-        sys.stdout.flush()
+        self._active = True
+        self._reader = None
+        _flush_python_stdout()
         _flush_c_stdio()
+        try:
+            self._terminal = os.dup(1)
+        except OSError:                    # no fd 1 (a Windows GUI without a console): nothing to capture
+            return self
         read_fd, write_fd = os.pipe()
         _enlarge(write_fd)
-        self._terminal = os.dup(1)
         os.dup2(write_fd, 1)
         os.close(write_fd)                 # fd 1 is now the only write end: restoring it ends the reader
         self._reader = threading.Thread(target=self._read, args=(read_fd,), name="datapipe-blender-log",
                                         daemon=True)
         self._reader.start()
-        self._active = True
         return self
 
     def _read(self, fd: int) -> None:
@@ -127,20 +131,28 @@ class BlenderLog:
             os.close(fd)
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        try:
-            sys.stdout.flush()
-        except (OSError, ValueError):
-            pass
+        self._active = False
+        if self._reader is None:
+            return
+        _flush_python_stdout()
         _flush_c_stdio()
         os.dup2(self._terminal, 1)         # closes the pipe's write end: the reader sees the end
-        self._reader.join()                # (verbose: it writes to self._terminal until then)
-        os.close(self._terminal)
-        self._active = False
+        self._reader.join(timeout=10)      # (unless a child process inherited fd 1 and still runs)
+        if not self._reader.is_alive():    # verbose: it writes to self._terminal until the end
+            os.close(self._terminal)
         with self._lock:
             if self._file is not None:
                 self._file.flush()
         if exc_type is not None and self.path is not None and not self.verbose:
             print(f"datapipe: Blender's own output is in {self.path}", file=sys.stderr, flush=True)
+
+
+def _flush_python_stdout() -> None:
+    try:
+        if sys.stdout is not None:
+            sys.stdout.flush()
+    except (OSError, ValueError):          # closed or broken: nothing of ours is waiting in it
+        pass
 
 
 def _enlarge(fd: int) -> None:
