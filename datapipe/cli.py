@@ -20,7 +20,9 @@ import traceback
 from pathlib import Path
 
 from . import config as config_mod
+from .blender_log import BlenderLog
 from .errors import ConfigError, DataPipeError
+from .io.layout import BLENDER_LOG
 from .outdir import OutLock, OutputStateError
 
 
@@ -42,6 +44,8 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--shards", type=int, default=None, help="with --ray: number of shards")
         sp.add_argument("--retries", type=int, default=2, help="with --ray: retries of a failed shard")
         sp.add_argument("--quiet", action="store_true", help="no per-render progress lines")
+        sp.add_argument("--verbose", action="store_true", help="show Blender's own output on the terminal too "
+                        f"(it always goes to OUT/{BLENDER_LOG})")
         sp.add_argument("--debug", action="store_true", help="show the traceback of a file-system error")
         sp.add_argument("--strict", action="store_true", help="stop at a render that fails a quality gate "
                         "(black or saturated RGB, no visible part, < 1%% structured-light depth, parts lost)")
@@ -53,6 +57,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="override the demo's structured-light switch")
     v = sub.add_parser("validate", help="check a preset (mesh files imported too) and list every problem")
     v.add_argument("preset")
+    v.add_argument("--verbose", action="store_true", help="show Blender's own output (mesh imports)")
     v.add_argument("--debug", action="store_true", help="show the traceback of a file-system error")
     s = sub.add_parser("show", help="contact sheets for a run folder")
     s.add_argument("run_dir")
@@ -120,9 +125,10 @@ def _command(args) -> int:
     if args.command == "validate":
         cfg = config_mod.load(args.preset)
         cfg.validate()             # every field problem, before Blender is even imported
-        _prepare_blender()
-        from .core.preflight import preflight
-        preflight(cfg)
+        with BlenderLog(verbose=args.verbose):     # Blender's chatter is dropped, its errors shown
+            _prepare_blender()
+            from .core.preflight import preflight
+            preflight(cfg)
         from .part_fit import part_fit_warnings
         for w in part_fit_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
@@ -192,26 +198,31 @@ def _run(cfg, args, preset_path) -> int:
         run_distributed(preset_path, args.out or cfg.output.path,
                         address=None if args.ray == "local" else args.ray,
                         num_shards=args.shards, seed=args.seed, retries=args.retries,
-                        extra_args=(["--quiet"] if args.quiet else []) + (["--strict"] if args.strict else []))
+                        extra_args=(["--quiet"] if args.quiet else []) + (["--strict"] if args.strict else [])
+                        + (["--verbose"] if args.verbose else []))
         return 0
     from .core.pipeline import Pipeline
     pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
                     strict=args.strict)
     pipe.check()                    # the output folder: refusals before anything is written
-    _prepare_blender()
-    from .core.preflight import preflight
-    preflight(pipe.cfg)             # mesh files imported and measured; still nothing written
+    blender_log = BlenderLog(verbose=args.verbose)  # Blender's own output: OUT/blender.log (kept in
+    with blender_log:                               # memory until the run folder may be written)
+        _prepare_blender()
+        from .core.preflight import preflight
+        preflight(pipe.cfg)         # mesh files imported and measured; still nothing written
     t0 = time.perf_counter()
     last = None
-    with OutLock(pipe.out), _StopOnSignal(pipe):
+    with OutLock(pipe.out), _StopOnSignal(pipe), blender_log:
         pipe.check()                # again, under the lock: another run may have started meanwhile
         for last in pipe.run():
+            blender_log.log_to(pipe.out / BLENDER_LOG)   # the folder is prepared at the first event
             if not args.quiet or last.stage in ("done", "cancelled"):
                 print(last.line(), file=sys.stderr, flush=True)
         if last is not None and last.stage == "done":
             from .show import overview_after_run
             overview_after_run(pipe.out, pipe.cfg.output)
             pipe.manifest.update()  # the sheets are the run's files too
+    blender_log.close()
     if last is not None and last.stage == "cancelled":
         return 130
     print(f"dataset: {pipe.out} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")

@@ -464,9 +464,13 @@ def _wait_for_shards(ray, refs: dict, n: int, retries: int, say) -> tuple[list[d
 
 
 def _keep_logs(shards_root: Path, logs: Path, *, drop_shards: bool) -> None:
-    """Move the shard logs into OUT/logs; drop the emptied shard folders unless asked to keep them."""
+    """Move the shard logs (the runner's terminal output, SHARD.log, and Blender's own output,
+    SHARD/blender.log as SHARD.blender.log) into OUT/logs; drop the emptied shard folders unless
+    asked to keep them."""
     logs.mkdir(exist_ok=True)
     for p in sorted(shards_root.glob("*.log")):
         os.replace(p, logs / p.name)
+    for p in sorted(shards_root.glob(f"*/{layout.BLENDER_LOG}")):
+        os.replace(p, logs / f"{p.parent.name}.{layout.BLENDER_LOG}")
     if drop_shards:
         shutil.rmtree(shards_root, ignore_errors=True)

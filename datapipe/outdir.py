@@ -26,7 +26,8 @@ MANIFEST_KEY = "datapipe_manifest"     # format version marker: a foreign manife
 
 # Top-level names a run writes (native layout, BOP export, sheets, temporaries of atomic writes).
 _OWN_TOP = re.compile("^(" + "|".join(re.escape(n) for n in (
-    layout.RUN_FILE, layout.LEGACY_PICKLE, MANIFEST_FILE, layout.MODELS_DIR, layout.BOP_DIR, layout.SHEETS_DIR))
+    layout.RUN_FILE, layout.LEGACY_PICKLE, MANIFEST_FILE, layout.MODELS_DIR, layout.BOP_DIR, layout.SHEETS_DIR,
+    layout.BLENDER_LOG))
     + "|" + re.escape(layout.SCENE_PREFIX) + r"\d{4,})(\.tmp)?$")
 
 

@@ -244,6 +244,10 @@ def test_ray_real_pipeline_two_shards_with_a_kill_match_one_process(tmp_path, lo
     assert summary["scenes"] == 4 and summary["attempts"][1] == 2
     assert real_annotations(tmp_path / "out") == real_annotations(tmp_path / "single")
     assert legacy(tmp_path / "out") == legacy(tmp_path / "single")
+    logs = tmp_path / "out" / "logs"           # Blender's own output: in each shard's blender.log, kept
+    for i in range(2):                         # with the runner's log, which has none of it
+        assert "render           | Saved: '" in (logs / f"shard_000{i}_of_0002.blender.log").read_text()
+        assert "Saved: '" not in (logs / f"shard_000{i}_of_0002.log").read_text()
 
 
 def test_a_left_behind_runner_is_stopped_but_nothing_else(tmp_path):

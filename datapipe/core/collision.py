@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from ..errors import Problem
+
 CONCAVE_FILL = 0.7                 # mesh volume / hull volume below this: decompose
 COACD_SETTINGS = {"threshold": 0.05, "max_convex_hull": 16, "preprocess_mode": "auto", "seed": 0}
 CACHE_ENV = "DATAPIPE_CACHE"       # folder of the on-disk cache (default ~/.cache/datapipe)
@@ -82,6 +84,25 @@ def min_width(verts: np.ndarray) -> float:
     n = h.equations[:, :3]
     proj = v @ n.T
     return float((proj.max(axis=0) - proj.min(axis=0)).min())
+
+
+def coacd_available() -> bool:
+    """Whether this Python can import coacd (PyPI has no wheel for some platforms, e.g. Intel macOS)."""
+    try:
+        import coacd  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def missing_coacd(field: str) -> Problem:
+    """The refusal of a part that needs convex pieces where coacd cannot be imported."""
+    return Problem(field, "the part is simulated as convex pieces (a concave part with AUTO, or DECOMPOSED/MESH), "
+                   "which needs the coacd package, and this Python cannot import it",
+                   "install coacd into the Python that runs DataPipe (pip install coacd; the Blender extension "
+                   "bundles it for linux-x64, windows-x64 and macos-arm64, PyPI has no wheel of coacd >= 1.0.14 "
+                   "for macos-x64), or set this collision_shape to CONVEX_HULL (the part's hollows are then "
+                   "filled in the simulation)")
 
 
 def _key(verts: np.ndarray, tris: np.ndarray) -> str:

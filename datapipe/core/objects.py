@@ -60,7 +60,7 @@ import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
 from ..config import Config
-from ..errors import DataPipeError
+from ..errors import ConfigError, DataPipeError
 from . import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection
 
@@ -332,6 +332,8 @@ class ObjectManager:
             shape = "DECOMPOSED" if collision.is_clearly_concave(verts, tris) else "CONVEX_HULL"
         tpl.shape = "DECOMPOSED" if shape in DECOMPOSED_SHAPES else shape
         if tpl.shape == "DECOMPOSED":
+            if not collision.coacd_available():       # preflight refuses it first; the add-on's run too
+                raise ConfigError(collision.missing_coacd(f"objects[{i}].collision_shape"))
             pieces, cached = collision.decompose(verts, tris)
             self.decomposed_from_cache += int(cached)
             # the pieces move with the simulated mesh: re-centred on the centre of mass if that is

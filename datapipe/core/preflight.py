@@ -14,20 +14,22 @@ import numpy as np
 from ..config import Config, camera_distances
 from ..errors import ConfigError, Problem
 from ..sl.triangulate import intrinsics_from_blender
-from .objects import _IMPORTERS, _run_importer, remove_import_leftovers
+from . import collision
+from .objects import _IMPORTERS, DECOMPOSED_SHAPES, _run_importer, remove_import_leftovers
 
 MIN_PART_PX = 0.25       # a part narrower than this on the camera image is not in the dataset (tiny
                          # test renders go down to ~1 px parts; a wrong scale is orders of magnitude off)
 
 
-def _import_measure(path: str) -> tuple[int, int, np.ndarray]:
-    """(vertex count, face count, (V, 3) world vertices) of every mesh in the file; leaves no data."""
+def _import_measure(path: str) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """(vertex count, face count, (V, 3) world vertices, (T, 3) triangles into them) of every mesh in
+    the file; leaves no data."""
     before_objs, before_meshes = set(bpy.data.objects), set(bpy.data.meshes)
     before_colls = set(bpy.data.collections)
     try:
         _run_importer(_IMPORTERS[os.path.splitext(path)[1].lower()], path)
         new = [o for o in bpy.data.objects if o not in before_objs]
-        pts, n_faces = [], 0
+        pts, tris, n_faces, n_verts = [], [], 0, 0
         for o in new:
             if o.type == "MESH" and o.data is not None:
                 me = o.data
@@ -36,8 +38,14 @@ def _import_measure(path: str) -> tuple[int, int, np.ndarray]:
                 mw = np.array(o.matrix_world, dtype=np.float64)
                 pts.append(v.reshape(-1, 3) @ mw[:3, :3].T + mw[:3, 3])
                 n_faces += len(me.polygons)
+                me.calc_loop_triangles()
+                t = np.empty(len(me.loop_triangles) * 3, np.int32)
+                me.loop_triangles.foreach_get("vertices", t)
+                tris.append(t.reshape(-1, 3).astype(np.int64) + n_verts)
+                n_verts += len(me.vertices)
         allpts = np.concatenate(pts) if pts else np.zeros((0, 3))
-        return len(allpts), n_faces, allpts
+        alltris = np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
+        return len(allpts), n_faces, allpts, alltris
     finally:
         remove_import_leftovers(before_objs, before_meshes, before_colls)
 
@@ -64,7 +72,7 @@ def check_meshes(cfg: Config) -> list[Problem]:
             problems.append(Problem(field, f"cannot import {path}: {m}", "check that the file is a valid mesh "
                                     "file of that format"))
             continue
-        n_verts, n_faces, pts = m
+        n_verts, n_faces, pts, tris = m
         if n_verts == 0 or n_faces == 0:
             problems.append(Problem(field, f"{path} holds {n_verts} vertices and {n_faces} faces: nothing to "
                                     "render or simulate", "export the part as a polygon mesh (OBJ: 'v' and 'f' "
@@ -74,6 +82,8 @@ def check_meshes(cfg: Config) -> list[Problem]:
             problems.append(Problem(field, f"{path} has NaN or infinite vertex coordinates",
                                     "repair the mesh in a modeller and export it again"))
             continue
+        if not collision.coacd_available() and _needs_pieces(o.collision_shape, pts, tris):
+            problems.append(collision.missing_coacd(f"objects[{i}].collision_shape"))
         size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
         longest = float(size.max())
         if cfg.scene.blend_file is None and longest > float(np.linalg.norm(zone)):
@@ -86,6 +96,11 @@ def check_meshes(cfg: Config) -> list[Problem]:
                                     f"{longest * fx / far:.2g} px on the camera image from {far:.2f} m",
                                     "check the scale (file units -> metres), or move the camera closer"))
     return problems
+
+
+def _needs_pieces(shape: str, pts: np.ndarray, tris: np.ndarray) -> bool:
+    """Whether the part is simulated as convex pieces (objects.py resolves AUTO the same way)."""
+    return shape in DECOMPOSED_SHAPES or (shape == "AUTO" and collision.is_clearly_concave(pts, tris))
 
 
 def preflight(cfg: Config) -> None:

@@ -21,6 +21,7 @@ MODELS_DIR = "models"
 MODELS_INFO = "models_info.json"
 BOP_DIR = "bop"
 SHEETS_DIR = "sheets"
+BLENDER_LOG = "blender.log"          # Blender's own output (datapipe.blender_log)
 OVERVIEW_FILE = "overview.png"
 GRID_FILE = "grid.png"              # `show --grid N`: N random renders on one sheet
 SCENE_PREFIX = "scene."

@@ -3,7 +3,9 @@ with window-manager progress and a status line), or in one blocking loop when th
 (background mode: the bpy module, `blender -b`, tests), where timers never tick.
 
 One run at a time per Blender process; its state lives here (not in the .blend), so a file saved
-mid-run never believes it is still running.
+mid-run never believes it is still running. Blender's own output during each step (render
+`Saved:` lines, importer timings) goes to the run's `blender.log` (datapipe.blender_log), not the
+system console; lines Blender marks as errors are shown there as well.
 """
 from __future__ import annotations
 
@@ -12,7 +14,9 @@ import traceback
 
 import bpy
 
+from ..blender_log import BlenderLog
 from ..errors import DataPipeError
+from ..io.layout import BLENDER_LOG
 
 TICK_S = 0.05            # pause between two pipeline steps (lets Blender redraw and handle events)
 
@@ -28,6 +32,7 @@ class Run:
         self.error: str | None = None
         self.finished = False
         self.in_step = False                 # the pipeline itself may open a .blend (scene.blend_file)
+        self.blender_log = BlenderLog()
 
     # -- status -----------------------------------------------------------------------------------
     def _props(self):
@@ -59,7 +64,8 @@ class Run:
         """Advance one pipeline event. False when the run is over (finished, cancelled, failed)."""
         self.in_step = True
         try:
-            p = next(self.gen)
+            with self._capture():
+                p = next(self.gen)
         except StopIteration:
             self.finish()
             return False
@@ -74,6 +80,14 @@ class Run:
             self.in_step = False
         self.on_progress(p)
         return True
+
+    def _capture(self) -> BlenderLog:
+        """Blender's output of this step: into OUT/blender.log once the run has prepared its folder
+        (the pipeline's first event; nothing renders before it)."""
+        out = getattr(self.pipeline, "out", None)
+        if out is not None and getattr(self.pipeline, "manifest", None) is not None:
+            self.blender_log.log_to(out / BLENDER_LOG)
+        return self.blender_log
 
     def finish(self) -> None:
         self.finished = True
@@ -97,6 +111,8 @@ class Run:
 
     def fail(self, message: str) -> None:
         self.finished = True
+        if self.blender_log.path is not None:
+            message += f" (Blender's own output: {self.blender_log.path})"
         self.error = message
         self.set_status(f"Error: {message}")
         print(f"DataPipe: run failed: {message}")
@@ -145,6 +161,7 @@ def _redraw() -> None:
 
 def _end(run: Run) -> None:
     global _ACTIVE
+    run.blender_log.close()
     wm = _wm()
     if wm is not None:
         wm.progress_end()
@@ -211,6 +228,7 @@ def stop_for_unregister() -> None:
     run, _ACTIVE = _ACTIVE, None
     if run is not None and not run.finished:
         run.finished = True
+        run.blender_log.close()
         run.pipeline.cancel()
         try:
             run.gen.close()

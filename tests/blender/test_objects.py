@@ -4,6 +4,8 @@ indices, non-overlapping placement, clean-up, model geometry, importers and thei
 Ground truth comes from parsing the mesh files here, not from the code under test."""
 import base64
 import json
+import subprocess
+import sys
 from itertools import combinations
 from pathlib import Path
 
@@ -343,3 +345,42 @@ def test_reopening_a_saved_run_leaves_no_duplicates(tmp_path):
     assert not [x.name for x in [*bpy.data.objects, *bpy.data.meshes] if "." in x.name]
     insts = om.populate(np.random.default_rng(0))
     assert all(i.obj.name == i.name for i in insts)
+
+
+# -- coacd missing (no wheel on some platforms, e.g. Intel macOS): a clear error, never ModuleNotFoundError
+
+def _bracket_index(cfg) -> int:
+    return next(i for i, o in enumerate(cfg.objects) if o.filepath.endswith("bracket.obj"))
+
+
+def test_without_coacd_a_concave_part_is_refused_naming_the_field_and_the_fix(monkeypatch):
+    from datapipe.core.preflight import check_meshes
+    from datapipe.errors import ConfigError
+    cfg = default_config()
+    cfg.objects[_bracket_index(cfg)].collision_shape = "AUTO"    # clearly concave: convex pieces
+    cfg.objects[0].collision_shape = "AUTO"                      # the peg is convex: a hull, no coacd
+    field = f"objects[{_bracket_index(cfg)}].collision_shape"
+    monkeypatch.setitem(sys.modules, "coacd", None)          # `import coacd` raises ImportError
+    problems = check_meshes(cfg)
+    assert [p.path for p in problems] == [field]
+    assert "coacd" in problems[0].message and "CONVEX_HULL" in problems[0].fix
+    bs = BlendScene(cfg).setup()
+    with pytest.raises(ConfigError) as e:                    # the add-on's run reaches the objects directly
+        ObjectManager(cfg, bs).load_sources()
+    assert e.value.paths() == [field]
+    cfg.objects[_bracket_index(cfg)].collision_shape = "CONVEX_HULL"     # the fix the message names
+    assert check_meshes(cfg) == []
+
+
+def test_cli_validate_without_coacd_exits_2_with_the_fix(tmp_path):
+    from datapipe import config
+    cfg = default_config()
+    cfg.objects[_bracket_index(cfg)].collision_shape = "DECOMPOSED"
+    config.save(cfg, tmp_path / "preset.json")
+    code = ("import sys; sys.modules['coacd'] = None\n"
+            "from datapipe import cli\n"
+            f"raise SystemExit(cli.main(['validate', {str(tmp_path / 'preset.json')!r}]))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert ".collision_shape: the part is simulated as convex pieces" in r.stderr and "pip install coacd" in r.stderr
+    assert "Traceback" not in r.stderr and "ModuleNotFoundError" not in r.stderr

@@ -55,12 +55,16 @@ def _files(out: Path) -> list[str]:
                   and "sheets" not in p.parts)
 
 
-def test_run_matches_cli(d, tmp_path):
+def test_run_matches_cli(d, tmp_path, capfd):
     preset = tiny_preset(d, tmp_path)
     out_ui, out_cli = tmp_path / "ui", tmp_path / "cli"
     d.output.path = str(out_ui)
+    capfd.readouterr()
     assert bpy.ops.datapipe.run(blocking=True) == {"FINISHED"}
     assert d.status.startswith("Done: 2/2")
+    console = capfd.readouterr()                # Blender's own output: in the run's log, not the console
+    assert "| Saved: '" not in console.out + console.err
+    assert (out_ui / "blender.log").read_text().count("| Saved: '") >= 2
 
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     r = subprocess.run([sys.executable, "-m", "datapipe", "run", str(preset), "--out", str(out_cli), "--quiet"],
