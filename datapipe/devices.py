@@ -261,25 +261,44 @@ def _outside(K, T_dev_world, size, pts) -> int:
 
 
 def device_warnings(cfg) -> list[str]:
-    """Lines for `validate`: the bin outside the device's working distance, or a drop-zone corner
+    """Lines for `validate`: the bin outside the device's working distance, or drop-zone corners
     outside the camera's or the projector's image (pool poses; bin_view at its nearest distance,
-    looking straight down). Empty without a device."""
+    looking straight down), one line per kind naming every pose it concerns. Empty without a device."""
     if cfg.device is None or cfg.device not in _all():
         return []
-    from .camera_sampler import look_at_pose
-    from .geometry import T_cam_proj, camera_pose_from_config, projector_intrinsics
     dev = _all()[cfg.device]
     lo, hi = dev["working_distance"]["range"]
     label = dev["label"]
+    depths = _bin_depths(cfg)
+    far = [(w, f) for w, f, _ in depths if f > hi]
+    near = [(w, t) for w, _, t in depths if t < lo]
     out = []
-    for where, floor, top in _bin_depths(cfg):
-        if floor > hi:
-            out.append(f"{where}: the bin floor is {floor:.3f} m from the camera, beyond the {label}'s working "
-                       f"distance ({lo:g}-{hi:g} m): expect noise and holes a real {label} would not have there "
-                       "(fix: move the camera closer)")
-        if top < lo:
-            out.append(f"{where}: the top of the drop zone is {top:.3f} m from the camera, nearer than the "
-                       f"{label}'s working distance ({lo:g}-{hi:g} m) (fix: move the camera away)")
+    if far:
+        out.append(f"{_poses(far)}: the bin floor is up to {max(f for _, f in far):.3f} m from the camera, beyond the "
+                   f"{label}'s working distance ({lo:g}-{hi:g} m), where the real scanner is outside its "
+                   "specification (DataPipe does not model its defocus) (fix: move the camera closer)")
+    if near:
+        out.append(f"{_poses(near)}: the top of the drop zone is {min(t for _, t in near):.3f} m from the camera, "
+                   f"nearer than the {label}'s working distance ({lo:g}-{hi:g} m) (fix: move the camera away)")
+    outside = _outside_view(cfg)
+    if outside:
+        n, what = max(v[0] for _, v in outside), " and ".join(sorted({w for _, v in outside for w in v[1]}))
+        out.append(f"{_poses(outside)}: up to {n} of the drop zone's 8 corners lie outside {what} (the {label}'s "
+                   "field of view): parts there get no structured-light depth (fix: move the camera away or "
+                   "shrink scene.drop_zone_scale)")
+    return out
+
+
+def _poses(items) -> str:
+    """'camera.poses[0, 2]' (or the sampler's field) for [(where, value)] items."""
+    idx = [w[len("camera.poses["):-1] for w, _ in items if w.startswith("camera.poses[")]
+    return f"camera.poses[{', '.join(idx)}]" if idx else items[0][0]
+
+
+def _outside_view(cfg) -> list[tuple[str, tuple[int, list[str]]]]:
+    """[(pose, (corners outside, which images))] for the poses that lose a drop-zone corner."""
+    from .camera_sampler import look_at_pose
+    from .geometry import T_cam_proj, camera_pose_from_config, projector_intrinsics
     c = cfg.camera
     if c.sampler.kind == "bin_view":
         floor = np.asarray(cfg.scene.drop_zone_loc, float) - [0, 0, cfg.scene.drop_zone_scale[2]]
@@ -288,14 +307,13 @@ def device_warnings(cfg) -> list[str]:
         poses = [(f"camera.poses[{i}]", camera_pose_from_config(p.location, p.rotation)) for i, p in enumerate(c.poses)]
     corners = _corners(cfg)
     K, Kp, Tcp = camera_K(cfg), projector_intrinsics(cfg), T_cam_proj(cfg)
+    out = []
     for where, T_world_cam in poses:
         n_cam = _outside(K, np.linalg.inv(T_world_cam), c.resolution, corners)
         n_proj = _outside(Kp, np.linalg.inv(T_world_cam @ Tcp), cfg.projector.resolution, corners)
         if n_cam or n_proj:
-            what = " and ".join(w for w, n in (("the camera's image", n_cam), ("the projector's image", n_proj)) if n)
-            out.append(f"{where}: {max(n_cam, n_proj)} of the drop zone's 8 corners lie outside {what} "
-                       f"(the {label}'s field of view): parts there get no structured-light depth (fix: move the "
-                       "camera away or shrink scene.drop_zone_scale)")
+            which = [w for w, n in (("the camera's image", n_cam), ("the projector's image", n_proj)) if n]
+            out.append((where, (max(n_cam, n_proj), which)))
     return out
 
 
@@ -303,16 +321,20 @@ def device_warnings(cfg) -> list[str]:
 # the listing of `python -m datapipe sensors`
 
 def table() -> str:
-    rows = [("name", "device", "resolution (binning)", "FOV deg", "working distance m", "precision", "source")]
+    """One line per device: name, label, resolution (binned), field of view (degrees, and mm at the
+    optimal distance), working distance, the data sheet precision and where it comes from."""
+    rows = [("name", "device", "resolution (binned)", "FOV deg (mm @ optimal)", "working distance m",
+             "precision (data sheet)", "source")]
     for name, dev in _all().items():
         cfg = _build_cfg(config_sections(name))
         w, h = cfg.camera.resolution
         bins = ", ".join(f"{w // k}x{h // k}" for k in binning_factors(dev) if k > 1)
         fh, fv = field_of_view_deg(cfg)
-        wd = dev["working_distance"]
-        p = dev["precision"]
-        rows.append((name, dev["label"], f"{w}x{h} ({bins})", f"{fh:.1f} x {fv:.1f}",
+        wd, p = dev["working_distance"], dev["precision"]
+        mm = [2e3 * wd["optimal"] * math.tan(math.radians(a / 2)) for a in (fh, fv)]
+        rows.append((name, dev["label"], f"{w}x{h} ({bins})", f"{fh:.1f} x {fv:.1f} ({mm[0]:.0f} x {mm[1]:.0f})",
                      f"{wd['range'][0]:g}-{wd['range'][1]:g} (optimal {wd['optimal']:g})",
-                     f"{p['value'] * 1e6:.0f} um {p['metric']} @ {p['distance']:g} m", p["source"]))
+                     f"{p['value'] * 1e6:.0f} um {p['metric']} @ {p['distance']:g} m",
+                     f"{p['source']}; {dev['sources'][0]['url']}"))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]) - 1)]
     return "\n".join("  ".join(c.ljust(wd) for c, wd in zip(r, widths)) + "  " + r[-1] for r in rows)
