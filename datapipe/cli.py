@@ -125,7 +125,7 @@ def _command(args) -> int:
         _prepare_blender()
         from .core.preflight import preflight
         preflight(cfg)
-        from .devices import device_warnings
+        from .device_checks import device_warnings
         from .part_fit import part_fit_warnings
         for w in part_fit_warnings(cfg) + device_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
@@ -137,7 +137,7 @@ def _command(args) -> int:
               f"{cams}, structured light {sl_text})")
         return 0
     if args.command == "sensors":
-        from .devices import table
+        from .device_checks import table
         print(table())
         return 0
     if args.command == "show":

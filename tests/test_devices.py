@@ -8,7 +8,7 @@ import pytest
 
 from datapipe import cli
 from datapipe import config as C
-from datapipe import devices
+from datapipe import device_checks, devices
 from datapipe.errors import ConfigError
 from datapipe.sl.scanner import Scanner
 from datapipe.sl.sensor import PRESETS, SensorModel
@@ -101,7 +101,7 @@ def test_every_preset_is_complete_and_cited():
 def _warnings(name, **scene):
     d = preset(device=name)
     d["scene"].update(scene)
-    return devices.device_warnings(C.Config.from_dict(d))
+    return device_checks.device_warnings(C.Config.from_dict(d))
 
 
 def test_validate_warns_when_the_bin_is_outside_the_working_distance_or_the_view():
@@ -114,7 +114,7 @@ def test_validate_warns_when_the_bin_is_outside_the_working_distance_or_the_view
     assert len(wide) == 1 and "field of view" in wide[0] and "8 of the drop zone's 8 corners" in wide[0]
     near = _warnings("zivid2plus_m60", drop_zone_loc=[0.0, 0.0, 0.55])     # a bin 0.15 m below the camera
     assert any("nearer than the Zivid 2+ M60's working distance" in w for w in near)
-    assert devices.device_warnings(C.default_config()) == []       # no device, no warning
+    assert device_checks.device_warnings(C.default_config()) == []       # no device, no warning
 
 
 def test_sensors_command_lists_every_device(capsys):
@@ -144,5 +144,5 @@ def test_field_of_view_matches_the_published_pixel_spacing():
     """Zivid 2+: 0.32 mm between pixels at 1300 mm (the M130's published figure, same imager and
     angle per pixel) -> 2448 px span 783 mm there."""
     cfg = C.Config.from_dict(preset(device="zivid2plus_m60"))
-    fh, _ = devices.field_of_view_deg(cfg)
+    fh, _ = device_checks.field_of_view_deg(cfg)
     assert 2 * 1300 * math.tan(math.radians(fh / 2)) == pytest.approx(2448 * 0.32, rel=1e-3)

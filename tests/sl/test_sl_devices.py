@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import synth
 
-from datapipe import devices
+from datapipe import device_checks, devices
 from datapipe.config import Config
 from datapipe.geometry import T_cam_proj, projector_intrinsics
 from datapipe.sl.scanner import Scanner
@@ -35,8 +35,7 @@ def device_config(name: str, binning: int = 1) -> Config:
 def plane_captures(cfg: Config, distance: float, albedo: float, seeds=(1, 2)):
     """Two scans of a plane at `distance` (camera looking straight down at it) through the central
     WINDOW of the device's camera."""
-    from datapipe.devices import camera_K
-    K = camera_K(cfg).copy()
+    K = device_checks.camera_K(cfg).copy()
     W, H = cfg.camera.resolution
     w, h = WINDOW
     x0, y0 = (W - w) // 2, (H - h) // 2
@@ -83,7 +82,7 @@ def test_stored_full_well_is_the_calibration(name):
     """The JSON's full well is what `calibrate_full_well` solves from the data sheet figure and the
     geometry: edit a figure or the geometry and this says the new value."""
     stored = devices.device(name)["sensor"]["full_well"]
-    solved = devices.calibrate_full_well(name)
+    solved = device_checks.calibrate_full_well(name)
     assert stored == pytest.approx(solved, rel=0.01), f"{name}: set sensor.full_well to {solved:.0f}"
 
 
@@ -96,6 +95,6 @@ def test_averaging_binning_lowers_the_noise_as_predicted():
     assert cfg.camera.resolution == [1032, 772] and cfg.structured_light.sensor == "photoneo_phoxi_m_bin2"
     _, scans = plane_captures(cfg, p["distance"], p["target_albedo"])
     sigma, _ = vendor_metric(p["metric"], scans)
-    predicted = devices.predicted_precision(cfg, p["distance"])
+    predicted = device_checks.predicted_precision(cfg, p["distance"])
     assert 0.4 < sigma / p["value"] < 0.6
     assert sigma == pytest.approx(predicted, rel=0.2)
