@@ -146,12 +146,35 @@ def device_warnings(cfg) -> list[str]:
     if near:
         out.append(f"{_poses(near)}: the top of the drop zone is {min(t for _, t in near):.3f} m from the camera, "
                    f"nearer than the {label}'s working distance ({lo:g}-{hi:g} m) (fix: move the camera away)")
+    changed = _changed_fields(cfg)
+    if changed:
+        out.append(f"{', '.join(changed)}: differ from the {label}'s, so the simulated scanner is not the {label} "
+                   "its data sheet describes (fix: remove these fields from the preset to use the device's)")
     outside = _outside_view(cfg)
     if outside:
         n, what = max(v[0] for _, v in outside), " and ".join(sorted({w for _, v in outside for w in v[1]}))
         out.append(f"{_poses(outside)}: up to {n} of the drop zone's 8 corners lie outside {what} (the {label}'s "
                    "field of view): parts there get no structured-light depth (fix: move the camera away or "
                    "shrink scene.drop_zone_scale)")
+    return out
+
+
+DEVICE_FIELDS = {"camera": ("focal_length", "sensor_width", "sensor_fit", "resolution"),
+                 "projector": ("focal_length", "sensor_width", "resolution", "location", "rotation"),
+                 "structured_light": ("sensor",)}    # what makes the device: its optics and noise
+
+
+def _changed_fields(cfg) -> list[str]:
+    """The device-defining fields (DEVICE_FIELDS) a preset set to other values than its device's."""
+    fill = config_sections(cfg.device, cfg.binning)
+    out = []
+    for section, keys in DEVICE_FIELDS.items():
+        for k in keys:
+            want, got = fill[section][k], getattr(getattr(cfg, section), k)
+            same = got == want if isinstance(want, str) else np.allclose(got, want, rtol=1e-6, atol=0) \
+                if np.shape(got) == np.shape(want) else False
+            if not same:
+                out.append(f"{section}.{k}")
     return out
 
 

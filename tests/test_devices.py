@@ -117,6 +117,19 @@ def test_validate_warns_when_the_bin_is_outside_the_working_distance_or_the_view
     assert device_checks.device_warnings(C.default_config()) == []       # no device, no warning
 
 
+def test_validate_warns_when_the_preset_changes_what_makes_the_device():
+    d = preset(device="zivid2plus_m60")
+    d["camera"]["focal_length"] = 16.0                      # e.g. a camera section copied from another preset
+    d["structured_light"]["steps"] = 6                      # a decoding choice: not the device's optics
+    w = [ln for ln in device_checks.device_warnings(C.Config.from_dict(d)) if "differ" in ln]
+    assert len(w) == 1 and w[0].startswith("camera.focal_length: differ from the Zivid 2+ M60's")
+    d = preset(device="zivid2plus_m60", binning=2)
+    d["camera"]["resolution"] = [2448, 2048]                # full resolution with binning 2
+    d["projector"]["rotation"] = [1.0, 0.0, 0.0, 0.0]
+    w = [ln for ln in device_checks.device_warnings(C.Config.from_dict(d)) if "differ" in ln]
+    assert w and w[0].startswith("camera.resolution, projector.rotation: differ")
+
+
 def test_sensors_command_lists_every_device(capsys):
     assert cli.main(["sensors"]) == 0
     out = capsys.readouterr().out
