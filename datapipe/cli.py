@@ -125,9 +125,11 @@ def _command(args) -> int:
         _prepare_blender()
         from .core.preflight import preflight
         preflight(cfg)
-        from .device_checks import device_warnings
         from .part_fit import part_fit_warnings
-        for w in part_fit_warnings(cfg) + device_warnings(cfg):
+        for w in part_fit_warnings(cfg):
+            print(f"datapipe: warning: {w}", file=sys.stderr)
+        from .device_checks import device_warnings      # the bin against a device's range and view
+        for w in device_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
         cams = (f"{len(cfg.camera.poses)} camera poses" if cfg.camera.sampler.kind == "pool"
                 else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
