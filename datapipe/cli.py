@@ -1,4 +1,4 @@
-"""Headless entry points: `python -m datapipe run|demo|validate|show|bop`.
+"""Headless entry points: `python -m datapipe run|demo|validate|show|bop|sensors`.
 
 Works on the `bpy` wheel and inside Blender:
     blender -b scene.blend --python-expr "import datapipe.cli as c; c.main(['run', 'preset.json', '--out', 'out'])"
@@ -67,6 +67,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--grid", type=int, default=None, metavar="N",
                    help="instead of per-render sheets: one grid.png of N random renders")
     s.add_argument("--grid-seed", type=int, default=0, help="which renders --grid draws (default 0)")
+    sub.add_parser("sensors", help="list the real-device presets (\"device\": NAME in a preset) with their "
+                   "resolution, field of view, working distance, precision and source")
     b = sub.add_parser("bop", help="export a finished native run as a BOP dataset")
     b.add_argument("run_dir")
     b.add_argument("--out", help="BOP folder (default: RUN_DIR/bop)")
@@ -132,12 +134,19 @@ def _command(args) -> int:
         from .part_fit import part_fit_warnings
         for w in part_fit_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
+        from .device_checks import device_warnings      # the bin against a device's range and view
+        for w in device_warnings(cfg):
+            print(f"datapipe: warning: {w}", file=sys.stderr)
         cams = (f"{len(cfg.camera.poses)} camera poses" if cfg.camera.sampler.kind == "pool"
                 else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
         sl = cfg.structured_light
         sl_text = (f"on ({'; '.join(_sl_plan(cfg))})" if sl.enabled else "off")
         print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
               f"{cams}, structured light {sl_text})")
+        return 0
+    if args.command == "sensors":
+        from .device_checks import table
+        print(table())
         return 0
     if args.command == "show":
         from . import show

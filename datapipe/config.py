@@ -234,6 +234,9 @@ class Config:
     lighting: LightingConfig | None = None
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    device: str | None = None          # a real scanner (datapipe/devices.py, `python -m datapipe sensors`): fills
+                                       # camera, projector and structured_light; the preset's own fields win
+    binning: int = 1                   # the device's camera binning (resolution / binning), one it offers
     schema_version: int = SCHEMA_VERSION
 
     # -- conversion -------------------------------------------------------------------------------
@@ -253,6 +256,8 @@ class Config:
         if version != SCHEMA_VERSION:
             problems.append(Problem("schema_version", f"unsupported schema version {_short(version)}",
                                     f"use schema_version {SCHEMA_VERSION} (re-save the preset)"))
+        from .devices import apply_device
+        data = apply_device(data, problems)      # a device fills the sections the preset leaves out
         cfg = _build(cls, data, "", problems)
         if base_dir is not None:
             cfg.resolve_paths(base_dir)
@@ -914,9 +919,17 @@ def _check_materials(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
         ck.add("scene.bin_material", *problem)
 
 
+def _check_device(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
+    """device (a known scanner) and binning (one it offers)."""
+    from .devices import device_problem
+    problem = device_problem(cfg.device, cfg.binning)
+    if problem is not None:
+        ck.problems.append(problem)
+
+
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
 VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_variety, _check_projector, _check_structured_light,
-                    _check_render, _check_simulation, _check_output, _check_materials)
+                    _check_render, _check_simulation, _check_output, _check_materials, _check_device)
 
 
 def _check_exposure(sl: "StructuredLightConfig", add) -> None:

@@ -152,3 +152,13 @@ PRESETS = {
     "industrial_8bit": SensorModel(adc_bits=8, output="uint8"),
     "small_pixel": SensorModel(electrons_per_unit=3200.0, full_well=4000.0, read_noise=3.0, adc_bits=10),
 }
+
+
+def _device_sensors() -> dict:
+    """The calibrated sensor of every real-device preset (datapipe/devices.py) at each binning it
+    offers, under the name the device fills into structured_light.sensor."""
+    from ..devices import sensor_presets
+    return {name: SensorModel(**fields) for name, fields in sensor_presets().items()}
+
+
+PRESETS.update(_device_sensors())

@@ -4,7 +4,9 @@ Fields map by name, section by section; the few that differ in shape are listed 
 (periods and HDR factors as text, exposure as an auto switch + a number, output/format sets, the
 optional blend file, the projector's Euler/quaternion rotation); `camera.sampler` is a sub-group
 (`_NESTED`); the optional `lighting` section is the group `lighting` with its `enabled` switch
-(off = no section). Floats come back from Blender as float32; they are written as the shortest
+(off = no section); the top-level `device` and `binning` are the root's `device` (NONE = no device)
+and `binning`, and choosing a device fills the camera, projector and structured-light groups
+(`fill_device`). Floats come back from Blender as float32; they are written as the shortest
 decimal that round-trips in float32 (0.06, not 0.05999999865889549), so a preset saved from the
 sidebar reads exactly like one written by hand, and save -> load -> save is a fixed point.
 """
@@ -178,6 +180,8 @@ def props_to_config(props) -> C.Config:
     if props.lighting.enabled:        # off: no lighting section, the fixed key light
         cfg.lighting = C.LightingConfig(**_read_group(props.lighting, C.LightingConfig, "lighting"))
     cfg.objects = [C.ObjectEntry(**_read_group(o, C.ObjectEntry, "objects")) for o in props.objects]
+    cfg.device = None if props.device == "NONE" else props.device
+    cfg.binning = int(props.binning)
     return cfg
 
 
@@ -270,9 +274,19 @@ def config_to_props(cfg: C.Config, props) -> None:
         lighting += _plan_group(cfg.lighting, props.lighting.bl_rna, C.LightingConfig, "lighting", "lighting",
                                 problems)
     plans.append((props.lighting, lighting))
+    known = {item.identifier for item in props.bl_rna.properties["device"].enum_items}
+    if cfg.device is not None and cfg.device not in known:
+        problems.append(Problem("device", f"unknown device {cfg.device!r}", f"use one of {', '.join(sorted(known))}"))
     if problems:
         raise ConfigError(problems)
 
+    global FILLING
+    FILLING = True                    # the preset's own fields win: showing its device fills nothing
+    try:
+        props.device = cfg.device or "NONE"
+        props.binning = cfg.binning
+    finally:
+        FILLING = False
     for grp, plan in plans:
         _apply(grp, plan)
     props.objects.clear()
@@ -283,6 +297,24 @@ def config_to_props(cfg: C.Config, props) -> None:
     for plan in poses:
         _apply(props.camera.poses.add(), plan)
     props.camera.poses_index = 0
+
+
+FILLING = False      # True while config_to_props shows a preset: its device must not refill the fields
+
+
+def fill_device(props) -> None:
+    """Fill the camera, projector and structured-light fields from `props.device` at `props.binning`
+    (every other field stays). A binning the device does not offer falls back to 1, said on the console."""
+    from ..devices import binning_factors, config_sections, device
+    factors = binning_factors(device(props.device))
+    if props.binning not in factors:
+        print(f"DataPipe: binning {props.binning} is not offered by {props.device} (it offers {factors}); using 1")
+        props.binning = 1                      # its update fills
+        return
+    d = props_to_config(props).to_dict()
+    for section, fields in config_sections(props.device, props.binning).items():
+        d[section].update(fields)
+    config_to_props(C.Config.from_dict(d), props)
 
 
 def _apply(grp, plan) -> None:

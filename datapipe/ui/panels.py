@@ -250,6 +250,9 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         props = _props(context)
         sl, pr = props.structured_light, props.projector
         layout.active = sl.enabled
+        row = layout.row(align=True)                   # a real scanner fills the fields below
+        row.prop(props, "device")
+        row.prop(props, "binning", text="Bin")
         col = _fields(layout, sl, ("periods", "steps", "unwrap", "fringe_mode", "samples", "sensor",
                                    "auto_exposure"))
         sub = col.column()

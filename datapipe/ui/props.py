@@ -522,6 +522,23 @@ def _preset_items(self, context):
     return presets.enum_items()
 
 
+def _device_items():
+    """'NONE' and every real-device preset (datapipe/devices.py: JSON read, no scipy)."""
+    from ..devices import device, names
+    return [("NONE", "None", "No device: the camera, projector and structured-light fields as they are")] + \
+        [(n, device(n)["label"], f"{device(n)['label']}: fill the camera, projector and structured-light fields "
+          f"from its data sheet ({device(n)['precision']['source']}); `python -m datapipe sensors` lists them")
+         for n in names()]
+
+
+def _device_changed(self, context):
+    """Choosing a device (or its binning) fills the camera, projector and structured-light fields;
+    not while a preset is being shown (its own fields win, as in a preset file)."""
+    from . import convert
+    if self.device != "NONE" and not convert.FILLING:
+        convert.fill_device(self)
+
+
 class DATAPIPE_PG_root(PropertyGroup):
     """`Scene.datapipe`: every sidebar setting (Config sections) plus a little UI state."""
     scene: PointerProperty(type=DATAPIPE_PG_scene, name="Scene", description="Renders, seed, drop zone, bin")
@@ -539,6 +556,11 @@ class DATAPIPE_PG_root(PropertyGroup):
     simulation: PointerProperty(type=DATAPIPE_PG_simulation, name="Simulation",
                                 description="Rigid-body drop settings")
     output: PointerProperty(type=DATAPIPE_PG_output, name="Output", description="Output folder and formats")
+    device: EnumProperty(name="Device", description="A real structured-light scanner: choosing it fills the camera, "
+                         "projector and structured-light fields (any field can be changed afterwards)",
+                         items=_device_items(), default="NONE", update=_device_changed)
+    binning: IntProperty(name="Binning", description="The device's camera binning (resolution / binning), one "
+                         "it offers (`python -m datapipe sensors`)", min=1, max=4, default=1, update=_device_changed)
 
     # UI state (not part of the Config)
     preset: EnumProperty(name="Preset", description="Built-in (read-only) and user presets",

@@ -69,6 +69,7 @@ def test_zip_contents_and_validator(extension_zip):
         manifest = z.read("blender_manifest.toml").decode()
     assert "__init__.py" in names and "ui/__init__.py" in names and "config.py" in names
     assert "presets/default.json" in names and "presets/thesis_sensor.json" in names
+    assert "presets/devices/zivid2plus_m60.json" in names          # the real-device presets (datapipe.devices)
     assert "assets/peg.obj" in names
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc")]
     wheels = [n for n in names if n.endswith(".whl")]
