@@ -88,7 +88,7 @@ _IMPORTERS = {
 class Instance:
     """One part in the current scene."""
     obj: bpy.types.Object
-    entry_index: int           # index into cfg.objects (obj_id = entry_index + 1)
+    entry_index: int           # index into cfg.objects (obj_id = cfg.obj_id(entry_index))
     name: str                  # f"{entry_name}_{k:03d}"
     filename: str              # the source mesh file (absolute path)
     mask_index: int            # = obj.pass_index, 1..n within the scene
