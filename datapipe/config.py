@@ -28,7 +28,7 @@ from .io.files import write_text_atomic
 SCHEMA_VERSION = 1
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
-OUTPUT_KINDS = ("rgb", "depth", "normals", "mask")
+OUTPUT_KINDS = ("rgb", "depth", "normals", "mask", "object_coords")   # object_coords: only when listed
 FORMATS = ("native", "bop")
 ENGINES = ("CYCLES",)
 DEVICES = ("CPU", "GPU")
@@ -203,7 +203,7 @@ class RenderConfig:
     persistent_data: bool = False      # keep Cycles' scene data between the renders of a scene
     max_bounces: int = 4
     light_power: float = 50.0          # W, area light above the bin (the scene's key light)
-    outputs: list[str] = _vec(*OUTPUT_KINDS)
+    outputs: list[str] = _vec(*OUTPUT_KINDS[:4])
 
 
 @dataclass
