@@ -587,7 +587,10 @@ def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -
 def _check_bop_entry(ck: _Checks, p: str, o: ObjectEntry, check_files: bool) -> None:
     from .errors import DataPipeError
     from .io.bop_models import bop_ids
-    if not o.bop_models:
+    if not (isinstance(o.bop_obj_ids, list) and all(isinstance(i, int) and i >= 1 for i in o.bop_obj_ids)):
+        ck.add(f"{p}.bop_obj_ids", f"expected a list of object ids >= 1, got {_short(o.bop_obj_ids)}",
+               "list BOP object ids, e.g. [1, 5, 7], or [] for all")
+    elif not o.bop_models:
         ck.add(f"{p}.bop_models", "empty, but bop_obj_ids is given", "give the BOP dataset's models folder")
     elif o.filepath:
         ck.add(f"{p}.filepath", "given together with bop_models", "give either a mesh file or a BOP models "

@@ -50,6 +50,9 @@ def read_models_info(models_dir: str | os.PathLike, field: str) -> dict[int, dic
 
 def bop_ids(entry, field: str) -> list[int]:
     """The BOP object ids an entry with `bop_models` stands for, each checked to have its PLY."""
+    if not (isinstance(entry.bop_obj_ids, list) and all(isinstance(i, int) for i in entry.bop_obj_ids)):
+        raise DataPipeError(f"{field}.bop_obj_ids: expected a list of object ids, got {entry.bop_obj_ids!r} "
+                            "(fix: e.g. [1, 5, 7], or [] for all)")
     info = read_models_info(entry.bop_models, f"{field}.bop_models")
     ids = [int(i) for i in entry.bop_obj_ids] if entry.bop_obj_ids else sorted(info)
     if not ids:
