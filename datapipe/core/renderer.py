@@ -196,6 +196,14 @@ class Renderer:
         self.tree.links.new(socket, compat.file_output_add_input(self.file_output, item, socket_type))
         self._items[item] = (view_layer.name, pass_kind, socket_type)
 
+    def teardown(self) -> None:
+        """Remove the object-coordinate view layer (a layer of its own, not the native one)."""
+        layers = self.scene.view_layers
+        vl = layers.get(object_coords.COORDS_LAYER)
+        if vl is not None and vl != self.view_layer and len(layers) > 1:
+            layers.remove(vl)
+        self.coords_layer = None
+
     # -- once per render --------------------------------------------------------------------------
     def render(self, render_dir: str | os.PathLike, seed: int) -> RenderOutput:
         """Render the current camera pose with Cycles seed `seed`; write the requested files into

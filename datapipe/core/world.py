@@ -164,11 +164,13 @@ class BlenderWorld:
         self.objects.clear()
 
     def close(self) -> None:
-        """Remove the projector lights, patterns and fringe layers (nothing left in the user's scene)
-        and render the scene's other objects again."""
+        """Remove the projector lights, patterns, fringe layers and the object-coordinate layer
+        (nothing left in the user's scene) and render the scene's other objects again."""
         if self.sl is not None:
             self.sl.teardown()
             self.sl = None
+        if getattr(self, "renderer", None) is not None:
+            self.renderer.teardown()
         if self.blend is not None:
             self.blend.restore_other_objects()
 

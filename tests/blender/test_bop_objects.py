@@ -4,6 +4,7 @@ maps; the BOP export keeps the source's ids, diameters and symmetries, and the m
 the z-buffer (an independent pass) at the pixel centres."""
 import json
 
+import bpy
 import numpy as np
 
 from datapipe.exr import read_depth, read_exr, read_mask
@@ -24,6 +25,7 @@ def test_bop_models_in_object_coords_out(tmp_path):
     cfg.output.formats = ["native", "bop"]
     out = tmp_path / "out"
     run(cfg, out)
+    assert [vl.name for vl in bpy.context.scene.view_layers] == ["datapipe"]     # its layer removed after
 
     # models: ids, diameters and symmetries are the source's
     source = json.loads((src / "models_info.json").read_text())
