@@ -61,6 +61,7 @@ from mathutils import Matrix, Quaternion, Vector
 
 from ..config import Config
 from ..errors import DataPipeError
+from ..io.bop_models import entry_field
 from . import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection
 
@@ -221,7 +222,7 @@ class ObjectManager:
 
     def _import(self, i: int, path: str) -> bpy.types.Object:
         """Read one file; return one mesh object (world transform baked, parent-free) in the scene."""
-        field = f"objects[{i}].filepath"
+        field = f"{entry_field(self.cfg.objects[i], i)}.filepath"     # a BOP entry: the preset's field
         ext = Path(path).suffix.lower()
         kind = _IMPORTERS.get(ext)
         if kind is None:

@@ -20,8 +20,7 @@ import os
 from pathlib import Path
 
 from ..errors import DataPipeError
-
-MODELS_INFO = "models_info.json"
+from .layout import MODELS_INFO
 SYMMETRY_KEYS = ("symmetries_discrete", "symmetries_continuous")
 
 
