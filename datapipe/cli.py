@@ -74,6 +74,11 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--out", help="BOP folder (default: RUN_DIR/bop)")
     b.add_argument("--depth-scale", type=float, default=0.1, help="mm per depth PNG unit (default 0.1)")
     b.add_argument("--chunk-size", type=int, default=1000, help="images per BOP scene folder (default 1000)")
+    b.add_argument("--split", default="train_pbr", help="split folder name (default train_pbr, as the official "
+                   "physically based training splits)")
+    b.add_argument("--rgb-format", choices=("jpg", "png"), default="jpg", help="RGB files (default jpg, as "
+                   "the official train_pbr splits)")
+    b.add_argument("--jpg-quality", type=int, default=95, help="JPEG quality 1..100 (default 95)")
     return p
 
 
@@ -159,7 +164,8 @@ def _command(args) -> int:
         from .io.bop import export_bop
         from .io.layout import BOP_DIR
         out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
-        export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size)
+        export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size,
+                   split=args.split, rgb_format=args.rgb_format, jpg_quality=args.jpg_quality)
         print(f"BOP dataset written to {out}")
         return 0
     if args.command == "demo":

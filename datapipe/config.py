@@ -28,7 +28,7 @@ from .io.files import write_text_atomic
 SCHEMA_VERSION = 1
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
-OUTPUT_KINDS = ("rgb", "depth", "normals", "mask")
+OUTPUT_KINDS = ("rgb", "depth", "normals", "mask", "object_coords")   # object_coords: only when listed
 FORMATS = ("native", "bop")
 ENGINES = ("CYCLES",)
 DEVICES = ("CPU", "GPU")
@@ -97,6 +97,13 @@ class ObjectEntry:
     name: str = ""                     # defaults to the file stem
     material: Any = "file"             # "file" (what the mesh carries), a preset name, a dict of
                                        # Principled BSDF values, or a list drawn per instance (core/materials.py)
+    bop_models: str = ""               # instead of filepath: a BOP dataset's models folder (obj_XXXXXX.ply
+                                       # in mm + models_info.json); one entry per object (io/bop_models.py)
+    bop_obj_ids: list[int] = field(default_factory=list)   # ... its objects to drop; [] = all
+    obj_id: int = 0                    # the id exported (scene.json, BOP); 0 = position + 1 (BOP: its own)
+    symmetries: Any = "auto"           # models_info.json symmetries: "auto" (BOP: the source's, else
+                                       # detected), "detect", {"tolerance": f}, "none", or a dict of
+                                       # symmetries_discrete / symmetries_continuous (mm) (io/symmetry.py)
 
 
 @dataclass
@@ -196,7 +203,7 @@ class RenderConfig:
     persistent_data: bool = False      # keep Cycles' scene data between the renders of a scene
     max_bounces: int = 4
     light_power: float = 50.0          # W, area light above the bin (the scene's key light)
-    outputs: list[str] = _vec(*OUTPUT_KINDS)
+    outputs: list[str] = _vec(*OUTPUT_KINDS[:4])
 
 
 @dataclass
@@ -273,6 +280,8 @@ class Config:
         for obj in self.objects:
             if obj.filepath and not os.path.isabs(obj.filepath):
                 obj.filepath = str((base / obj.filepath).resolve())
+            if obj.bop_models and not os.path.isabs(obj.bop_models):
+                obj.bop_models = str((base / obj.bop_models).resolve())
         if self.scene.blend_file and not os.path.isabs(self.scene.blend_file):
             self.scene.blend_file = str((base / self.scene.blend_file).resolve())
 
@@ -292,7 +301,11 @@ class Config:
     # -- derived values ---------------------------------------------------------------------------
     def object_name(self, index: int) -> str:
         obj = self.objects[index]
-        return obj.name or Path(obj.filepath).stem
+        return obj.name or Path(obj.filepath or obj.bop_models).stem
+
+    def obj_id(self, index: int) -> int:
+        """The id entry `index` exports (after io.bop_models.expand_bop_objects)."""
+        return int(self.objects[index].obj_id) or index + 1
 
 
 # ------------------------------------------------------------------------------------------------
@@ -576,12 +589,61 @@ def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -
                "preset's folder)")
 
 
+def _check_bop_entry(ck: _Checks, p: str, o: ObjectEntry, check_files: bool) -> None:
+    from .errors import DataPipeError
+    from .io.bop_models import bop_ids
+    if not (isinstance(o.bop_obj_ids, list) and all(isinstance(i, int) and i >= 1 for i in o.bop_obj_ids)):
+        ck.add(f"{p}.bop_obj_ids", f"expected a list of object ids >= 1, got {_short(o.bop_obj_ids)}",
+               "list BOP object ids, e.g. [1, 5, 7], or [] for all")
+    elif not o.bop_models:
+        ck.add(f"{p}.bop_models", "empty, but bop_obj_ids is given", "give the BOP dataset's models folder")
+    elif o.filepath:
+        ck.add(f"{p}.filepath", "given together with bop_models", "give either a mesh file or a BOP models "
+               "folder per entry")
+    elif check_files:
+        try:
+            bop_ids(o, p)
+        except DataPipeError as e:
+            ck.add(*_split_field(str(e)))
+
+
+def _split_field(message: str) -> tuple[str, str, str]:
+    """'field: what (fix: how)' -> (field, what, how)."""
+    field, _, rest = message.partition(": ")
+    what, fix = _split_fix(rest)
+    return field, what, fix or "see docs/DATASETS.md"
+
+
+def _check_symmetries(ck: _Checks, p: str, s) -> None:
+    from .errors import DataPipeError
+    from .io.symmetry import check_symmetries
+    if isinstance(s, dict) and set(s) == {"tolerance"}:
+        if not (_is_number(s["tolerance"]) and 0 < s["tolerance"] < 0.5):
+            ck.add(f"{p}.symmetries.tolerance", f"got {_short(s['tolerance'])}", "give a fraction of the "
+                   "diameter in (0, 0.5), e.g. 0.01")
+    elif isinstance(s, dict):
+        try:
+            check_symmetries(s, f"{p}.symmetries")
+        except DataPipeError as e:
+            ck.add(*_split_field(str(e)))
+    elif s not in ("auto", "detect", "none"):
+        ck.add(f"{p}.symmetries", f"unknown value {_short(s)}", "use \"auto\", \"detect\", \"none\", "
+               "{\"tolerance\": 0.01} or a dict of symmetries_discrete / symmetries_continuous")
+
+
 def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if not cfg.objects:
         ck.add("objects", "no objects to drop", "add at least one object entry (a mesh file)")
     for i, o in enumerate(cfg.objects):
         p = f"objects[{i}]"
-        _check_mesh_path(ck, f"{p}.filepath", o.filepath, check_files)
+        if o.bop_models or o.bop_obj_ids:
+            _check_bop_entry(ck, p, o, check_files)
+        else:
+            _check_mesh_path(ck, f"{p}.filepath", o.filepath, check_files)
+        _check_symmetries(ck, p, o.symmetries)
+        if o.obj_id < 0:
+            ck.add(f"{p}.obj_id", f"must be >= 0, got {o.obj_id}", "give a BOP object id >= 1, or 0 for the "
+                   "entry's position + 1")
         ck.positive(f"{p}.scale", o.scale)
         ck.positive(f"{p}.mass", o.mass)
         ck.choice(f"{p}.collision_shape", o.collision_shape, COLLISION_SHAPES)
@@ -593,9 +655,17 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
             ck.add(f"{p}.friction", f"must be >= 0, got {o.friction}", "give a friction >= 0")
         if not 0 <= o.restitution <= 1:
             ck.add(f"{p}.restitution", f"must be in 0..1, got {o.restitution}", "give a restitution in 0..1")
+    if check_files:
+        from .io.bop_models import planned_obj_ids
+        ids: dict[int, str] = {}
+        for origin, k in planned_obj_ids(cfg):
+            if k in ids:
+                ck.add(origin.split(" ")[0] + ".obj_id", f"obj_id {k} is also the id of {ids[k]}",
+                       "give each object a unique obj_id (0: its position + 1)")
+            ids.setdefault(k, origin)
     seen: dict[str, int] = {}
     for i, o in enumerate(cfg.objects):
-        name = o.name or Path(o.filepath).stem
+        name = o.name or Path(o.filepath or o.bop_models).stem
         if name in seen:
             ck.add(f"objects[{i}].name", f"name {name!r} is already used by objects[{seen[name]}] (instance names "
                    "and annotations would collide)", "give this entry a unique name")

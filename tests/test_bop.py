@@ -149,7 +149,7 @@ def test_every_file_and_field(bop, native_run):
         assert len(cam_e["cam_K"]) == 9 and len(cam_e["cam_R_w2c"]) == 9 and len(cam_e["cam_t_w2c"]) == 3
         assert all(isinstance(x, float) for x in cam_e["cam_K"] + cam_e["cam_R_w2c"] + cam_e["cam_t_w2c"])
         stem = f"{im_id:06d}"
-        rgb = ref_png(cdir / "rgb" / f"{stem}.png")
+        rgb = ref_png(cdir / "rgb" / f"{stem}.jpg")                          # train_pbr: JPEG
         assert rgb.shape == (240, 320, 3) and rgb.dtype == np.uint8
         for sub in ("depth", "depth_sl"):
             d = ref_png(cdir / sub / f"{stem}.png")
@@ -319,7 +319,7 @@ def test_chunking(native_run, tmp_path):
     for c in chunks:
         gt = ref_load_json(root / "train_pbr" / c / "scene_gt.json")
         assert sorted(gt) == [0, 1]
-        assert sorted(p.name for p in (root / "train_pbr" / c / "rgb").iterdir()) == ["000000.png", "000001.png"]
+        assert sorted(p.name for p in (root / "train_pbr" / c / "rgb").iterdir()) == ["000000.jpg", "000001.jpg"]
         meta = ref_load_json(root / "train_pbr" / c / "datapipe.json")
         for im_id, m in meta.items():
             seen[m["image_id"]] = (int(c), im_id)
@@ -343,7 +343,10 @@ def test_incremental_scenes_survive_a_restart(native_run, tmp_path):
     ref = tmp_path / "ref"
     export_bop(native_run, ref)
     for name in ("scene_camera", "scene_gt", "scene_gt_info", "scene_gt_coco"):
-        assert ref_load_json(root / f"train_pbr/000000/{name}.json") == ref_load_json(ref / f"train_pbr/000000/{name}.json")
+        a, b = (ref_load_json(r / f"train_pbr/000000/{name}.json") for r in (root, ref))
+        for d in (a, b):
+            d.get("info", {}).pop("date_created", None)           # when each was made
+        assert a == b
 
 
 def test_incomplete_scene_and_missing_model_are_clear_errors(native_run, tmp_path):
@@ -467,3 +470,58 @@ def test_real_tiny_run_exports_to_bop(tmp_path):
                 checked += 1
                 assert mv[px[vis, 1], px[vis, 0]].mean() > 0.9, (image_id, gt_id)
     assert checked >= 1
+
+
+def psnr(a, b):
+    return 10 * np.log10(255.0 ** 2 / np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+
+
+def test_rgb_jpeg_quality_and_png(bop, native_run, tmp_path):
+    """JPEG at the default quality 95 stays close to the native PNG; a lower quality is further
+    from it (the setting reaches the encoder); rgb_format png copies the native file exactly."""
+    root = tmp_path / "bop"
+    export_bop(native_run, root / "q50", jpg_quality=50)
+    export_bop(native_run, root / "png", rgb_format="png")
+    for image_id, cdir, im_id, *_ in iter_gt(bop):
+        *_, rdir = analytic_truth(native_run, image_id)
+        native = ref_png(rdir / "rgb.png")
+        q95 = ref_png(cdir / "rgb" / f"{im_id:06d}.jpg")
+        q50 = ref_png(root / "q50" / cdir.relative_to(bop) / "rgb" / f"{im_id:06d}.jpg")
+        assert psnr(native, q95) > 38 and psnr(native, q95) > psnr(native, q50) + 3
+        png = root / "png" / cdir.relative_to(bop) / "rgb" / f"{im_id:06d}.png"
+        assert png.read_bytes() == (rdir / "rgb.png").read_bytes()
+    coco = json.loads((root / "png/train_pbr/000000/scene_gt_coco.json").read_text())
+    assert all(im["file_name"].endswith(".png") for im in coco["images"])
+    with pytest.raises(DataPipeError, match="jpg_quality"):
+        export_bop(native_run, root / "bad", jpg_quality=0)
+    with pytest.raises(DataPipeError, match="rgb_format"):
+        export_bop(native_run, root / "bad", rgb_format="tif")
+    assert not (root / "bad").exists()
+
+
+def test_coco_info_block(bop):
+    import datetime
+    info = json.loads((bop / "train_pbr/000000/scene_gt_coco.json").read_text())["info"]
+    assert {"description", "url", "version", "year", "contributor", "date_created"} <= set(info)
+    created = datetime.datetime.fromisoformat(info["date_created"])
+    assert info["year"] == created.year and created.tzinfo is not None
+    assert abs((datetime.datetime.now(datetime.timezone.utc) - created).total_seconds()) < 3600
+
+
+def test_models_eval_cover_the_models_at_the_toolkit_spacing(bop):
+    """models_eval/: every point of each model's surface within 1 mm (bop_toolkit's sampling
+    distance) of an eval point, eval points on the model's surface, same models_info.json."""
+    from scipy.spatial import cKDTree
+    from datapipe.io.symmetry import point_triangle_distance, sample_surface
+    assert (bop / "models_eval/models_info.json").read_bytes() == (bop / "models/models_info.json").read_bytes()
+    rng = np.random.default_rng(3)
+    for obj_id in (1, 2, 3):
+        V, F = ref_read_ply(bop / "models" / f"obj_{obj_id:06d}.ply")
+        Ve, Fe = ref_read_ply(bop / "models_eval" / f"obj_{obj_id:06d}.ply")
+        surface, _ = sample_surface(V[:, :3], F, 50_000, rng)
+        gap, _ = cKDTree(Ve[:, :3]).query(surface)
+        assert gap.max() <= 1.0, (obj_id, gap.max())
+        some = Ve[rng.choice(len(Ve), size=min(len(Ve), 500), replace=False), :3]
+        d = point_triangle_distance(some[:, None, :], V[:, :3][F][None]).min(axis=1)
+        assert d.max() < 1e-3                                  # on the surface (float32 PLY)
+        assert len(Fe) > 0 and np.linalg.norm(Ve[:, 3:6], axis=1) == pytest.approx(1, abs=1e-5)

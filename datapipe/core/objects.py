@@ -61,6 +61,7 @@ from mathutils import Matrix, Quaternion, Vector
 
 from ..config import Config
 from ..errors import ConfigError, DataPipeError
+from ..io.bop_models import entry_field
 from . import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection
 
@@ -88,7 +89,7 @@ _IMPORTERS = {
 class Instance:
     """One part in the current scene."""
     obj: bpy.types.Object
-    entry_index: int           # index into cfg.objects (obj_id = entry_index + 1)
+    entry_index: int           # index into cfg.objects (obj_id = cfg.obj_id(entry_index))
     name: str                  # f"{entry_name}_{k:03d}"
     filename: str              # the source mesh file (absolute path)
     mask_index: int            # = obj.pass_index, 1..n within the scene
@@ -221,7 +222,7 @@ class ObjectManager:
 
     def _import(self, i: int, path: str) -> bpy.types.Object:
         """Read one file; return one mesh object (world transform baked, parent-free) in the scene."""
-        field = f"objects[{i}].filepath"
+        field = f"{entry_field(self.cfg.objects[i], i)}.filepath"     # a BOP entry: the preset's field
         ext = Path(path).suffix.lower()
         kind = _IMPORTERS.get(ext)
         if kind is None:

@@ -25,6 +25,7 @@ from ..physics_check import add_to_totals, physics_line, totals_line
 from ..quality import render_warnings
 from ..io import layout, native
 from ..io.files import read_json, write_json_atomic
+from ..io.bop_models import expand_bop_objects, models_symmetries
 from ..io.models import write_models
 from ..io.writers import Writers, open_writers
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
@@ -96,6 +97,7 @@ class Pipeline:
     def check(self) -> None:
         """Raise ConfigError/DataPipeError for bad input or a refused output folder. Writes nothing."""
         self.cfg.validate()
+        self.cfg = expand_bop_objects(self.cfg)      # one entry per object of a BOP models folder
         if self.out.exists() and not self.out.is_dir():
             raise DataPipeError(f"output: {self.out} exists and is not a folder (fix: choose a folder path)")
         if self.out.is_dir() and outdir.meaningful_entries(self.out):
@@ -170,7 +172,8 @@ class Pipeline:
         world = self.make_world(self.cfg, self.out)
         try:
             world.setup()
-            write_models(self.out / layout.MODELS_DIR, world.model_meshes())
+            meshes = world.model_meshes()
+            write_models(self.out / layout.MODELS_DIR, meshes, symmetries=models_symmetries(self.cfg, meshes))
         except BaseException:
             world.close()
             raise

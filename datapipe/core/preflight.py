@@ -13,6 +13,7 @@ import numpy as np
 
 from ..config import Config, camera_distances
 from ..errors import ConfigError, Problem
+from ..io.bop_models import entry_field, expand_bop_objects
 from ..sl.triangulate import intrinsics_from_blender
 from . import collision
 from .objects import _IMPORTERS, DECOMPOSED_SHAPES, _run_importer, remove_import_leftovers
@@ -60,7 +61,7 @@ def check_meshes(cfg: Config) -> list[Problem]:
                                        c.sensor_fit, sensor_height_mm=c.sensor_width)[0, 0])
     far = max(camera_distances(cfg))
     for i, o in enumerate(cfg.objects):
-        field = f"objects[{i}].filepath"
+        field = f"{entry_field(o, i)}.filepath"
         path = os.path.abspath(o.filepath)
         if path not in measured:
             try:
@@ -87,12 +88,12 @@ def check_meshes(cfg: Config) -> list[Problem]:
         size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
         longest = float(size.max())
         if cfg.scene.blend_file is None and longest > float(np.linalg.norm(zone)):
-            problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}, "
+            problems.append(Problem(f"{entry_field(o, i)}.scale", f"the part is {longest:.3g} m long at scale {o.scale:g}, "
                                     f"longer than the drop zone's diagonal ({np.linalg.norm(zone):.3g} m)",
                                     "check the scale (file units -> metres: mm files need 0.001) or enlarge "
                                     "scene.drop_zone_scale"))
         elif longest * fx / far < MIN_PART_PX:
-            problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}: "
+            problems.append(Problem(f"{entry_field(o, i)}.scale", f"the part is {longest:.3g} m long at scale {o.scale:g}: "
                                     f"{longest * fx / far:.2g} px on the camera image from {far:.2f} m",
                                     "check the scale (file units -> metres), or move the camera closer"))
     return problems
@@ -106,6 +107,6 @@ def _needs_pieces(shape: str, pts: np.ndarray, tris: np.ndarray) -> bool:
 def preflight(cfg: Config) -> None:
     """Every input check, Blender's included: ConfigError when anything would fail or be useless."""
     cfg.validate()
-    problems = check_meshes(cfg)
+    problems = check_meshes(expand_bop_objects(cfg))
     if problems:
         raise ConfigError(problems)

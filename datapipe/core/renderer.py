@@ -11,6 +11,8 @@ back, writes the final files of docs/ARCHITECTURE.md and deletes it:
     depth.exr    "Z": planar depth along the camera z axis, m; NaN where no surface was hit
     normals.exr  "X","Y","Z": unit normals in the OpenCV camera frame; 0 where nothing was hit
     mask.exr     "Y": the pass_index of the visible object (0 = background)
+    object_coords.exr  "X","Y","Z": model coordinates (m) of the part at the pixel centre; NaN off
+                 parts (only when asked for: shader AOVs, see core/object_coords.py)
 
 Facts verified by rendering with bpy 5.0.1 (tests/blender/test_renderer.py keeps them checked):
 EXR row 0 is the top of the image; Cycles' Z pass is planar depth (not ray length); depth and
@@ -32,10 +34,11 @@ import numpy as np
 
 import bpy
 
-from . import compat
+from . import compat, object_coords
 from ..config import Config
 from ..errors import DataPipeError
 from ..io.native import write_render_maps
+from .objects import OBJECTS_COLLECTION
 
 NATIVE_LAYER = "datapipe"
 TEMP_BASENAME = "_passes"           # the File Output's per-render multilayer EXR (no braces!)
@@ -49,7 +52,9 @@ _NATIVE_ITEMS = {
     "mask": ("IndexOB", "index", "FLOAT"),
 }
 _PASS_FLAGS = {"depth": "use_pass_z", "normals": "use_pass_normal", "mask": "use_pass_object_index"}
-_OUTPUTS = ("rgb", "depth", "normals", "mask")   # in the order their files are written and annotated
+_OUTPUTS = ("rgb", "depth", "normals", "mask", "object_coords")   # the order their files are written in
+# object_coords: File Output layer -> (AOV, socket type); see core/object_coords.py
+_COORD_ITEMS = {"ObjectXYZ": (object_coords.COORDS_AOV, "RGBA"), "ObjectHit": (object_coords.HIT_AOV, "FLOAT")}
 _CHANNELS = {"FLOAT": ("V",), "VECTOR": ("X", "Y", "Z"), "RGBA": ("R", "G", "B", "A")}
 
 
@@ -61,6 +66,7 @@ class RenderOutput:
     mask: np.ndarray | None = None              # (H, W) int32 pass_index, 0 = background
     normals: np.ndarray | None = None           # (H, W, 3) float32, OpenCV camera frame
     rgb: np.ndarray | None = None               # (H, W, 3) uint8 sRGB
+    object_coords: np.ndarray | None = None     # (H, W, 3) float32 model coordinates, m; NaN off parts
     seconds: float = 0.0                        # wall time of the Cycles render itself
     T_world_cam: np.ndarray | None = None       # camera pose the render was made from
 
@@ -85,6 +91,7 @@ class Renderer:
         self.camera = camera
         self.outputs: list[str] = [k for k in _OUTPUTS if k in cfg.render.outputs]
         self.view_layer = None
+        self.coords_layer = None                         # the view layer of the object_coords AOVs
         self.device: str | None = None                   # set by setup(): "CPU" or the GPU backend
         self.tree = None
         self.file_output = None
@@ -146,6 +153,17 @@ class Renderer:
         # RGB output the extra samples would only be averaged into the normals.
         vl.samples = 0 if "rgb" in self.outputs else 1
         self.view_layer = vl
+        old = layers.get(object_coords.COORDS_LAYER)
+        if "object_coords" in self.outputs:
+            # one sample, so the pixel centre (see core/object_coords.py): the native layer when it
+            # has one sample, else a layer of its own in the same render call
+            if vl.samples == 1:
+                object_coords.add_aovs(vl)
+                self.coords_layer = vl
+            else:
+                self.coords_layer = object_coords.coords_layer(self.scene)
+        if old is not None and old != self.coords_layer:       # from an earlier run saved in the .blend
+            layers.remove(old)
 
     def _build_compositor(self) -> None:
         self.tree = compat.compositor_tree(self.scene, clear=True)
@@ -155,6 +173,10 @@ class Renderer:
         rl = self._render_layers(self.view_layer)
         compat.add_compositor_sink(self.tree, compat.rl_socket(rl, "image"))
         for kind in self.outputs:
+            if kind == "object_coords":
+                for item, (aov, socket_type) in _COORD_ITEMS.items():
+                    self._link(self.coords_layer, item, aov, socket_type)
+                continue
             item, pass_kind, socket_type = _NATIVE_ITEMS[kind]
             self._link(self.view_layer, item, pass_kind, socket_type)
 
@@ -174,6 +196,14 @@ class Renderer:
         self.tree.links.new(socket, compat.file_output_add_input(self.file_output, item, socket_type))
         self._items[item] = (view_layer.name, pass_kind, socket_type)
 
+    def teardown(self) -> None:
+        """Remove the object-coordinate view layer (a layer of its own, not the native one)."""
+        layers = self.scene.view_layers
+        vl = layers.get(object_coords.COORDS_LAYER)
+        if vl is not None and vl != self.view_layer and len(layers) > 1:
+            layers.remove(vl)
+        self.coords_layer = None
+
     # -- once per render --------------------------------------------------------------------------
     def render(self, render_dir: str | os.PathLike, seed: int) -> RenderOutput:
         """Render the current camera pose with Cycles seed `seed`; write the requested files into
@@ -191,6 +221,9 @@ class Renderer:
                                 "whose path has no '{' or '}')") from None
         self.scene.cycles.seed = int(seed) & 0x7FFFFFFF
         T_world_cam = self.camera.T_world_cam()
+        if "object_coords" in self.outputs:        # the materials of this scene's parts
+            coll = bpy.data.collections.get(OBJECTS_COLLECTION)
+            object_coords.prepare_parts(coll.all_objects if coll is not None else [])
 
         t0 = time.perf_counter()
         bpy.ops.render.render(write_still=False, scene=self.scene.name)
@@ -226,6 +259,11 @@ class Renderer:
             out.depth = z
         if "mask" in self.outputs:
             out.mask = np.rint(self._layer(channels, "IndexOB")).astype(np.int32)
+        if "object_coords" in self.outputs:
+            hit = self._layer(channels, "ObjectHit") == 1.0        # one sample: exactly 1 on a part
+            xyz = self._layer(channels, "ObjectXYZ").astype(np.float32)
+            xyz[~hit] = np.nan
+            out.object_coords = xyz
         if "normals" in self.outputs:
             n_world = self._layer(channels, "Normal").astype(np.float64)
             n_cam = n_world @ T_world_cam[:3, :3]              # R_wc^T n, row-vector form
@@ -244,4 +282,6 @@ class Renderer:
             maps["normals"] = {c: out.normals[..., i] for i, c in enumerate("XYZ")}
         if out.mask is not None:
             maps["mask"] = {"Y": out.mask.astype(np.float32)}
+        if out.object_coords is not None:
+            maps["object_coords"] = {c: out.object_coords[..., i] for i, c in enumerate("XYZ")}
         return write_render_maps(render_dir, maps)

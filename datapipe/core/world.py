@@ -26,7 +26,7 @@ class Part:
     """One object instance of a scene, as the annotations name it."""
     name: str               # "{entry name}_{k:03d}", numbered within the scene
     filename: str           # the mesh file it was imported from
-    obj_id: int             # index of its Config.objects entry + 1
+    obj_id: int             # its Config.objects entry's obj_id (Config.obj_id)
     mask_index: int         # its pass index in mask.exr (1..n; 0 = background)
     material: str = "file"  # the material label it was given (core/materials.py; "file": the mesh's own)
 
@@ -120,7 +120,7 @@ class BlenderWorld:
 
     def model_meshes(self) -> dict:
         """{obj_id: (verts m, faces, normals)} of every object entry (scale baked), for OUT/models."""
-        return {i + 1: self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
+        return {self.cfg.obj_id(i): self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
 
     def start_scene(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int) -> SceneStart:
         t0 = time.perf_counter()
@@ -134,7 +134,7 @@ class BlenderWorld:
         self.instances = sim.kept
         from . import materials        # on a random stream of their own: a list changes no pose
         labels = materials.apply_to_instances(self.cfg, sim.kept, scene_seed(base_seed, scene_id))
-        return SceneStart(parts=[_part(inst, lab) for inst, lab in zip(sim.kept, labels)], simulation=sim.summary(),
+        return SceneStart(parts=[_part(inst, lab, self.cfg.obj_id(inst.entry_index)) for inst, lab in zip(sim.kept, labels)], simulation=sim.summary(),
                           pose_indices=list(pose_indices), drawn=drawn,
                           seconds={"placement": t1 - t0 + sim.placement_seconds,
                                    "simulation": t2 - t1 - sim.placement_seconds})
@@ -164,15 +164,17 @@ class BlenderWorld:
         self.objects.clear()
 
     def close(self) -> None:
-        """Remove the projector lights, patterns and fringe layers (nothing left in the user's scene)
-        and render the scene's other objects again."""
+        """Remove the projector lights, patterns, fringe layers and the object-coordinate layer
+        (nothing left in the user's scene) and render the scene's other objects again."""
         if self.sl is not None:
             self.sl.teardown()
             self.sl = None
+        if getattr(self, "renderer", None) is not None:
+            self.renderer.teardown()
         if self.blend is not None:
             self.blend.restore_other_objects()
 
 
-def _part(inst, material: str) -> Part:
-    return Part(name=inst.name, filename=inst.filename, obj_id=inst.entry_index + 1, mask_index=inst.mask_index,
+def _part(inst, material: str, obj_id: int) -> Part:
+    return Part(name=inst.name, filename=inst.filename, obj_id=obj_id, mask_index=inst.mask_index,
                 material=material)

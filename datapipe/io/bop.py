@@ -5,13 +5,15 @@ the BOP-scenewise layout BlenderProc's `write_bop` users know:
 
     BOP_ROOT/
       camera.json                    {cx, cy, fx, fy, width, height, depth_scale}
-      models/obj_000001.ply          x y z nx ny nz (mm) + faces;  models_info.json (mm)
+      models/obj_000001.ply          x y z nx ny nz (mm) + faces;  models_info.json (mm, symmetries)
+      models_eval/obj_000001.ply     the models resampled for BOP's evaluation (io/models_eval.py)
       train_pbr/000000/              chunk = image_id // chunk_size, im_id = image_id % chunk_size
-        rgb/000000.png               the native rgb.png (8-bit, 3 channels)
+        rgb/000000.jpg               the native rgb.png as JPEG (quality 95; rgb_format="png": a copy)
         depth/000000.png             z-buffer depth, uint16, depth_mm = value * depth_scale, 0 = no data
         depth_sl/000000.png          structured-light depth, same encoding (when the run has it)
         mask/000000_000001.png       full (unoccluded) silhouette of annotation 1, 0/255
         mask_visib/000000_000001.png visible part of annotation 1 (native mask.exr == mask_index)
+        object_coords/000000.exr     X, Y, Z model coordinates in mm, NaN off parts (when rendered)
         scene_camera.json  scene_gt.json  scene_gt_info.json
         scene_gt_coco.json           COCO instances (bop_toolkit's calc_gt_coco: RLE of mask_visib,
                                      amodal bbox, "ignore" when visib_fract < 0.1)
@@ -36,6 +38,7 @@ calc_2d_bbox), and both bboxes [-1, -1, -1, -1] when nothing is visible.
 """
 from __future__ import annotations
 
+import datetime
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,14 +48,20 @@ import cv2
 import numpy as np
 
 from ..errors import DataPipeError
-from ..exr import read_depth, read_mask
+from ..exr import read_depth, read_exr, read_mask, write_exr
 from . import layout
 from .files import copy_atomic, imwrite_atomic, read_json, read_json_or_empty, write_json_lines_atomic
-from .models import Model, load_models, model_filename, write_models
+from .models import Model, load_models, model_filename, write_models, write_ply
+from .models_eval import SPACING_MM, resample_for_eval, vertex_normals
 from .silhouette import mask_bbox, rasterize_silhouette
 
 SPLIT = "train_pbr"
 MAX_UINT16 = 65535
+RGB_FORMATS = ("jpg", "png")
+RGB_FORMAT = "jpg"           # the official train_pbr splits (and bop_toolkit's dataset_params for them)
+JPG_QUALITY = 95             # bop_toolkit's inout.save_im default, BlenderProc's write_bop default
+MODELS_EVAL_DIR = "models_eval"
+OBJECT_COORDS_DIR = "object_coords"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -155,11 +164,15 @@ class BopWriter:
     name = "bop"
 
     def __init__(self, bop_root: str | os.PathLike, *, depth_scale: float = 0.1, chunk_size: int = 1000,
-                 split: str = SPLIT, models_dir: str | os.PathLike | None = None):
-        if not (depth_scale > 0):
-            raise DataPipeError(f"depth_scale must be > 0 mm, got {depth_scale}")
-        if int(chunk_size) < 1:
-            raise DataPipeError(f"chunk_size must be >= 1, got {chunk_size}")
+                 split: str = SPLIT, models_dir: str | os.PathLike | None = None, rgb_format: str = RGB_FORMAT,
+                 jpg_quality: int = JPG_QUALITY, eval_spacing_mm: float = SPACING_MM):
+        check_options(depth_scale=depth_scale, chunk_size=chunk_size, split=split, rgb_format=rgb_format,
+                      jpg_quality=jpg_quality)
+        if not (eval_spacing_mm > 0):
+            raise DataPipeError(f"eval_spacing_mm must be > 0 mm, got {eval_spacing_mm}")
+        self.rgb_format = rgb_format
+        self.jpg_quality = int(jpg_quality)
+        self.eval_spacing_mm = float(eval_spacing_mm)
         self.root = Path(bop_root)
         self.depth_scale = float(depth_scale)
         self.chunk_size = int(chunk_size)
@@ -182,7 +195,8 @@ class BopWriter:
         return self.root / layout.MODELS_DIR
 
     def set_models(self, source: str | os.PathLike | Mapping[int, tuple]) -> None:
-        """Copy a native models/ folder (obj_*.ply + models_info.json), or write {obj_id: mesh}."""
+        """Copy a native models/ folder (obj_*.ply + models_info.json), or write {obj_id: mesh};
+        then write models_eval/ from them."""
         if isinstance(source, Mapping):
             write_models(self.models_dir, source)
         else:
@@ -196,6 +210,16 @@ class BopWriter:
                     if p.is_file() and (p.suffix == ".ply" or p.name == layout.MODELS_INFO):
                         copy_atomic(p, self.models_dir / p.name)
         self._models = None
+        self._write_models_eval()
+
+    def _write_models_eval(self) -> None:
+        """models_eval/: every model resampled (io/models_eval.py) and the same models_info.json."""
+        out = self.root / MODELS_EVAL_DIR
+        out.mkdir(parents=True, exist_ok=True)
+        for obj_id, m in self.models().items():
+            v, f = resample_for_eval(m.verts_mm, m.faces, self.eval_spacing_mm)
+            write_ply(out / model_filename(obj_id), v, f, vertex_normals(v, f))
+        copy_atomic(self.models_dir / layout.MODELS_INFO, out / layout.MODELS_INFO)
 
     def models(self) -> dict[int, Model]:
         if self._models is None:
@@ -216,6 +240,7 @@ class BopWriter:
                 a = {k: v for k, v in ann.items() if k != "id"}
                 per_image.setdefault(str(ann["image_id"]), {"image": None, "annotations": []})["annotations"].append(a)
             data["coco"] = per_image
+            data["created"] = coco.get("info", {}).get("date_created")      # kept when the chunk grows
             self._chunks[chunk] = data
         return self._chunks[chunk]
 
@@ -230,8 +255,11 @@ class BopWriter:
                 images.append(e["image"])
             for a in e["annotations"]:
                 anns.append({"id": len(anns) + 1, **a})
+        if not data.get("created"):
+            data["created"] = datetime.datetime.now(datetime.timezone.utc).isoformat(" ")
+        created = data["created"]
         return {"info": {"description": f"DataPipe {self.split}", "url": "", "version": "0.1.0",
-                         "contributor": "DataPipe"},
+                         "year": int(created[:4]), "contributor": "DataPipe", "date_created": created},
                 "licenses": [],
                 "categories": [{"id": i, "name": str(i), "supercategory": "datapipe"} for i in obj_ids],
                 "images": images, "annotations": anns}
@@ -295,7 +323,8 @@ class BopWriter:
         for sub in ("rgb", "depth", "mask", "mask_visib"):
             (cdir / sub).mkdir(parents=True, exist_ok=True)
         stem = f"{im_id:06d}"
-        self._write_rgb(_required(scene_dir, rd, "rgb"), cdir / "rgb" / f"{stem}.png")
+        rgb_name = f"rgb/{stem}.{self.rgb_format}"
+        self._write_rgb(_required(scene_dir, rd, "rgb"), cdir / rgb_name)
         depth_valid = self._write_depth(_required(scene_dir, rd, "depth"), cdir / "depth" / f"{stem}.png", W, H)
         sl_src = layout.render_file(scene_dir, rd, "sl_depth")
         if sl_src.is_file():
@@ -312,17 +341,20 @@ class BopWriter:
         meta = {"image_id": image_id, "scene": scene_dir.name, "render": rd["name"],
                 "scene_id": int(scene.get("scene_id", -1)), "render_seed": rd.get("seed"),
                 "depth_sl": sl_src.is_file()}
-        coco = {"image": {"id": im_id, "file_name": f"rgb/{stem}.png", "width": W, "height": H},
+        coords = layout.render_file(scene_dir, rd, "object_coords")
+        if coords.is_file():
+            self._write_object_coords(coords, cdir / OBJECT_COORDS_DIR / f"{stem}.exr", W, H)
+        coco = {"image": {"id": im_id, "file_name": rgb_name, "width": W, "height": H},
                 "annotations": coco_anns}
         return _ImageEntry(image_id, chunk, im_id, self._camera_entry(K, rd), gts, infos, meta, coco)
 
-    @staticmethod
-    def _write_rgb(src: Path, dst: Path) -> None:
-        """The native rgb.png as it is when it is 8-bit 3-channel (the pipeline's), else converted."""
+    def _write_rgb(self, src: Path, dst: Path) -> None:
+        """The native rgb.png as JPEG (at jpg_quality), or as it is for PNG when it is 8-bit
+        3-channel (the pipeline's), else converted."""
         rgb = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
         if rgb is None:
             raise DataPipeError(f"{src}: not a readable image")
-        if rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8:
+        if rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8 and self.rgb_format == "png":
             copy_atomic(src, dst)
             return
         if rgb.dtype == np.uint16:
@@ -331,7 +363,17 @@ class BopWriter:
             rgb = cv2.cvtColor(rgb, cv2.COLOR_GRAY2BGR)
         elif rgb.shape[2] == 4:
             rgb = rgb[:, :, :3]
-        imwrite_atomic(dst, np.ascontiguousarray(rgb))
+        imwrite_atomic(dst, np.ascontiguousarray(rgb), [cv2.IMWRITE_JPEG_QUALITY, self.jpg_quality])
+
+    @staticmethod
+    def _write_object_coords(src: Path, dst: Path, W: int, H: int) -> None:
+        """The native object_coords.exr (m) as BOP's object_coords/IMID.exr: X, Y, Z in mm."""
+        ch = read_exr(src)
+        xyz = {c: np.asarray(ch[c], dtype=np.float32) * np.float32(1000.0) for c in "XYZ"}
+        if xyz["X"].shape != (H, W):
+            raise DataPipeError(f"{src}: shape {xyz['X'].shape} but scene.json says {W}x{H}")
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        write_exr(dst, xyz)
 
     def _write_depth(self, src: Path, dst: Path, W: int, H: int) -> np.ndarray:
         """Ground-truth z-buffer depth as BOP's uint16 PNG; returns where it has data."""
@@ -404,9 +446,27 @@ def _required(scene_dir: Path, rd: dict, kind: str) -> Path:
 # ------------------------------------------------------------------------------------------------
 # whole runs
 
+def check_options(*, depth_scale: float = 0.1, chunk_size: int = 1000, split: str = SPLIT,
+                  rgb_format: str = RGB_FORMAT, jpg_quality: int = JPG_QUALITY) -> None:
+    """DataPipeError naming the option and the fix for a bad BOP export option."""
+    if not (depth_scale > 0):
+        raise DataPipeError(f"depth_scale must be > 0 mm, got {depth_scale}")
+    if int(chunk_size) < 1:
+        raise DataPipeError(f"chunk_size must be >= 1, got {chunk_size}")
+    if not split or "/" in split or "\\" in split or split.startswith("."):
+        raise DataPipeError(f"split: {split!r} is not a folder name (fix: e.g. {SPLIT!r})")
+    if rgb_format not in RGB_FORMATS:
+        raise DataPipeError(f"rgb_format: {rgb_format!r} (fix: one of {', '.join(RGB_FORMATS)})")
+    if not 1 <= int(jpg_quality) <= 100:
+        raise DataPipeError(f"jpg_quality: {jpg_quality} (fix: 1..100; the official datasets use {JPG_QUALITY})")
+
+
 def export_bop(native_run_dir: str | os.PathLike, bop_root: str | os.PathLike, *, depth_scale: float = 0.1,
-               chunk_size: int = 1000, split: str = SPLIT) -> dict:
+               chunk_size: int = 1000, split: str = SPLIT, rgb_format: str = RGB_FORMAT,
+               jpg_quality: int = JPG_QUALITY) -> dict:
     """Convert every complete scene of a native run (OUT/) into a BOP dataset at `bop_root`."""
+    check_options(depth_scale=depth_scale, chunk_size=chunk_size, split=split, rgb_format=rgb_format,
+                  jpg_quality=jpg_quality)
     run = Path(native_run_dir)
     if not run.is_dir():
         raise DataPipeError(f"{run}: no such run folder")
@@ -414,7 +474,7 @@ def export_bop(native_run_dir: str | os.PathLike, bop_root: str | os.PathLike, *
     if not scenes:
         raise DataPipeError(f"{run}: no complete scene (scene.*/scene.json) to export")
     writer = BopWriter(bop_root, depth_scale=depth_scale, chunk_size=chunk_size, split=split,
-                       models_dir=run / layout.MODELS_DIR)
+                       models_dir=run / layout.MODELS_DIR, rgb_format=rgb_format, jpg_quality=jpg_quality)
     for scene_dir, scene in scenes:
         writer.add_scene(scene_dir, scene)
     summary = writer.finish()

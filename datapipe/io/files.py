@@ -57,13 +57,14 @@ def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
     write_text_atomic(path, json.dumps(data, indent=1, default=_plain) + "\n")
 
 
-def imwrite_atomic(path: str | os.PathLike, img: np.ndarray) -> Path:
-    """cv2.imwrite through a temporary file with the same extension (cv2 picks the codec by it)."""
+def imwrite_atomic(path: str | os.PathLike, img: np.ndarray, params: list[int] | None = None) -> Path:
+    """cv2.imwrite through a temporary file with the same extension (cv2 picks the codec by it);
+    `params` as cv2.imwrite's (e.g. [cv2.IMWRITE_JPEG_QUALITY, 95])."""
     import cv2
 
     path = Path(path)
     tmp = path.with_name(path.stem + ".tmp" + path.suffix)
-    if not cv2.imwrite(str(tmp), img):
+    if not cv2.imwrite(str(tmp), img, params or []):
         raise DataPipeError(f"could not write {path} (check the output folder)")
     os.replace(tmp, path)
     return path

@@ -33,6 +33,7 @@ RENDER_FILES = {
     "depth": "depth.exr",
     "normals": "normals.exr",
     "mask": "mask.exr",
+    "object_coords": "object_coords.exr",
     "sl_depth": "sl_depth.exr",
     "sl_valid": "sl_valid.png",
     "sl_debug": "sl_debug.exr",

@@ -170,11 +170,14 @@ def model_filename(obj_id: int) -> str:
     return f"obj_{int(obj_id):06d}.ply"
 
 
-def write_models(models_dir: str | os.PathLike, meshes: Mapping[int, tuple], *, binary: bool = True) -> dict:
+def write_models(models_dir: str | os.PathLike, meshes: Mapping[int, tuple], *, binary: bool = True,
+                 symmetries: Mapping[int, dict] | None = None) -> dict:
     """Write `obj_XXXXXX.ply` (mm) and `models_info.json` for {obj_id: (verts_m, faces, normals)}.
 
     verts_m: (V,3) model coordinates in metres (scale baked, the frame of T_cam_obj); faces (F,3)
-    triangles; normals (V,3) unit vertex normals or None. Returns the models_info dict."""
+    triangles; normals (V,3) unit vertex normals or None. `symmetries`: {obj_id: {"symmetries_discrete":
+    [...], "symmetries_continuous": [...]}} (mm, io/symmetry.py) added to the object's entry.
+    Returns the models_info dict."""
     models_dir = Path(models_dir)
     models_dir.mkdir(parents=True, exist_ok=True)
     info = {}
@@ -186,7 +189,7 @@ def write_models(models_dir: str | os.PathLike, meshes: Mapping[int, tuple], *, 
         if len(verts_mm) == 0:
             raise DataPipeError(f"object {obj_id}: the mesh has no vertices")
         write_ply(models_dir / model_filename(obj_id), verts_mm, faces, normals, binary=binary)
-        info[str(int(obj_id))] = model_info(verts_mm)
+        info[str(int(obj_id))] = {**model_info(verts_mm), **((symmetries or {}).get(obj_id) or {})}
     write_json_lines_atomic(models_dir / layout.MODELS_INFO, info)
     return info
 

@@ -13,6 +13,7 @@ sidebar reads exactly like one written by hand, and save -> load -> save is a fi
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import typing
@@ -111,10 +112,36 @@ _SPECIAL = {
                                 lambda value: [("bin_material", _material_set(value))]),
     ("objects", "material"): (lambda grp, name: _material_get(grp, name),
                               lambda value: [("material", _material_set(value))]),
+    # the sidebar's Source choice: a mesh file or a BOP models folder (io/bop_models.py)
+    ("objects", "filepath"): (lambda grp, name: _abspath(grp.filepath) if grp.source == "FILE" else "",
+                              lambda value: [("filepath", value)]),
+    ("objects", "bop_models"): (lambda grp, name: _abspath(grp.bop_models) if grp.source == "BOP" else "",
+                                lambda value: [("bop_models", value), ("source", "BOP" if value else "FILE")]),
+    ("objects", "bop_obj_ids"): (lambda grp, name: _ids_get(grp) if grp.source == "BOP" else [],
+                                 lambda value: [("bop_obj_ids", ", ".join(str(int(i)) for i in value))]),
+    ("objects", "symmetries"): (lambda grp, name: _json_or_text(grp.symmetries),
+                                lambda value: [("symmetries", value if isinstance(value, str)
+                                                else json.dumps(value))]),
     ("render", "outputs"): (_ordered(C.OUTPUT_KINDS), lambda value: [("outputs", set(value))]),
     ("output", "formats"): (_ordered(C.FORMATS), lambda value: [("formats", set(value))]),
     ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),
 }
+
+
+def _ids_get(grp):
+    """'7, 12 30' -> [7, 12, 30]; anything else stays text, so that Config.validate() names the field."""
+    tokens = grp.bop_obj_ids.replace(",", " ").split()
+    return [int(t) for t in tokens] if all(t.isdigit() for t in tokens) else grp.bop_obj_ids
+
+
+def _json_or_text(text: str):
+    """A JSON object's text -> dict; a word ("auto", "none" ...) or malformed JSON stays text."""
+    if text.strip().startswith("{"):
+        try:
+            return json.loads(text)
+        except ValueError:
+            pass
+    return text.strip()
 
 
 def _material_get(grp, name):

@@ -33,7 +33,12 @@ class DATAPIPE_UL_objects(UIList):
     """Object entries: name (or file stem), instances min-max, scale."""
 
     def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
-        label = item.name or (Path(item.filepath).stem if item.filepath else "(no file)")
+        if item.source == "BOP":
+            folder = Path(item.bop_models.rstrip("/\\"))
+            label = item.name or (f"BOP {folder.parent.name or folder.name} {item.bop_obj_ids or 'all'}"
+                                  if item.bop_models else "(no BOP folder)")
+        else:
+            label = item.name or (Path(item.filepath).stem if item.filepath else "(no file)")
         row = layout.row(align=True)
         row.label(text=f"{index + 1}. {label}", icon="MESH_DATA")
         row.label(text=f"{item.min_instances}-{item.max_instances}x")
@@ -183,7 +188,11 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
             layout.label(text="Add an object entry (a mesh file)", icon="INFO")
             return
         item = props.objects[props.objects_index]
-        col = _fields(layout, item, ("filepath", "name", "scale", "mass", "collision_shape"))
+        layout.row().prop(item, "source", expand=True)
+        if item.source == "BOP":       # mm -> m and the ids come from the folder
+            col = _fields(layout, item, ("bop_models", "bop_obj_ids", "name", "mass", "collision_shape"))
+        else:
+            col = _fields(layout, item, ("filepath", "name", "scale", "obj_id", "mass", "collision_shape"))
         sub = col.column(align=True)
         sub.prop(item, "min_instances", text="Instances Min")
         sub.prop(item, "max_instances", text="Max")
@@ -191,6 +200,7 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
         sub.prop(item, "friction")
         sub.prop(item, "restitution")
         col.prop(item, "material")
+        col.prop(item, "symmetries")
 
 
 class DATAPIPE_PT_camera(_DataPipePanel, Panel):

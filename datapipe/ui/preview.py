@@ -104,6 +104,18 @@ def remove_all() -> None:
 # ------------------------------------------------------------------------------------------------
 # object entry preview
 
+def _preview_scale(entry) -> float:
+    return float(entry.scale) * (0.001 if entry.source == "BOP" else 1.0)
+
+
+def _first_bop_model(entry, index: int) -> str:
+    from ..config import ObjectEntry
+    from ..io.bop_models import bop_ids, ply_path
+    ids = [int(t) for t in entry.bop_obj_ids.replace(",", " ").split() if t.isdigit()]
+    probe = ObjectEntry(bop_models=bpy.path.abspath(entry.bop_models), bop_obj_ids=ids)
+    return str(ply_path(probe.bop_models, bop_ids(probe, f"objects[{index}]")[0]))
+
+
 def show_object(context, props, index: int) -> list:
     """Import object entry `index` into "datapipe_preview" at its scale; replaces an earlier one."""
     from ..core import objects as core_objects        # the pipeline's importers and axis conventions
@@ -113,6 +125,8 @@ def show_object(context, props, index: int) -> list:
     entry = props.objects[index]
     field = f"objects[{index}].filepath"
     path = bpy.path.abspath(entry.filepath) if entry.filepath else ""
+    if entry.source == "BOP":          # the entry's first object (its PLY is in mm)
+        path, field = _first_bop_model(entry, index), f"objects[{index}].bop_models"
     suffix = Path(path).suffix.lower()
     if not path:
         raise DataPipeError(f"{field}: empty (fix: choose a mesh file, {', '.join(MESH_SUFFIXES)})")
@@ -151,7 +165,7 @@ def show_object(context, props, index: int) -> list:
     for c in set(bpy.data.collections) - before_data[bpy.data.collections]:
         if c.name != COLLECTION and len(c.all_objects) == 0:
             bpy.data.collections.remove(c)
-    s = float(entry.scale)
+    s = _preview_scale(entry)
     centre = Vector(props.scene.drop_zone_loc)
     for o in roots:
         o.matrix_world = Matrix.Translation(centre) @ Matrix.Diagonal((s, s, s, 1.0)) @ o.matrix_world
@@ -174,7 +188,7 @@ def sync_object_scale(props) -> None:
     index = int(objs[0].get("datapipe_entry", -1))
     if not 0 <= index < len(props.objects):
         return
-    s = float(props.objects[index].scale)
+    s = _preview_scale(props.objects[index])
     for o in objs:
         if o.parent is None or o.parent.get(TAG) != "object":
             o.scale = (s, s, s)

@@ -194,6 +194,24 @@ _inst_lo, _inst_hi = _keep_order("min_instances", "max_instances")
 
 
 class DATAPIPE_PG_object(PropertyGroup):
+    source: EnumProperty(
+        name="Source", description="Where the entry's parts come from",
+        items=[("FILE", "Mesh File", "One mesh file (any units: set Scale)"),
+               ("BOP", "BOP Models", "Objects of a BOP dataset's models folder (obj_XXXXXX.ply in mm + "
+                "models_info.json): their ids and symmetries go into the export")],
+        default="FILE")
+    bop_models: StringProperty(
+        name="Models Folder", description="A BOP dataset's models folder (e.g. itodd/models)",
+        subtype="DIR_PATH", default=default(_O, "bop_models"))
+    bop_obj_ids: StringProperty(
+        name="Object IDs", description="BOP object ids to drop, comma separated (empty: all of the folder); "
+        "each gets the instance counts and settings of this entry", default="")
+    obj_id: IntProperty(name="Object ID", description="The id exported for this part (0: its position in the "
+                        "list + 1)", min=0, default=default(_O, "obj_id"))
+    symmetries: StringProperty(
+        name="Symmetries", description="Written to models_info.json: auto (BOP: the folder's; a mesh file: "
+        "detected at 1% of the diameter), detect, none, {\"tolerance\": 0.02}, or JSON with "
+        "symmetries_discrete / symmetries_continuous (mm)", default=default(_O, "symmetries"))
     filepath: StringProperty(
         name="File", description="Mesh file of the part (" + ", ".join(C.MESH_SUFFIXES) + ")",
         subtype="FILE_PATH", default=default(_O, "filepath"))

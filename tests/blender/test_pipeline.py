@@ -81,6 +81,7 @@ def test_run_writes_every_output_and_annotation(tmp_path):
             rdir = sj.parent / r["name"]
             for kind in ("rgb", "depth", "normals", "mask"):
                 assert (sj.parent / r["files"][kind]).is_file(), kind
+            assert "object_coords" not in r["files"] and not (rdir / "object_coords.exr").exists()
             W, H = cfg.camera.resolution
             depth = read_depth(rdir / "depth.exr")
             assert depth.shape == (H, W) and depth.dtype == np.float32
@@ -98,6 +99,9 @@ def test_run_writes_every_output_and_annotation(tmp_path):
                 assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6)   # rigid: scale baked
             assert np.isfinite(depth).mean() > 0.9                                  # the bin fills the view
     assert n_renders == cfg.scene.num_renders
+    # object_coords not asked for: no layer, no AOV, no file
+    assert [vl.name for vl in bpy.context.scene.view_layers] == ["datapipe"]
+    assert len(bpy.context.scene.view_layers["datapipe"].aovs) == 0
     legacy = pickle.loads((out / "output_dict.pickle").read_bytes())
     assert sorted(legacy) == [p.parent.name for p in scenes(out)]
     first = next(iter(next(iter(legacy.values())).values()))
