@@ -73,6 +73,64 @@ def multipath_filter(modulation, offset, periods, steps: int, noise_sigma, valid
         return valid & (B.min(axis=0) < ratio * B.max(axis=0) - sigmas * np.sqrt(1.0 + ratio * ratio) * sigma_b)
 
 
+# -- global-light filter: direct vs global light ---------------------------------------------------
+GLOBAL_MAX_RATIO = 1.0           # global / direct light above this: the coarse phases are the bounce's
+GLOBAL_SIGMAS = 3.0              # noise margin of that test, in sigmas
+DIRECT_MAX_GAIN = 0.5            # frequencies a bounce keeps less modulation of than this read the direct light
+
+
+def direct_frequencies(periods, proj_width: int) -> np.ndarray:
+    """(F,) bool: the frequencies whose modulation a diffuse bounce blurs to below DIRECT_MAX_GAIN
+    (sl.fringe_synth.indirect_gain: 8 and 64 periods of (1, 8, 64) on a 912 px projector keep 21%
+    and 0%); the finest always counts."""
+    from .fringe_synth import indirect_gain
+
+    per = np.asarray(periods, np.float64)
+    out = np.array([indirect_gain(K, int(proj_width)) < DIRECT_MAX_GAIN for K in per])
+    out[np.argmax(per)] = True
+    return out
+
+
+def global_light_filter(modulation, offset, direct_freqs, steps: int, noise_sigma, valid, *,
+                        max_ratio: float = GLOBAL_MAX_RATIO, sigmas: float = GLOBAL_SIGMAS) -> np.ndarray:
+    """Pixels that receive more light over other paths (inter-reflection) than straight from the
+    projector, so that the bounce decides their coarse phases and fringe order; returns the bool
+    mask of pixels to remove.
+
+    Why this test (direct/global separation, Nayar et al. 2006): with patterns a + b cos (a = b =
+    1/2) a pixel's offset is A = (d + g) / 2 (d direct, g global light) whatever the frequency,
+    while a fringe that a bounce blurs away (`direct_freqs`) keeps only the direct light's
+    modulation, B = d / 2 (times the pixel's footprint MTF, ~1 at 8 periods). So g / d = (A - B) /
+    B. Coarse fringes survive a bounce (1 period on 912 px: 98%), and a bounce phasor of relative
+    size g_K g / d shifts the coarse phase by up to asin(g_K g / d); the unwrapping stage 1 -> 8
+    fails beyond pi / 8 (g / d > 0.39 in the worst phase). Measured on real renders of the demo
+    bin (benchmarks/results/sl_truth.md), g / d > 1 holds for 80-93% of the pixels more than
+    5 mm off (a bin wall lit at grazing incidence, floor light bounced onto it) and for 0.5-1.5% of
+    the ones within 1 mm. A pixel lit *only* by bounced light has B = g_K g / 2, so g / d =
+    1 / g_K - 1 >= 1 and is removed too (a projector-shadowed wall). The multipath filter's
+    ratio test misses both: the wall's fine and coarse modulations differ by less than its 0.6.
+    Not a test of ambient light: fringe renders hold the projector's light only.
+
+    A valid pixel is removed when
+
+        A - (1 + max_ratio) B > sigmas * sqrt((1 + max_ratio)^2 sigma_B^2 + sigma_A^2),
+
+    B = max over `direct_freqs` of B_K, sigma_B = sqrt(2/N) sigma_I, sigma_A = sigma_I / sqrt(F N)
+    (dark pixels are not removed for noise alone). modulation: (F, H, W); offset: (H, W) mean A;
+    direct_freqs: (F,) bool (`direct_frequencies`); noise_sigma: a number, an (H, W) array or a
+    callable sigma(signal) such as SensorModel.noise_sigma."""
+    B = np.asarray(modulation)
+    sel = np.asarray(direct_freqs, bool)
+    Bd = B[sel].max(axis=0).astype(np.float64)
+    A = np.asarray(offset, np.float64)
+    sig = noise_sigma(np.maximum(A, 0)) if callable(noise_sigma) else noise_sigma
+    sig = np.asarray(sig, np.float64)
+    k = 1.0 + float(max_ratio)
+    tol = sigmas * sig * np.sqrt(k * k * 2.0 / int(steps) + 1.0 / (B.shape[0] * int(steps)))
+    with np.errstate(invalid="ignore"):
+        return np.asarray(valid, bool) & (A - k * Bd > tol)
+
+
 # -- global reflection filter: row-coded patterns (epipolar consistency) ----------------------------
 ROW_SIGMAS = 5.0                 # noise part of the row tolerance, in sigmas of the decoded row
 ROW_MIN_PX = 2.0                 # projector px always allowed (benchmarks/results/sl_materials.md)
