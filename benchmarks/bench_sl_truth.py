@@ -15,7 +15,9 @@ pixel lies, first match of: depth edge (a z-buffer step, second difference > 5 m
 projector shadow (not lit directly: Blender ray cast towards the projector) / bounce-dominated
 (lit directly, but the fast render's flat-lit passes of the same scene have more bounced than
 direct light there) / part / bin. Coverage: the share of directly lit part pixels within 1 mm (the
-original rig's acceptance) and the share of projector-shadowed pixels that carry depth. Decode
+original rig's acceptance) and the share of projector-shadowed pixels that carry depth (all, and
+those at least SHADOW_PX from a lit pixel: the ray cast tests the pixel centre, a pixel next to a
+lit one is partly lit, as the decoder sees it). Decode
 time: the scanner (sensor model + decode + filters) and the global-light filter alone, side by
 side in one run.
 
@@ -51,6 +53,7 @@ EDGE_STEP = 5e-3           # m: z-buffer second difference that marks a depth ed
 EDGE_PX = 2                # px either side of it
 OFF = 5e-3                 # m: a wrong point
 PLACES = ("edge", "shadow", "bounce", "part", "bin")
+SHADOW_PX = 2              # px: a shadowed pixel this far from every directly lit one is shadowed in full
 
 
 def depth_edges(z: np.ndarray, step: float = EDGE_STEP, px: int = EDGE_PX) -> np.ndarray:
@@ -82,6 +85,8 @@ def scanner_for(key: str, mode: str):
 
 
 def metrics(c: dict, scan, bounce_dominated) -> dict:
+    from scipy.ndimage import binary_dilation
+
     res = scan.result
     z = c["depth"].astype(np.float64)
     v = res.valid & np.isfinite(z)
@@ -100,6 +105,7 @@ def metrics(c: dict, scan, bounce_dominated) -> dict:
     place["part"], place["bin"] = left & part, left & ~part
     lit_part = direct & part & seen
     shadow = seen & ~direct
+    deep = shadow & ~binary_dilation(direct, iterations=SHADOW_PX)   # no sub-sample of the pixel lit
     nv = max(int(v.sum()), 1)
     e = err[v]
     return {"valid": float(v.mean()), "median_mm": float(np.median(e) * 1e3) if e.size else float("nan"),
@@ -110,6 +116,7 @@ def metrics(c: dict, scan, bounce_dominated) -> dict:
             "part_ok": float((lit_part & v & (err <= 1e-3)).sum() / max(int(lit_part.sum()), 1)),
             "lit_part_px": int(lit_part.sum()),
             "shadow_valid": float((shadow & v).sum() / max(int(shadow.sum()), 1)), "shadow_px": int(shadow.sum()),
+            "deep_shadow_valid": float((deep & v).sum() / max(int(deep.sum()), 1)), "deep_shadow_px": int(deep.sum()),
             "multipath_px": int(scan.multipath.sum()) if scan.multipath is not None else 0}
 
 
@@ -161,7 +168,7 @@ def run(cache: Path, log=print) -> list[dict]:
 
 
 COLS = ("case", "mode", "valid", "median_mm", "p99_mm", "out5", "out5_off_edge", "p99_off_edge_mm", "n_out5",
-        *[f"at_{k}" for k in PLACES], "part_ok", "shadow_valid", "multipath_px", "scan_cpu_s", "filter_cpu_s")
+        *[f"at_{k}" for k in PLACES], "part_ok", "shadow_valid", "deep_shadow_valid", "multipath_px", "scan_cpu_s", "filter_cpu_s")
 
 
 def _fmt(k, v):
@@ -169,7 +176,7 @@ def _fmt(k, v):
         return v
     if isinstance(v, (int, np.integer)):
         return str(v)
-    if k in ("out5", "out5_off_edge", "shadow_valid"):
+    if k in ("out5", "out5_off_edge", "shadow_valid", "deep_shadow_valid"):
         return f"{v * 100:.3f}%"
     if k in ("valid", "part_ok"):
         return f"{v:.3f}"
@@ -212,7 +219,8 @@ def write_report(rows) -> None:
              "`out5`: share of valid pixels > 5 mm off the z-buffer; `at_*`: where those pixels lie (first match: "
              "depth edge +-2 px / projector shadow (ray cast) / bounce-dominated (flat-lit passes: bounced > direct) / "
              "part / bin); `part_ok`: directly lit part pixels within 1 mm; `shadow_valid`: projector-shadowed "
-             "pixels with depth; CPU seconds of the whole scan and of the global-light filter alone, same run.", "",
+             "pixels (ray cast from the pixel centre) with depth, `deep_shadow_valid`: the same for the shadowed pixels "
+             f"at least {SHADOW_PX} px from every directly lit one (the others are partly lit); CPU seconds of the whole scan and of the global-light filter alone, same run.", "",
              "| " + " | ".join(COLS) + " |", "|" + "---|" * len(COLS)]
     for r in rows:
         lines.append("| " + " | ".join(_fmt(k, r[k]) for k in COLS) + " |")

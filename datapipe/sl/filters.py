@@ -74,7 +74,7 @@ def multipath_filter(modulation, offset, periods, steps: int, noise_sigma, valid
 
 
 # -- global-light filter: direct vs global light ---------------------------------------------------
-GLOBAL_MAX_RATIO = 1.0           # global / direct light above this: the coarse phases are the bounce's
+GLOBAL_MAX_RATIO = 0.7           # global / direct light above this: the bounce may decide the coarse phases
 GLOBAL_SIGMAS = 3.0              # noise margin of that test, in sigmas
 DIRECT_MAX_GAIN = 0.5            # frequencies a bounce keeps less modulation of than this read the direct light
 
