@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import sl_bench_scenes as S  # noqa: E402
 import sl_truth_cases as T  # noqa: E402
+from sl_scenes import depth_edges  # noqa: E402
 from report_util import write_rows_csv, write_with_notes  # noqa: E402
 
 from datapipe import config as C, sl  # noqa: E402
@@ -49,29 +50,9 @@ from datapipe.sl import filters as SLF  # noqa: E402
 MODES = ("fast", "render")
 RIG_CASES = [("gui", 0.55, None), ("default", 0.8, "matte_plastic+bin"), ("default", 0.6, "steel"),
              ("default", 0.6, "aluminium")]
-EDGE_STEP = 5e-3           # m: z-buffer second difference that marks a depth edge
-EDGE_PX = 2                # px either side of it
 OFF = 5e-3                 # m: a wrong point
 PLACES = ("edge", "shadow", "bounce", "part", "bin")
 SHADOW_PX = 2              # px: a shadowed pixel this far from every directly lit one is shadowed in full
-
-
-def depth_edges(z: np.ndarray, step: float = EDGE_STEP, px: int = EDGE_PX) -> np.ndarray:
-    """Pixels within `px` of a depth discontinuity of the z-buffer: |second difference| > `step`
-    along a row or a column (a slanted plane, however steep, has none; a step or a crease has),
-    or a missing neighbour (background)."""
-    from scipy.ndimage import binary_dilation
-
-    zz = np.where(np.isfinite(z), z, np.nan).astype(np.float64)
-    e = ~np.isfinite(zz)
-    with np.errstate(invalid="ignore"):
-        for ax in (0, 1):
-            d2 = np.abs(np.diff(zz, 2, axis=ax))
-            hit = ~(d2 <= step)                       # NaN counts as an edge
-            sl_mid = [slice(None)] * 2
-            sl_mid[ax] = slice(1, -1)
-            e[tuple(sl_mid)] |= hit
-    return binary_dilation(e, iterations=px)
 
 
 def scanner_for(key: str, mode: str):

@@ -2,7 +2,7 @@
 a camera noise model, the decoder and its metrics, and the scanner (sensor -> decode -> filters). No Blender here, ever (design.md)."""
 from .decode import DecodeResult, Reason, decode, estimate_noise_sigma, modulation_floor_factor
 from .filters import edge_speckle_filter, multipath_filter, reflection_filter
-from .fringe_synth import (bounce_modulation, pattern_profiles, projector_columns, quadrature_profiles,
+from .fringe_synth import (bounce_modulation, indirect_gain, pattern_profiles, projector_columns, quadrature_profiles,
                            synthesize_fringes)
 from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
                       theoretical_phase_sigma)
@@ -24,4 +24,5 @@ __all__ = [
     "pixel_depth_sigma", "edge_speckle_filter", "multipath_filter", "reflection_filter",
     "Scanner", "Scan",
     "synthesize_fringes", "pattern_profiles", "projector_columns", "quadrature_profiles", "bounce_modulation",
+    "indirect_gain",
 ]
