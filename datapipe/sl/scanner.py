@@ -26,6 +26,11 @@ Validity (what "valid" means)
    second path pulls the coarse phase and so the fringe order (e.g. the projector's shadow next to
    a bin wall, lit by the wall). On the demo bin it removes what B/A >= 0.5 removed, without
    punishing ambient light (benchmarks/results/sl_materials.md).
+1b'. global-light filter (`sl.filters.global_light_filter`, reason MULTIPATH too): more light
+   over other paths than straight from the projector (offset - modulation of the frequencies a
+   bounce blurs away > 0.7 x that modulation): the bounce keeps the coarse fringes and decides the
+   order (a bin wall lit at grazing incidence beside a bright floor; a surface lit by bounced light
+   alone). Runs with the multipath filter (benchmarks/results/sl_truth.md).
 1c. global reflection filter (`sl.filters.reflection_filter`, reason REFLECTION = 10): only when
    the radiance stack carries `steps` row-coded images after the F*N fringe images (ROW_PERIODS
    periods of row fringes over the projector height; the Blender side renders them when
