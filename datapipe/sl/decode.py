@@ -42,7 +42,6 @@ from enum import IntEnum
 from typing import Callable, Sequence
 
 import numpy as np
-import scipy.stats
 from scipy.special import gammainccinv
 
 from ._errors import bad_type, bad_value
@@ -50,16 +49,18 @@ from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
 from .confidence import consistency_limits, phase_var_cycles, phase_var_from_snr, wrong_probability
 from .gamma import correct_cycles, gamma_phase_lut
+from .noise import estimate_noise_sigma, fit_noise_model
 from .spatial import correct_orders
 from .triangulate import Triangulator
 from .unwrap import plan_unwrap, unwrap_cycles
 
-__all__ = ["Reason", "DecodeResult", "decode", "estimate_noise_sigma", "modulation_floor_factor"]
+__all__ = ["Reason", "VALID_REASONS", "NEIGHBOUR_RISK", "DecodeResult", "decode", "estimate_noise_sigma", "modulation_floor_factor"]
 
 
 class Reason(IntEnum):
-    """Why a pixel has no depth (uint8 in :attr:`DecodeResult.reason`). When several apply, the
-    first of INVALID_INPUT, SATURATED, NO_LIGHT, INCONSISTENT, BAD_ORDER, ILL_CONDITIONED,
+    """Why a pixel has no depth (uint8 in :attr:`DecodeResult.reason`), or how a valid one got it
+    (VALID: its own frequencies; NEIGHBOUR_ORDER: its order from its neighbours). When several
+    apply, the first of INVALID_INPUT, SATURATED, NO_LIGHT, INCONSISTENT, BAD_ORDER, ILL_CONDITIONED,
     OUTSIDE_PROJECTOR is reported (the more basic cause first)."""
     VALID = 0
     NO_LIGHT = 1            # modulation below the noise floor, or contrast B/A too low
@@ -75,6 +76,15 @@ class Reason(IntEnum):
     REFLECTION = 10         # removed by the global reflection filter: the row-coded patterns say the light
                             # left the projector from another row than the decoded point's (a mirror ghost,
                             # sl.filters.reflection_filter)
+    NEIGHBOUR_ORDER = 11    # VALID, but the fringe order came from confident neighbours on the same surface
+                            # (sl.spatial), not from the pixel's own frequencies alone; its confidence is
+                            # lowered by NEIGHBOUR_RISK
+
+
+VALID_REASONS = (Reason.VALID, Reason.NEIGHBOUR_ORDER)   # reason codes of pixels with depth
+NEIGHBOUR_RISK = 1e-3   # subtracted from a neighbour-filled pixel's confidence: the chance that the surface
+                        # does not continue through it despite the same-surface tests (sl.spatial); on the
+                        # adversarial scenes of tests/sl/test_sl_trust.py the measured share is below it
 
 
 _NO_ORDER = (Reason.NO_LIGHT, Reason.SATURATED, Reason.INVALID_INPUT)   # no order decoded at all
@@ -93,7 +103,8 @@ class DecodeResult:
     reason: np.ndarray                # uint8, see Reason
     order_error: np.ndarray           # float32 in [0, 0.5]: distance of the order estimate from an integer
     confidence: np.ndarray | None = None  # float32: probability that the fringe orders are right (0 where
-                                          # no order was decoded: NO_LIGHT, SATURATED, INVALID_INPUT)
+                                          # no order was decoded: NO_LIGHT, SATURATED, INVALID_INPUT;
+                                          # NEIGHBOUR_ORDER pixels: lowered by NEIGHBOUR_RISK)
     periods: tuple = ()
     steps: int = 0
     method: str = ""
@@ -172,58 +183,6 @@ def _frames(images, n_expected: int, periods, steps):
     return frames
 
 
-def estimate_noise_sigma(frames: Sequence[np.ndarray], steps: int, *, shifts=None, saturation=None,
-                         max_pixels: int = 1 << 16) -> float:
-    """Robust global estimate of the image noise sigma (image units) from the fit residuals.
-
-    With N >= 4 the least-squares residual sum of squares of a pixel is ``sigma^2 * chi2(N-3)``
-    (pooled over the F frequencies: ``chi2(F*(N-3))``); the median over a pixel subsample divided
-    by the chi-square median gives sigma^2. Shadow pixels (read noise only) and bright pixels
-    (shot noise) mix, so in shot-noise-limited images this is between the two: the floor is then
-    conservative. With N = 3 there is no residual: integer images use quantisation (1/sqrt(12)
-    DN), float images 0.1% of the bright (99th percentile) offset, i.e. a 10-bit-camera floor.
-    Pass ``noise_sigma`` explicitly (e.g. ``SensorModel.noise_sigma``) when it is known.
-    """
-    steps = int(steps)
-    f = len(frames) // steps
-    h, w = frames[0].shape
-    s = max(1, int(np.ceil(np.sqrt(h * w / max_pixels))))
-    sub = [np.asarray(fr[::s, ::s], dtype=np.float64).ravel() for fr in frames]
-    if shifts is None:
-        shifts = phase_shifts(steps)
-    kern = PhaseKernel(shifts)
-    is_int = np.dtype(frames[0].dtype).kind in "iu"
-    sat = saturation
-    if sat is None and is_int:
-        sat = float(np.iinfo(frames[0].dtype).max)
-    good = np.ones(sub[0].size, bool)
-    for x in sub:
-        good &= np.isfinite(x)
-        if sat is not None and np.isfinite(sat):
-            good &= x < sat
-    off = np.zeros(sub[0].size)
-    rss = np.zeros(sub[0].size)
-    for i in range(f):
-        y = np.stack(sub[i * steps:(i + 1) * steps])
-        y = np.where(np.isfinite(y), y, 0.0)
-        acs = kern.coef @ y
-        rss += np.sum((y - kern.design @ acs) ** 2, axis=0)
-        off += acs[0] / f
-    eps = np.finfo(work_dtype_for([fr.dtype for fr in frames])).eps
-    bright = float(np.percentile(np.abs(off[good]), 99)) if good.any() else 0.0
-    floor = 16 * eps * bright                       # arithmetic rounding of the fit itself
-    if is_int:
-        floor = max(floor, 1.0 / np.sqrt(12.0))
-    dof = f * (steps - 3)
-    if dof == 0 or not good.any():
-        if not is_int:
-            floor = max(floor, 1e-3 * bright)
-        return float(floor) if floor > 0 else 1e-12
-    med = float(np.median(rss[good] / dof))
-    corr = scipy.stats.chi2.median(dof) / dof
-    return float(max(np.sqrt(med / corr), floor, 1e-12))
-
-
 def _check_positive(name, v, allow_none=True, upper=None, strict=True):
     if v is None and allow_none:
         return None
@@ -267,6 +226,7 @@ class _Setup:
     sigma_fn: Callable | None = None
     order_factor: float = 0.0
     order_floor: float | None = None
+    noise_model: dict = field(default_factory=dict)
 
     @property
     def shape(self):
@@ -288,30 +248,35 @@ def _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis):
 
 
 def _noise_setup(st: _Setup, noise_sigma, min_modulation, order_sigmas, shifts):
-    """Noise sigma (scalar / map / callable), modulation floor and the legacy order floor."""
+    """Noise sigma (scalar / map / callable; None: fitted per pixel, :mod:`.noise`), modulation
+    floor and the legacy order floor. ``st.noise_model`` says which."""
     H, W = st.shape
     st.min_modulation = min_modulation
-    if min_modulation is not None and noise_sigma is None:
-        st.floor_scalar = min_modulation
-        st.sigma_scalar = estimate_noise_sigma(st.frames, st.steps, shifts=shifts, saturation=st.sat)
-    else:
-        if noise_sigma is None:
-            st.sigma_scalar = estimate_noise_sigma(st.frames, st.steps, shifts=shifts, saturation=st.sat)
-        elif callable(noise_sigma):
-            st.sigma_fn = noise_sigma
-        elif np.ndim(noise_sigma) == 0:
-            st.sigma_scalar = _check_positive("noise_sigma", noise_sigma, strict=False)
+    if noise_sigma is None:
+        fit = fit_noise_model(st.frames, st.steps, shifts=shifts, saturation=st.sat)
+        st.noise_model = dict(fit.describe(), source="estimated from the stack (sigma^2 = read + shot x A)")
+        if fit.shot == 0.0:
+            st.sigma_scalar = float(np.sqrt(fit.read_var))
         else:
-            sigma_map = np.asarray(noise_sigma, dtype=np.float32)
-            if sigma_map.shape != (H, W):
-                raise bad_value("noise_sigma", f"has shape {sigma_map.shape}, images are {(H, W)}",
-                                "pass a scalar, an (H, W) array or a callable sigma(signal)")
-            if not np.all(np.isfinite(sigma_map)) or np.any(sigma_map < 0):
-                raise bad_value("noise_sigma", "has negative or non-finite entries", "pass sigmas >= 0")
-            st.sigma_map = sigma_map
-        st.floor_scalar = None if st.sigma_scalar is None else st.sigma_scalar * st.factor
-        if min_modulation is not None:
-            st.floor_scalar = min_modulation
+            st.sigma_fn = fit
+    elif callable(noise_sigma):
+        st.sigma_fn = noise_sigma
+        st.noise_model = {"kind": "callable", "source": "given: noise_sigma(signal) per pixel"}
+    elif np.ndim(noise_sigma) == 0:
+        st.sigma_scalar = _check_positive("noise_sigma", noise_sigma, strict=False)
+        st.noise_model = {"kind": "scalar", "source": "given: one sigma for every pixel"}
+    else:
+        sigma_map = np.asarray(noise_sigma, dtype=np.float32)
+        if sigma_map.shape != (H, W):
+            raise bad_value("noise_sigma", f"has shape {sigma_map.shape}, images are {(H, W)}",
+                            "pass a scalar, an (H, W) array or a callable sigma(signal)")
+        if not np.all(np.isfinite(sigma_map)) or np.any(sigma_map < 0):
+            raise bad_value("noise_sigma", "has negative or non-finite entries", "pass sigmas >= 0")
+        st.sigma_map = sigma_map
+        st.noise_model = {"kind": "map", "source": "given: (H, W) sigma map"}
+    st.floor_scalar = None if st.sigma_scalar is None else st.sigma_scalar * st.factor
+    if min_modulation is not None:
+        st.floor_scalar = min_modulation
     if order_sigmas:
         st.order_factor = st.plan.noise_gain() * st.row_sigma * order_sigmas / np.pi
         if st.sigma_scalar is not None:
@@ -373,6 +338,7 @@ class _Out:
     p_wrong: np.ndarray       # NaN where no order was decoded
     legacy_bad: np.ndarray    # legacy order rules (order_sigmas / max_order_error)
     inconsistent: np.ndarray
+    filled: np.ndarray        # order taken from the neighbours (sl.spatial)
     modulation: np.ndarray
     offset: np.ndarray
     wrapped: list
@@ -384,7 +350,7 @@ class _Out:
         return cls(depth=np.empty((H, W), f32), proj_x=np.empty((H, W), f32), phase=np.empty((H, W), f32),
                    reason=np.zeros((H, W), np.uint8), order_error=np.empty((H, W), f32),
                    p_wrong=np.empty((H, W), f32), legacy_bad=np.zeros((H, W), bool),
-                   inconsistent=np.zeros((H, W), bool),
+                   inconsistent=np.zeros((H, W), bool), filled=np.zeros((H, W), bool),
                    modulation=np.empty((F, H, W), f32), offset=np.empty((H, W), f32),
                    wrapped=[np.empty((H, W), f32) for _ in range(F)])
 
@@ -521,6 +487,7 @@ def _neighbour_pass(st: _Setup, out: _Out):
         return
     out.proj_x.ravel()[ia] = xa
     out.p_wrong.ravel()[ia] = pa
+    out.filled.ravel()[ia] = True
     out.phase.ravel()[ia] = xa * (2 * np.pi * max(st.plan.periods) / st.wcoded)
     H, W = st.shape
     rows = np.unique(ia // W)
@@ -550,19 +517,23 @@ def _assemble(st: _Setup, out: _Out) -> DecodeResult:
     reason[bad] = Reason.BAD_ORDER
     reason[out.inconsistent] = Reason.INCONSISTENT
     valid = reason == 0
+    filled = np.logical_and(out.filled, valid, out=out.filled)
+    reason[filled] = Reason.NEIGHBOUR_ORDER
     inv = ~valid
     nan = np.float32(np.nan)
     for a in (out.depth, out.proj_x, out.phase):
         np.copyto(a, nan, where=inv)
     conf = np.subtract(np.float32(1), out.p_wrong, out=out.p_wrong)   # in place: p_wrong is not returned
     np.nan_to_num(conf, copy=False, nan=0.0)
+    if filled.any():
+        conf[filled] = np.maximum(conf[filled] - np.float32(NEIGHBOUR_RISK), 0)
     plan = st.plan
     return DecodeResult(depth=out.depth, valid=valid, proj_x=out.proj_x, modulation=out.modulation,
                         offset=out.offset, wrapped=out.wrapped, phase=out.phase, reason=reason,
                         order_error=out.order_error, confidence=conf, periods=plan.periods, steps=st.steps,
                         method=plan.method, noise_sigma=st.sigma_scalar, modulation_floor=st.floor_scalar,
                         extras={"order_floor": st.order_floor, "noise_gain": plan.noise_gain(),
-                                "max_wrong": st.max_wrong},
+                                "max_wrong": st.max_wrong, "noise_model": st.noise_model},
                         triangulator=st.tri)
 
 
