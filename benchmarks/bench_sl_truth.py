@@ -18,8 +18,8 @@ direct light there) / part / bin. Coverage: the share of directly lit part pixel
 original rig's acceptance) and the share of projector-shadowed pixels that carry depth (all, and
 those at least SHADOW_PX from a lit pixel: the ray cast tests the pixel centre, a pixel next to a
 lit one is partly lit, as the decoder sees it). Decode
-time: the scanner (sensor model + decode + filters) and the global-light filter alone, side by
-side in one run.
+time: the scanner (sensor model + decode + filters) and the global-light filter alone; with
+`--baseline DIR` (another checkout, e.g. main) the same scans by its package, side by side in one run.
 
 Writes benchmarks/results/sl_truth.md, sl_truth.csv and sl_truth.png.
 """
@@ -141,6 +141,7 @@ def run(cache: Path, log=print) -> list[dict]:
         scan_s = time.process_time() - t0
         m = metrics(c, scan, bounce_map(cache, key, mode))
         m.update(case=key.removesuffix(f"_{mode}"), mode=mode, scan_cpu_s=scan_s, filter_cpu_s=filt_s,
+                 baseline_cpu_s=float("nan"),
                  fringe_s=float(c["fringe_s"]))
         rows.append(m)
         log(f"  {key}: valid {m['valid']:.3f} p99 {m['p99_mm']:.2f} mm, > 5 mm {m['out5']:.4f} "
@@ -149,7 +150,7 @@ def run(cache: Path, log=print) -> list[dict]:
 
 
 COLS = ("case", "mode", "valid", "median_mm", "p99_mm", "out5", "out5_off_edge", "p99_off_edge_mm", "n_out5",
-        *[f"at_{k}" for k in PLACES], "part_ok", "shadow_valid", "deep_shadow_valid", "multipath_px", "scan_cpu_s", "filter_cpu_s")
+        *[f"at_{k}" for k in PLACES], "part_ok", "shadow_valid", "deep_shadow_valid", "multipath_px", "scan_cpu_s", "baseline_cpu_s", "filter_cpu_s")
 
 
 def _fmt(k, v):
@@ -193,6 +194,37 @@ def plot(rows, path: Path) -> None:
     cv2.imwrite(str(path), img)
 
 
+def scan_cpu(root: Path, cache: Path, reps: int = 3) -> dict:
+    """{case key: median CPU seconds of the scan} with the datapipe package of checkout `root`
+    (this one or a baseline: `git archive main | tar -x -C DIR`), in a subprocess so that both
+    packages can be timed in one run, alternately."""
+    import json
+    import subprocess
+
+    code = f"""
+import json, sys, time
+sys.path[:0] = [{str(root)!r}, {str(ROOT / "benchmarks")!r}, {str(ROOT / "tests")!r}]
+import numpy as np
+import bench_sl_truth as B, sl_truth_cases as T
+from pathlib import Path
+cache, out = Path({str(cache)!r}), {{}}
+for key, mode in B.keys():
+    if not (cache / f"{{key}}.npz").is_file():
+        continue
+    c = T.load(cache, key)
+    sc = B.scanner_for(key, mode)
+    ts = []
+    for _ in range({int(reps)}):
+        t0 = time.process_time()
+        sc.scan(c["rad"], B.S.SEED, c["K"], c["T"])
+        ts.append(time.process_time() - t0)
+    out[key] = float(np.median(ts))
+print(json.dumps(out))
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
 def dark_step_rows(log=print) -> list[dict]:
     """The adversarial synthetic stack (sl_bench_scenes.dark_step_stack) decoded with the decoder's
     defaults and no noise model: coverage of the lit pixels, share of decoded pixels a fine period
@@ -224,7 +256,8 @@ def write_report(rows, dark=()) -> None:
              "depth edge +-2 px / projector shadow (ray cast) / bounce-dominated (flat-lit passes: bounced > direct) / "
              "part / bin); `part_ok`: directly lit part pixels within 1 mm; `shadow_valid`: projector-shadowed "
              "pixels (ray cast from the pixel centre) with depth, `deep_shadow_valid`: the same for the shadowed pixels "
-             f"at least {SHADOW_PX} px from every directly lit one (the others are partly lit); CPU seconds of the whole scan and of the global-light filter alone, same run.", "",
+             f"at least {SHADOW_PX} px from every directly lit one (the others are partly lit); CPU seconds of the whole scan (`scan_cpu_s`; `baseline_cpu_s`: the "
+             "same scan by the `--baseline` checkout, alternately in the same run) and of the global-light filter alone.", "",
              "| " + " | ".join(COLS) + " |", "|" + "---|" * len(COLS)]
     for r in rows:
         lines.append("| " + " | ".join(_fmt(k, r[k]) for k in COLS) + " |")
@@ -244,6 +277,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, default=ROOT / "benchmarks" / ".cache" / "sl_truth")
     ap.add_argument("--no-render", action="store_true", help="decode what is cached, render nothing")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a checkout to time the scan against, side by side (e.g. main: git archive main | tar -x -C DIR)")
     args = ap.parse_args(argv)
     args.cache.mkdir(parents=True, exist_ok=True)
     if not args.no_render:
@@ -251,6 +286,16 @@ def main(argv=None) -> int:
             T.render_demo(args.cache, mode)
             T.render_rig(args.cache, RIG_CASES, mode)
     rows = run(args.cache)
+    if args.baseline is not None:
+        mine, base = {}, {}
+        for _ in range(2):                      # alternately: the machine's load hits both alike
+            for d, root in ((mine, ROOT), (base, args.baseline.resolve())):
+                for k, v in scan_cpu(root, args.cache).items():
+                    d.setdefault(k, []).append(v)
+        for r in rows:
+            k = f"{r['case']}_{r['mode']}"
+            r["scan_cpu_s"] = float(np.median(mine[k]))
+            r["baseline_cpu_s"] = float(np.median(base[k])) if k in base else float("nan")
     write_report(rows, dark_step_rows())
     return 0
 
