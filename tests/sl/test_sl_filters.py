@@ -186,3 +186,10 @@ def test_global_light_filter_removes_bounce_decided_orders_and_bounce_only_light
     noise = sl.filters.global_light_filter(res.modulation * 0 + 1e-3, np.full(res.offset.shape, 5.0), direct, STEPS,
                                            30.0, np.ones_like(res.valid))
     assert not noise.any()                              # A - 1.7 B within 3 sigma of the noise: kept
+    # the scanner runs it with the local reflection filter: reason MULTIPATH, off with the filter off
+    scan = _scanner(cam, proj).scan(img, 3, cam.K, cam.T)
+    res = scan.result
+    assert not (res.valid & only).any() and (res.valid & right & (np.abs(res.depth - r.depth) > 5e-3)).mean() < 0.002
+    assert (res.reason[right & ~res.valid] == sl.Reason.MULTIPATH).mean() > 0.5 and res.valid[clean].mean() > 0.99
+    off = _scanner(cam, proj, multipath_filter=False).scan(img, 3, cam.K, cam.T).result
+    assert (off.valid & right & (np.abs(off.depth - r.depth) > 5e-3)).mean() > 0.3
