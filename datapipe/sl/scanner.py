@@ -63,8 +63,8 @@ from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from ._errors import bad_value
 from .decode import DecodeResult, Reason, decode
 from .exposure import Capture, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set, lit_pixels
-from .filters import (direct_frequencies, edge_speckle_filter, global_light_filter, multipath_filter, projector_rows,
-                      reflection_filter, row_from_phase, row_residual)
+from .filters import (direct_frequencies, direct_offset_ratio, edge_speckle_filter, global_light_filter, multipath_filter,
+                      projector_rows, reflection_filter, row_from_phase, row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
 from .metrics import pixel_depth_sigma
 from .patterns import fringe_patterns, phase_shifts
@@ -227,7 +227,8 @@ class Scanner:
             multipath = multipath_filter(res.modulation, res.offset, res.periods, self.steps, cap.noise_sigma,
                                          res.valid)
             multipath |= global_light_filter(res.modulation, res.offset, direct_frequencies(res.periods, self.proj_size[0]),
-                                             self.steps, cap.noise_sigma, res.valid)
+                                             self.steps, cap.noise_sigma, res.valid,
+                                             direct_offset=direct_offset_ratio(self.projector_gamma, self.steps))
             _remove(res, multipath, MULTIPATH)
         reflection = residual = None
         if self.row_check and cap.images.shape[0] > n:

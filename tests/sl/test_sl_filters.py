@@ -186,6 +186,16 @@ def test_global_light_filter_removes_bounce_decided_orders_and_bounce_only_light
     noise = sl.filters.global_light_filter(res.modulation * 0 + 1e-3, np.full(res.offset.shape, 5.0), direct, STEPS,
                                            30.0, np.ones_like(res.valid))
     assert not noise.any()                              # A - 1.7 B within 3 sigma of the noise: kept
+    # a projector gamma changes direct light's own A / B: (1/2 + 1/2 cos)^0.25, 4 steps: up to 3.3
+    c = sl.filters.direct_offset_ratio(0.25, STEPS)
+    t = np.linspace(0, 2 * np.pi, STEPS, endpoint=False)[:, None, None]
+    frames = 200.0 * (0.5 + 0.5 * np.cos(t + np.linspace(0, 6, 50)[None, None, :])) ** 0.25
+    ph = sl.phase_shift(np.repeat(frames, 3, axis=1).reshape(STEPS, 3, 50))
+    assert abs(float(np.max(ph.offset / ph.modulation)) - c) < 0.02 and c > 1.9
+    mods = np.broadcast_to(ph.modulation, (3, 3, 50))
+    assert sl.filters.global_light_filter(mods, ph.offset, direct, STEPS, 1.0, np.ones((3, 50), bool)).mean() > 0.8
+    assert not sl.filters.global_light_filter(mods, ph.offset, direct, STEPS, 1.0, np.ones((3, 50), bool),
+                                              direct_offset=c).any()
     # the scanner runs it with the local reflection filter: reason MULTIPATH, off with the filter off
     scan = _scanner(cam, proj).scan(img, 3, cam.K, cam.T)
     res = scan.result
