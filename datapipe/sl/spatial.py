@@ -92,9 +92,9 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
                    min_support=2, weights_min=0.01):
     """Correct / confirm the orders of ``cand`` pixels from confident neighbours (module doc).
 
-    x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good, cand:
-    (H, W) bool; cyc, var_c: per frequency 1D arrays over ``flatnonzero(cand)`` (cycles,
-    cycles^2). Returns (idx, x_new, p_wrong) of the accepted pixels (flat indices)."""
+    x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good: (H, W)
+    bool; cand: (H, W) bool or the sorted flat indices of the candidates; cyc, var_c: per frequency
+    1D arrays over the candidates (cycles, cycles^2). Returns (idx, x_new, p_wrong) of the accepted pixels (flat indices)."""
     H, W = x.shape
     per = np.asarray(periods, np.float64)
     f = int(np.argmax(per))
@@ -105,7 +105,7 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     inner = xg[PAD:PAD + H, PAD:PAD + W]
     np.copyto(inner, x, where=good)
     xg = xg.ravel()
-    idx_all = np.flatnonzero(cand)
+    idx_all = np.flatnonzero(cand) if cand.dtype == bool else np.asarray(cand)
     r_all, c_all = np.divmod(idx_all, W)
     p_all = (r_all + PAD) * Wp + (c_all + PAD)
     offs = np.array([dy * Wp + dx for dy, dx in _DIRS])
