@@ -488,8 +488,9 @@ def _neighbour_pass(st: _Setup, out: _Out):
     else:
         sig = np.full(idx.size, st.sigma_scalar)
     s = sig * st.row_sigma
-    cyc = [out.wrapped[i].ravel()[idx].astype(np.float64) / (2 * np.pi) for i in range(F)]
-    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx].astype(np.float64), s) for i in range(F)]
+    cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
+    s = s.astype(np.float32)
+    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     ia, xa, pa = correct_orders(out.proj_x, good, idx, cyc, var_c, st.plan.periods, st.wcoded,
                                 max_wrong=st.max_wrong)
     if ia.size == 0:
