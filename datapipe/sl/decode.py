@@ -11,7 +11,9 @@ copied and never converted to float64 as a whole), one named step each:
    are wrong from the agreement of all frequencies and the noise the sensor predicts
    (:mod:`.confidence`); closed-form triangulation (:mod:`.triangulate`);
 2. :func:`_neighbour_pass`: uncertain pixels take (or confirm) their order from the coordinate
-   their confident neighbours predict (:mod:`.spatial`), and are triangulated again;
+   their confident neighbours on the same surface predict (:mod:`.spatial`), and are triangulated
+   again; they come out VALID with reason NEIGHBOUR_ORDER and their confidence lowered by
+   ``NEIGHBOUR_RISK``;
 3. :func:`_assemble`: reasons by priority, NaN fill.
 
 Every output pixel is finite and valid, or NaN with a :class:`Reason` code.
@@ -25,8 +27,9 @@ frequencies' evidence counts together (one frequency alone: ``B_hat <= s sqrt(-2
 pure-noise pixel that passes still has to pass the order decision, where its frequencies disagree.
 ``sigma_I`` is ``noise_sigma`` (a number in image units, an (H, W) array, or a callable
 ``sigma(signal)`` such as :meth:`datapipe.sl.sensor.SensorModel.noise_sigma`, evaluated at each
-pixel's offset A); by default it is estimated from the least-squares residuals (N >= 4). An
-explicit ``min_modulation`` replaces the test by ``B_hat <= min_modulation`` in any frequency.
+pixel's offset A); by default :mod:`.noise` fits ``sigma^2(A)`` (read + shot noise) to the stack's own
+fit residuals and offsets and evaluates it per pixel (``extras["noise_model"]`` says which noise was
+used). An explicit ``min_modulation`` replaces the test by ``B_hat <= min_modulation`` in any frequency.
 
 Order decision. A pixel is BAD_ORDER when the probability that some order is wrong
 (:attr:`DecodeResult.confidence` is one minus it) exceeds ``max_wrong`` (default 1e-3) after the
@@ -466,12 +469,33 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
         out.candidates.append(np.flatnonzero(fillable) + r0 * fillable.shape[1])
 
 
+def _any_supported(st: _Setup, out: _Out, idx) -> bool:
+    """Has some candidate two confident 8-neighbours (the least any prediction pair needs)? Read at
+    the candidates' neighbours only, so scattered noise pixels in a shadow cost no full-image pass."""
+    H, W = st.shape
+    r, c = np.divmod(idx, W)
+    n = np.zeros(idx.size, np.int8)
+    thr = np.float32(st.max_wrong)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                q = np.clip(r + dy, 0, H - 1) * W + np.clip(c + dx, 0, W - 1)
+                with np.errstate(invalid="ignore"):
+                    ok = (out.p_wrong.ravel()[q] <= thr) & ~out.inconsistent.ravel()[q]
+                if st.order_factor or st.max_order_error is not None:
+                    ok &= ~out.legacy_bad.ravel()[q]
+                n += ok & (q != idx)
+    return bool(np.any(n >= 2))
+
+
 def _neighbour_pass(st: _Setup, out: _Out):
     """Uncertain pixels take / confirm their order from confident neighbours, then are
     triangulated again (see :mod:`.spatial`)."""
     if not out.candidates:
         return
     idx = np.concatenate(out.candidates)
+    if not _any_supported(st, out, idx):
+        return
     # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): not good
     with np.errstate(invalid="ignore"):
         good = out.p_wrong <= np.float32(st.max_wrong)
@@ -565,7 +589,8 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
     P_cam, P_proj: 3x4 world -> pixel matrices (``K @ inv(T_world_cam)[:3]``); depth and points
         are in the camera frame of P_cam. proj_size: projector (width, height) in pixels.
     unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`).
-    noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = estimate.
+    noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = fitted per
+        pixel from the stack (:func:`datapipe.sl.noise.fit_noise_model`).
     saturation: samples >= this are excluded (default: integer type max; none for floats).
     min_modulation: explicit modulation floor (image units), replaces the noise-derived floor.
     min_contrast: pixels with ``B < min_contrast * A`` are NO_LIGHT (washed-out fringes).

@@ -171,7 +171,7 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
 
 
 def fit_noise_model(frames: Sequence[np.ndarray], steps: int, *, shifts=None, saturation=None,
-                    max_pixels: int = 1 << 16) -> NoiseModel:
+                    max_pixels: int = 1 << 15) -> NoiseModel:
     """sigma^2(A) from the stack itself (module doc); frames frequency-major."""
     a, stat, dof, floor = _statistics(frames, steps, shifts, saturation, max_pixels)
     if dof == 0 or a.size == 0:
