@@ -258,8 +258,9 @@ def _noise_setup(st: _Setup, noise_sigma, min_modulation, order_sigmas, shifts):
     st.min_modulation = min_modulation
     if noise_sigma is None:
         fit = fit_noise_model(st.frames, st.steps, shifts=shifts, saturation=st.sat)
-        st.noise_model = dict(fit.describe(), source="estimated from the stack (sigma^2 = read + shot x A)")
-        if fit.shot == 0.0:
+        st.noise_model = dict(fit.describe(),
+                              source="fitted per pixel from the stack: sigma^2 against the mean intensity A")
+        if not fit.bin_a:
             st.sigma_scalar = float(np.sqrt(fit.read_var))
         else:
             st.sigma_fn = fit

@@ -7,23 +7,27 @@ grows linearly with the signal (the photon transfer curve of EMVA 1288):
 
     sigma^2(A) = read_var + A / gain           (DN^2, A = the pixel's mean intensity)
 
-:func:`fit_noise_model` fits that line to the fringe stack itself. Per pixel of a subsample it
-pools two statistics whose expectation is sigma^2 times a chi-square variable:
+:func:`fit_noise_model` measures that curve on the fringe stack itself. Per pixel of a subsample
+it pools two statistics whose expectation is sigma^2 times a chi-square variable:
 
 * the least-squares residual of every frequency's N-step fit: ``chi2(F (N - 3))`` (none for N = 3);
 * the spread of the F offsets ``A_i`` (every frequency measures the same mean, the pattern's
   offset times the albedo): ``sum (A_i - mean A)^2 / g`` is ``chi2(F - 1)``, ``g`` the variance
   of one offset per unit noise (``1/N`` for uniform shifts). This is what N = 3 sets have.
 
-The pixels are sorted into bins of A; each bin's mean statistic without its top 2% (the pixels at
-depth edges, whose residuals also carry model error), over the same trimmed mean of the
-chi-square law, estimates sigma^2 at the bin's A; a weighted least-squares line through the bins (weights: the bins' pixel
-counts over sigma^4, the variance of a median) gives ``read_var`` and ``1 / gain``, both kept
-non-negative. The result is a per-pixel sigma, evaluated at each pixel's own A: a dark patch gets
-the small noise it really has instead of a global figure dominated by bright, shot-noise-limited
-pixels (which overstated it 1.5x on issue #19's dark box top and let the neighbour pass accept
-orders its frequencies contradicted), and a shadow gets its read noise instead of the quantisation
-floor (which let pure noise pass the modulation floor of N = 3 sets).
+The pixels are sorted into bins equally spaced in sqrt(A); each bin's mean statistic without its
+top 2% (the pixels at depth edges, whose residuals also carry model error), over the same trimmed
+mean of the chi-square law, estimates sigma^2 at the bin's A. Between the bins sigma^2 is
+interpolated linearly, so the curve follows the data where the sensor is not linear (a sensor
+without black level clips the dark pixels' noise at zero: there sigma^2 is smaller and skewed,
+and a trimmed mean, unlike a median, keeps its tail); beyond the last bin it grows with the slope
+of a weighted least-squares line ``read_var + shot * A`` through the bins (weights: pixel counts
+over sigma^4), which is also what the result reports. The result is a per-pixel sigma, evaluated at
+each pixel's own A: a dark patch gets the small noise it really has instead of a global figure
+dominated by bright, shot-noise-limited pixels (which overstated it 1.3-1.5x on issue #19's dark
+box top and let the neighbour pass accept orders its frequencies contradicted), and a shadow gets
+its read noise instead of the quantisation floor (which let pure noise pass the modulation floor of
+N = 3 sets).
 
 With one frequency of three steps nothing in the stack measures the noise: integer images then use
 their quantisation (1/sqrt(12) DN), float images 0.1% of the bright (99th percentile) offset, a
@@ -44,7 +48,7 @@ from .phase import PhaseKernel, work_dtype_for
 
 __all__ = ["NoiseModel", "fit_noise_model", "estimate_noise_sigma"]
 
-MIN_BIN = 128        # pixels per A-bin at least (the median's relative error is then below ~10%)
+MIN_BIN = 128        # pixels per A-bin at least (its sigma^2 then within ~10% for 3 dof)
 BINS = 48            # bins equally spaced in sqrt(A) (shot noise's variance-stabilising scale)
 TRIM = 0.02         # share of the largest statistics left out per bin
 TABLE = 1024         # entries of the sigma look-up table, also equally spaced in sqrt(A)
@@ -52,12 +56,12 @@ TABLE = 1024         # entries of the sigma look-up table, also equally spaced i
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Noise sigma as a function of the signal A (image units, see the module doc): the binned
-    medians ``(bin_a, bin_var)``, linearly interpolated (beyond the last bin: extrapolated with the
+    """Noise sigma as a function of the signal A (image units, see the module doc): the bins'
+    ``(bin_a, bin_var)``, linearly interpolated (beyond the last bin: extrapolated with the
     fitted shot term); evaluated through a look-up table over ``sqrt(A)``."""
     read_var: float            # fitted line: image units^2 at A = 0 ...
     shot: float                # ... plus this per unit of A (1 / conversion gain)
-    bin_a: tuple = ()          # medians of A of the populated bins
+    bin_a: tuple = ()          # median A of each populated bin
     bin_var: tuple = ()        # sigma^2 of those bins
     kind: str = "fit"          # "fit" (from the stack) or "floor" (nothing to fit: constant)
     pixels: int = 0            # pixels the fit used
