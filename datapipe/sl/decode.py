@@ -11,7 +11,9 @@ copied and never converted to float64 as a whole), one named step each:
    are wrong from the agreement of all frequencies and the noise the sensor predicts
    (:mod:`.confidence`); closed-form triangulation (:mod:`.triangulate`);
 2. :func:`_neighbour_pass`: uncertain pixels take (or confirm) their order from the coordinate
-   their confident neighbours predict (:mod:`.spatial`), and are triangulated again;
+   their confident neighbours on the same surface predict (:mod:`.spatial`), and are triangulated
+   again; they come out VALID with reason NEIGHBOUR_ORDER and their confidence lowered by
+   ``NEIGHBOUR_RISK``;
 3. :func:`_assemble`: reasons by priority, NaN fill.
 
 Every output pixel is finite and valid, or NaN with a :class:`Reason` code.
@@ -25,8 +27,9 @@ frequencies' evidence counts together (one frequency alone: ``B_hat <= s sqrt(-2
 pure-noise pixel that passes still has to pass the order decision, where its frequencies disagree.
 ``sigma_I`` is ``noise_sigma`` (a number in image units, an (H, W) array, or a callable
 ``sigma(signal)`` such as :meth:`datapipe.sl.sensor.SensorModel.noise_sigma`, evaluated at each
-pixel's offset A); by default it is estimated from the least-squares residuals (N >= 4). An
-explicit ``min_modulation`` replaces the test by ``B_hat <= min_modulation`` in any frequency.
+pixel's offset A); by default :mod:`.noise` fits ``sigma^2(A)`` (read + shot noise) to the stack's own
+fit residuals and offsets and evaluates it per pixel (``extras["noise_model"]`` says which noise was
+used). An explicit ``min_modulation`` replaces the test by ``B_hat <= min_modulation`` in any frequency.
 
 Order decision. A pixel is BAD_ORDER when the probability that some order is wrong
 (:attr:`DecodeResult.confidence` is one minus it) exceeds ``max_wrong`` (default 1e-3) after the
@@ -49,8 +52,8 @@ from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
 from .confidence import consistency_limits, phase_var_cycles, phase_var_from_snr, wrong_probability
 from .gamma import correct_cycles, gamma_phase_lut
-from .noise import estimate_noise_sigma, fit_noise_model
-from .spatial import correct_orders
+from .noise import estimate_noise_sigma, fit_noise_model, variance_function
+from .spatial import MAX_FINE_NOISE, correct_orders
 from .triangulate import Triangulator
 from .unwrap import plan_unwrap, unwrap_cycles
 
@@ -224,6 +227,7 @@ class _Setup:
     sigma_scalar: float | None = None
     sigma_map: np.ndarray | None = None
     sigma_fn: Callable | None = None
+    var_fn: Callable | None = None        # raw slab offset -> (sigma_I * row_sigma)^2 (noise.variance_function)
     order_factor: float = 0.0
     order_floor: float | None = None
     noise_model: dict = field(default_factory=dict)
@@ -254,8 +258,9 @@ def _noise_setup(st: _Setup, noise_sigma, min_modulation, order_sigmas, shifts):
     st.min_modulation = min_modulation
     if noise_sigma is None:
         fit = fit_noise_model(st.frames, st.steps, shifts=shifts, saturation=st.sat)
-        st.noise_model = dict(fit.describe(), source="estimated from the stack (sigma^2 = read + shot x A)")
-        if fit.shot == 0.0:
+        st.noise_model = dict(fit.describe(),
+                              source="fitted per pixel from the stack: sigma^2 against the mean intensity A")
+        if not fit.bin_a:
             st.sigma_scalar = float(np.sqrt(fit.read_var))
         else:
             st.sigma_fn = fit
@@ -277,6 +282,8 @@ def _noise_setup(st: _Setup, noise_sigma, min_modulation, order_sigmas, shifts):
     st.floor_scalar = None if st.sigma_scalar is None else st.sigma_scalar * st.factor
     if min_modulation is not None:
         st.floor_scalar = min_modulation
+    if st.sigma_fn is not None:
+        st.var_fn = variance_function(st.sigma_fn, st.kernel.a_scale, st.row_sigma ** 2)
     if order_sigmas:
         st.order_factor = st.plan.noise_gain() * st.row_sigma * order_sigmas / np.pi
         if st.sigma_scalar is not None:
@@ -342,7 +349,8 @@ class _Out:
     modulation: np.ndarray
     offset: np.ndarray
     wrapped: list
-    n_unsure: int = 0          # pixels above max_wrong (before the neighbour pass)
+    candidates: list = field(default_factory=list)   # per slab: flat indices of the pixels the neighbour pass
+                                                      # may fill (above max_wrong, order decoded, fine phase precise)
 
     @classmethod
     def allocate(cls, H, W, F):
@@ -355,12 +363,14 @@ class _Out:
                    wrapped=[np.empty((H, W), f32) for _ in range(F)])
 
 
-def _slab_sigma(st: _Setup, a, r0, r1):
-    """Per-pixel image noise sigma of a slab (None when scalar)."""
-    if st.sigma_fn is not None:
-        return np.asarray(st.sigma_fn(np.maximum(a * st.work.type(st.kernel.a_scale), 0)), dtype=st.work)
+def _slab_var(st: _Setup, a, r0, r1):
+    """Per-pixel noise variance of the least-squares C and S rows, ``(sigma_I * row_sigma)^2``, of a
+    slab from its raw offset ``a`` (None when the noise is one scalar)."""
+    if st.var_fn is not None:
+        return st.var_fn(a)
     if st.sigma_map is not None:
-        return st.sigma_map[r0:r1]
+        s = st.sigma_map[r0:r1]
+        return s * s * st.work.type(st.row_sigma ** 2)
     return None
 
 
@@ -397,12 +407,11 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
         if inv is not None:
             invalid = inv if invalid is None else (invalid | inv)
         if i == 0:                       # noise of the slab (from the offset, alike in all frequencies)
-            sig = _slab_sigma(st, a, r0, r1)
-            if sig is not None:
-                s2 = np.multiply(sig, sig)
-                s2 *= wt(st.row_sigma ** 2)
-            else:
+            s2 = _slab_var(st, a, r0, r1)
+            if s2 is None:
                 s2 = wt((st.sigma_scalar * st.row_sigma) ** 2)
+            elif st.order_factor and st.order_floor is None:
+                sig = np.sqrt(s2) / wt(st.row_sigma)
         q = np.multiply(b, b)
         np.divide(q, s2, out=q)          # B^2 / s^2: Gamma evidence (floor) and phase SNR
         var_c.append(phase_var_from_snr(q))
@@ -434,7 +443,8 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
     if not direct:
         out.p_wrong[r0:r1] = p
     out.inconsistent[r0:r1] = inc
-    out.n_unsure += int(np.count_nonzero(np.greater(p, wt(st.max_wrong))))
+    fillable = np.less_equal(var_c[st.plan.finest], wt(MAX_FINE_NOISE ** 2))
+    np.logical_and(np.greater(p, wt(st.max_wrong)), fillable, out=fillable)    # NaN p: False
     legacy = out.legacy_bad[r0:r1]
     if lowsnr is not None:
         legacy |= lowsnr
@@ -452,36 +462,61 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
         out.p_wrong[r0:r1][basic] = np.nan
         out.inconsistent[r0:r1][basic] = False
         legacy[basic] = False
+        fillable &= ~basic
+    fillable &= ~inc                     # the neighbour pass's candidates (sl.spatial)
+    if st.order_factor or st.max_order_error is not None:
+        fillable &= ~legacy
+    if fillable.any():
+        out.candidates.append(np.flatnonzero(fillable) + r0 * fillable.shape[1])
+
+
+def _any_supported(st: _Setup, out: _Out, idx) -> bool:
+    """Has some candidate two confident 8-neighbours (the least any prediction pair needs)? Read at
+    the candidates' neighbours only, so scattered noise pixels in a shadow cost no full-image pass."""
+    H, W = st.shape
+    r, c = np.divmod(idx, W)
+    n = np.zeros(idx.size, np.int8)
+    thr = np.float32(st.max_wrong)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                q = np.clip(r + dy, 0, H - 1) * W + np.clip(c + dx, 0, W - 1)
+                with np.errstate(invalid="ignore"):
+                    ok = (out.p_wrong.ravel()[q] <= thr) & ~out.inconsistent.ravel()[q]
+                if st.order_factor or st.max_order_error is not None:
+                    ok &= ~out.legacy_bad.ravel()[q]
+                n += ok & (q != idx)
+    return bool(np.any(n >= 2))
 
 
 def _neighbour_pass(st: _Setup, out: _Out):
     """Uncertain pixels take / confirm their order from confident neighbours, then are
     triangulated again (see :mod:`.spatial`)."""
-    if out.n_unsure == 0:
+    if not out.candidates:
         return
-    # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): neither set
+    idx = np.concatenate(out.candidates)
+    if not _any_supported(st, out, idx):
+        return
+    # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): not good
     with np.errstate(invalid="ignore"):
-        sure = out.p_wrong <= np.float32(st.max_wrong)
-        unsure = out.p_wrong > np.float32(st.max_wrong)
-    usable = ~out.inconsistent
+        good = out.p_wrong <= np.float32(st.max_wrong)
+    good &= ~out.inconsistent
     if st.order_factor or st.max_order_error is not None:
-        usable &= ~out.legacy_bad
-    good = np.logical_and(usable, sure, out=sure)
-    cand = np.logical_and(usable, unsure, out=unsure)
-    if not cand.any() or not good.any():
+        good &= ~out.legacy_bad
+    if not good.any():
         return
-    idx = np.flatnonzero(cand)
     F = len(st.plan.periods)
-    cyc = [out.wrapped[i].ravel()[idx].astype(np.float64) / (2 * np.pi) for i in range(F)]
     if st.sigma_fn is not None:
         sig = np.asarray(st.sigma_fn(np.maximum(out.offset.ravel()[idx].astype(np.float64), 0)), np.float64)
     elif st.sigma_map is not None:
         sig = st.sigma_map.ravel()[idx].astype(np.float64)
     else:
-        sig = st.sigma_scalar
+        sig = np.full(idx.size, st.sigma_scalar)
     s = sig * st.row_sigma
-    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx].astype(np.float64), s) for i in range(F)]
-    ia, xa, pa = correct_orders(out.proj_x, good, cand, cyc, var_c, st.plan.periods, st.wcoded,
+    cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
+    s = s.astype(np.float32)
+    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
+    ia, xa, pa = correct_orders(out.proj_x, good, idx, cyc, var_c, st.plan.periods, st.wcoded,
                                 max_wrong=st.max_wrong)
     if ia.size == 0:
         return
@@ -555,7 +590,8 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
     P_cam, P_proj: 3x4 world -> pixel matrices (``K @ inv(T_world_cam)[:3]``); depth and points
         are in the camera frame of P_cam. proj_size: projector (width, height) in pixels.
     unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`).
-    noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = estimate.
+    noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = fitted per
+        pixel from the stack (:func:`datapipe.sl.noise.fit_noise_model`).
     saturation: samples >= this are excluded (default: integer type max; none for floats).
     min_modulation: explicit modulation floor (image units), replaces the noise-derived floor.
     min_contrast: pixels with ``B < min_contrast * A`` are NO_LIGHT (washed-out fringes).

@@ -7,23 +7,27 @@ grows linearly with the signal (the photon transfer curve of EMVA 1288):
 
     sigma^2(A) = read_var + A / gain           (DN^2, A = the pixel's mean intensity)
 
-:func:`fit_noise_model` fits that line to the fringe stack itself. Per pixel of a subsample it
-pools two statistics whose expectation is sigma^2 times a chi-square variable:
+:func:`fit_noise_model` measures that curve on the fringe stack itself. Per pixel of a subsample
+it pools two statistics whose expectation is sigma^2 times a chi-square variable:
 
 * the least-squares residual of every frequency's N-step fit: ``chi2(F (N - 3))`` (none for N = 3);
 * the spread of the F offsets ``A_i`` (every frequency measures the same mean, the pattern's
   offset times the albedo): ``sum (A_i - mean A)^2 / g`` is ``chi2(F - 1)``, ``g`` the variance
   of one offset per unit noise (``1/N`` for uniform shifts). This is what N = 3 sets have.
 
-The pixels are sorted into bins of A; each bin's median statistic divided by the chi-square median
-estimates sigma^2 at the bin's A (robust against the few pixels at depth edges, whose residuals
-also carry model error); a weighted least-squares line through the bins (weights: the bins' pixel
-counts over sigma^4, the variance of a median) gives ``read_var`` and ``1 / gain``, both kept
-non-negative. The result is a per-pixel sigma, evaluated at each pixel's own A: a dark patch gets
-the small noise it really has instead of a global figure dominated by bright, shot-noise-limited
-pixels (which overstated it 1.5x on issue #19's dark box top and let the neighbour pass accept
-orders its frequencies contradicted), and a shadow gets its read noise instead of the quantisation
-floor (which let pure noise pass the modulation floor of N = 3 sets).
+The pixels are sorted into bins equally spaced in sqrt(A); each bin's mean statistic without its
+top 2% (the pixels at depth edges, whose residuals also carry model error), over the same trimmed
+mean of the chi-square law, estimates sigma^2 at the bin's A. Between the bins sigma^2 is
+interpolated linearly, so the curve follows the data where the sensor is not linear (a sensor
+without black level clips the dark pixels' noise at zero: there sigma^2 is smaller and skewed,
+and a trimmed mean, unlike a median, keeps its tail); beyond the last bin it grows with the slope
+of a weighted least-squares line ``read_var + shot * A`` through the bins (weights: pixel counts
+over sigma^4), which is also what the result reports. The result is a per-pixel sigma, evaluated at
+each pixel's own A: a dark patch gets the small noise it really has instead of a global figure
+dominated by bright, shot-noise-limited pixels (which overstated it 1.3-1.5x on issue #19's dark
+box top and let the neighbour pass accept orders its frequencies contradicted), and a shadow gets
+its read noise instead of the quantisation floor (which let pure noise pass the modulation floor of
+N = 3 sets).
 
 With one frequency of three steps nothing in the stack measures the noise: integer images then use
 their quantisation (1/sqrt(12) DN), float images 0.1% of the bright (99th percentile) offset, a
@@ -44,19 +48,20 @@ from .phase import PhaseKernel, work_dtype_for
 
 __all__ = ["NoiseModel", "fit_noise_model", "estimate_noise_sigma"]
 
-MIN_BIN = 128        # pixels per A-bin at least (the median's relative error is then below ~10%)
+MIN_BIN = 128        # pixels per A-bin at least (its sigma^2 then within ~10% for 3 dof)
 BINS = 48            # bins equally spaced in sqrt(A) (shot noise's variance-stabilising scale)
+TRIM = 0.02         # share of the largest statistics left out per bin
 TABLE = 1024         # entries of the sigma look-up table, also equally spaced in sqrt(A)
 
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Noise sigma as a function of the signal A (image units, see the module doc): the binned
-    medians ``(bin_a, bin_var)``, linearly interpolated (beyond the last bin: extrapolated with the
+    """Noise sigma as a function of the signal A (image units, see the module doc): the bins'
+    ``(bin_a, bin_var)``, linearly interpolated (beyond the last bin: extrapolated with the
     fitted shot term); evaluated through a look-up table over ``sqrt(A)``."""
     read_var: float            # fitted line: image units^2 at A = 0 ...
     shot: float                # ... plus this per unit of A (1 / conversion gain)
-    bin_a: tuple = ()          # medians of A of the populated bins
+    bin_a: tuple = ()          # median A of each populated bin
     bin_var: tuple = ()        # sigma^2 of those bins
     kind: str = "fit"          # "fit" (from the stack) or "floor" (nothing to fit: constant)
     pixels: int = 0            # pixels the fit used
@@ -72,35 +77,58 @@ class NoiseModel:
 
     @cached_property
     def _table(self):
-        top = max(2.0 * (self.bin_a[-1] if self.bin_a else 1.0), 1e-12)
-        k = (TABLE - 1) / np.sqrt(top)
-        grid = (np.arange(TABLE) / k) ** 2
-        return np.sqrt(self.variance(grid)).astype(np.float32), float(k), float(np.sqrt(self.variance(top)))
+        """(sigma^2 at the midpoints of TABLE steps of sqrt(A) up to 4x the last bin, steps per sqrt(A))."""
+        top = max(4.0 * (self.bin_a[-1] if self.bin_a else 1.0), 1e-12)
+        k = TABLE / np.sqrt(top)
+        grid = ((np.arange(TABLE) + 0.5) / k) ** 2
+        return self.variance(grid).astype(np.float32), float(k)
+
+    def scaled_variance(self, a_raw, scale: float = 1.0, factor: float = 1.0):
+        """``factor * sigma^2(scale * a_raw)`` (float32) by table look-up: three passes over the slab
+        (negative or NaN A reads the table's first entry, A beyond 4x the last bin its last)."""
+        table, k = self._table
+        t = table * np.float32(factor) if factor != 1.0 else table
+        with np.errstate(invalid="ignore"):
+            idx = np.sqrt(np.asarray(a_raw), dtype=np.float32)
+        idx *= np.float32(k * np.sqrt(scale))
+        return np.take(t, idx.astype(np.int32), mode="clip")
 
     def __call__(self, signal):
-        a0 = np.asarray(signal)
-        if a0.ndim == 0:
-            return self(a0.reshape(1))[0]
-        a = a0
+        a = np.asarray(signal)
         dt = a.dtype if a.dtype.kind == "f" else np.dtype(np.float64)
         if not self.bin_a:
             return np.sqrt(self.variance(a)).astype(dt)
-        table, k, _ = self._table
-        idx = np.fmax(a, dt.type(0), dtype=dt)               # NaN (invalid pixels) -> 0
-        np.sqrt(idx, out=idx)
-        idx *= dt.type(k)
-        idx += dt.type(0.5)
-        np.fmin(idx, dt.type(TABLE - 1), out=idx)
-        out = table[idx.astype(np.int32)]
-        far = a > self.bin_a[-1] * 2.0              # beyond the table: the exact formula (rare)
-        if far.any():
-            out[far] = np.sqrt(self.variance(a[far]))
-        return out if dt == np.float32 else out.astype(dt)
+        return np.sqrt(self.scaled_variance(a)).astype(dt, copy=False)
 
     def describe(self) -> dict:
         """What ``DecodeResult.extras["noise_model"]`` records."""
         return {"kind": self.kind, "read_sigma": float(np.sqrt(self.read_var)), "shot_var_per_signal": self.shot,
                 "bins": len(self.bin_a), "pixels": self.pixels, "dof": self.dof}
+
+
+def variance_function(noise_sigma, a_scale: float, factor: float):
+    """``a_raw -> factor * sigma^2(a_scale * a_raw)`` (float32) for a callable ``noise_sigma``: the
+    table of a :class:`NoiseModel`, the affine variance of a :class:`~.sensor.SensorModel`'s bound
+    ``noise_sigma`` (shot + read + quantisation, a few float32 passes), else the callable itself."""
+    if isinstance(noise_sigma, NoiseModel) and noise_sigma.bin_a:
+        return lambda a: noise_sigma.scaled_variance(a, a_scale, factor)
+    terms = getattr(getattr(noise_sigma, "__self__", None), "variance_terms", None)
+    if terms is not None and getattr(noise_sigma, "__name__", "") == "noise_sigma":
+        black, c0, c1 = terms()
+        f32 = np.float32
+
+        def affine(a):
+            v = np.multiply(a, f32(a_scale * c1 * factor), dtype=f32)
+            v -= f32(black * c1 * factor)
+            np.maximum(v, f32(0), out=v)
+            v += f32(c0 * factor)
+            return v
+        return affine
+
+    def generic(a):
+        sig = np.asarray(noise_sigma(np.maximum(a * a.dtype.type(a_scale), 0)), dtype=a.dtype)
+        return sig * sig * a.dtype.type(factor)
+    return generic
 
 
 def _statistics(frames, steps, shifts, saturation, max_pixels):
@@ -147,27 +175,35 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
 
 
 def fit_noise_model(frames: Sequence[np.ndarray], steps: int, *, shifts=None, saturation=None,
-                    max_pixels: int = 1 << 16) -> NoiseModel:
+                    max_pixels: int = 1 << 15) -> NoiseModel:
     """sigma^2(A) from the stack itself (module doc); frames frequency-major."""
     a, stat, dof, floor = _statistics(frames, steps, shifts, saturation, max_pixels)
     if dof == 0 or a.size == 0:
         return NoiseModel(floor * floor, 0.0, kind="floor", pixels=int(a.size), dof=dof)
-    v = stat / scipy.stats.chi2.median(dof)         # per pixel: sigma^2 times chi2(dof) / its median
+    # per bin: the mean of the statistic without its top TRIM (pixels at depth edges, whose residual
+    # is model error), over what that trimmed mean is for chi2(dof): unbiased for Gaussian noise and,
+    # unlike a median, also for the skewed noise of pixels clipped at the ADC's zero (a sensor
+    # without black level: there the median understated sigma^2 by 2x and shadows passed the floor)
+    q = scipy.stats.chi2.ppf(1.0 - TRIM, dof)
+    corr = dof * scipy.stats.chi2.cdf(q, dof + 2) / (1.0 - TRIM)
     r = np.sqrt(np.maximum(a, 0.0))
     top = float(np.percentile(r, 99.9))
     edges = np.linspace(0.0, top if top > 0 else 1.0, BINS + 1)
-    which = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, BINS - 1)
+    which = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, BINS - 1).astype(np.int16)  # radix sort
     order = np.argsort(which, kind="stable")
     bounds = np.searchsorted(which[order], np.arange(BINS + 1))
     ab, vb, nn = [], [], []
     for b0, b1 in zip(bounds[:-1], bounds[1:]):
         if b1 - b0 >= MIN_BIN:
             sel = order[b0:b1]
+            st = stat[sel]
+            k = int(np.ceil((1.0 - TRIM) * st.size))
+            kept = np.partition(st, k - 1)[:k]
             ab.append(float(np.median(np.maximum(a[sel], 0.0))))
-            vb.append(max(float(np.median(v[sel])), floor * floor))
+            vb.append(max(float(np.mean(kept)) / corr, floor * floor))
             nn.append(b1 - b0)
     if not ab:
-        s2 = max(float(np.median(v)), floor * floor)
+        s2 = max(float(np.median(stat)) / scipy.stats.chi2.median(dof), floor * floor)
         return NoiseModel(s2, 0.0, kind="fit", pixels=int(a.size), dof=dof)
     ab, vb, nn = np.array(ab), np.array(vb), np.array(nn, float)
     # the line read + shot x A through the bins (weights: a median's variance ~ sigma^4 / n): it

@@ -18,7 +18,10 @@ Validity (what "valid" means)
    unsaturated exposure, rescaled, with its noise); `hdr="auto"` adds shorter exposures per render
    while highlights clip (`sl.exposure.auto_hdr`). `Scan.exposure` is the base exposure used, the
    summary's `hdr` the factors used.
-1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated.
+1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated. The
+   noise is the sensor model's own, per pixel (shot + read + quantisation at the pixel's signal and
+   exposure; with HDR the fused exposure's, rescaled), never a global estimate from the images
+   (`DecodeResult.extras["noise_model"]` says so).
    Contrast B/A >= MIN_CONTRAST = 0.05 is only a sanity floor: ambient light (the key light on a
    part) lowers B/A without harming the phase; a fixed 0.5 discarded lit parts near the camera.
 1b. multipath / reflection filter (`sl.filters.multipath_filter`, reason MULTIPATH = 8): the
@@ -221,6 +224,10 @@ class Scanner:
         res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
                      proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=cap.noise_sigma,
                      saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma)
+        res.extras["noise_model"] = {          # never a global estimate: the sensor's own per-pixel noise
+            "kind": "sensor", "source": "sensor model: shot + read + quantisation at each pixel's signal"
+            + (", per pixel at its HDR exposure after fusion" if cap.chosen is not None else
+               f", exposure {cap.reference:.4g}")}
         sigma_z = pixel_depth_sigma(res, cap.noise_sigma, self.proj_size[0], self.steps)
         multipath = None
         if self.multipath_filter:

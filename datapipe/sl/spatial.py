@@ -92,9 +92,9 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
                    min_support=2, weights_min=0.01):
     """Correct / confirm the orders of ``cand`` pixels from confident neighbours (module doc).
 
-    x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good, cand:
-    (H, W) bool; cyc, var_c: per frequency 1D arrays over ``flatnonzero(cand)`` (cycles,
-    cycles^2). Returns (idx, x_new, p_wrong) of the accepted pixels (flat indices)."""
+    x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good: (H, W)
+    bool; cand: (H, W) bool or the sorted flat indices of the candidates; cyc, var_c: per frequency
+    1D arrays over the candidates (cycles, cycles^2). Returns (idx, x_new, p_wrong) of the accepted pixels (flat indices)."""
     H, W = x.shape
     per = np.asarray(periods, np.float64)
     f = int(np.argmax(per))
@@ -105,11 +105,14 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     inner = xg[PAD:PAD + H, PAD:PAD + W]
     np.copyto(inner, x, where=good)
     xg = xg.ravel()
-    idx_all = np.flatnonzero(cand)
+    idx_all = np.flatnonzero(cand) if cand.dtype == bool else np.asarray(cand)
     r_all, c_all = np.divmod(idx_all, W)
     p_all = (r_all + PAD) * Wp + (c_all + PAD)
     offs = np.array([dy * Wp + dx for dy, dx in _DIRS])
     todo = np.ones(idx_all.size, bool)
+    slot = np.full(xg.size, -1, np.int32)        # padded pixel -> its candidate number (-1: none)
+    slot[p_all] = np.arange(idx_all.size, dtype=np.int32)
+    mark = np.zeros(idx_all.size, bool)
     active = np.zeros(idx_all.size, bool)
     for o in offs:
         active |= np.isfinite(xg[p_all + o])
@@ -126,37 +129,37 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         if sel.size == 0:
             break
         pp = p_all[sel]
-        P = _predictions(xg, pp, Wp).astype(np.float64)
+        P = _predictions(xg, pp, Wp)           # float32 throughout: x to 1e-4 px, enough for orders
         xh, avail = _nan_median(P)
         has = avail >= min_support
         if not has.any():
             continue
         sel, pp, P, avail, xh = sel[has], pp[has], P[:, has], avail[has], xh[has]
         # each prediction votes for the fine order it implies for this pixel's own fine phase
-        cf_all = cyc[f][sel].astype(np.float64)
+        cf_all = cyc[f][sel]
         with np.errstate(invalid="ignore"):
             votes = np.rint(P / T - cf_all)
             agree = votes == np.rint(xh / T - cf_all)
             dev = np.abs(P - xh)
         n_agree = agree.sum(0)
-        spread = np.sqrt(np.sum(np.where(agree, dev * dev, 0.0), 0) / np.maximum(n_agree, 1))
+        spread = np.sqrt(np.sum(np.where(agree, dev * dev, np.float32(0)), 0) / np.maximum(n_agree, 1))
         ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail) & (var_c[f][sel] <= MAX_FINE_NOISE ** 2)
         through = _through(P, SAME_SURFACE * T)
         if not ok.any():
             continue
         sel, pp, xh, spread, through = sel[ok], pp[ok], xh[ok], spread[ok], through[ok]
-        cf = cyc[f][sel].astype(np.float64)
-        vf = var_c[f][sel].astype(np.float64)
+        cf = cyc[f][sel]
+        vf = var_c[f][sel]
         var_sp = spread ** 2 + (0.05 * T) ** 2 + vf * T * T
         n0 = np.rint(xh / T - cf)
         scores, temps, spat, xs = [], [], [], []
         for dn in (-1.0, 0.0, 1.0):
             xn = (n0 + dn + cf) * T
-            temp = np.zeros(xn.shape)
+            temp = np.zeros(xn.shape, xn.dtype)
             for i, k in enumerate(per):
                 if i == f:
                     continue
-                v = var_c[i][sel].astype(np.float64) + (k / per[f]) ** 2 * vf
+                v = var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf
                 temp += _wrapd(k * xn / L - cyc[i][sel]) ** 2 / v
             sp = (xn - xh) ** 2 / var_sp
             scores.append(sp + temp)
@@ -181,14 +184,15 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
             continue
         xbest = np.stack(xs)[b, cols][acc]
         sel_a = sel[acc]
-        xnew = _combine_from_fine(xbest, [cyc[i][sel_a].astype(np.float64) for i in range(len(per))],
+        xnew = _combine_from_fine(xbest, [cyc[i][sel_a] for i in range(len(per))],
                                   per, L, keep)
         pa = pp[acc]
         xg[pa] = xnew
         todo[sel_a] = False
-        near = (pa[:, None] + offs[None, :]).ravel()        # candidates among them: p_all is sorted
-        j = np.minimum(np.searchsorted(p_all, near), p_all.size - 1)
-        frontier = np.unique(j[p_all[j] == near])
+        j = slot[(pa[:, None] + offs[None, :]).ravel()]    # the candidates next to the accepted ones
+        mark[j[j >= 0]] = True
+        frontier = np.flatnonzero(mark)
+        mark[frontier] = False
         out_idx.append(idx_all[sel_a])
         out_x.append(xnew)
         out_p.append(p[acc])
@@ -200,7 +204,7 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
 
 def _combine_from_fine(xbest, cyc, per, L, keep):
     """Every frequency's coordinate from its order next to ``xbest``, K^2-weighted (as unwrap)."""
-    num = np.zeros(xbest.shape)
+    num = np.zeros(xbest.shape, xbest.dtype)
     den = 0.0
     for i, k in enumerate(per):
         if not keep[i]:

@@ -8,6 +8,7 @@ import synth
 from sl_helpers import PERIODS, STEPS, add_noise, decode_kw
 from datapipe.errors import DataPipeError
 from datapipe.sl import VALID_REASONS, Reason, SensorModel, decode, depth_error_stats, fringe_patterns
+from datapipe.sl.noise import fit_noise_model
 from datapipe.sl.metrics import effective_period, theoretical_depth_sigma, theoretical_phase_sigma
 
 
@@ -176,7 +177,7 @@ def test_pure_noise_is_not_decoded():
     """B = 0 exactly (no fringe, only noise sigma = 0.01 on A = 0.3). Estimated modulation follows a
     Rayleigh law with scale sigma*sqrt(2/N); the floor passes a frequency with probability
     p = 1e-3, all three with 1e-9, so among 19200 pixels none may be valid (expected 2e-5).
-    Checked with the true sigma and with the default residual estimate of sigma."""
+    Checked with the true sigma and with the default per-pixel estimate of sigma (datapipe.sl.noise)."""
     rng = np.random.default_rng(9)
     cam, proj = synth.make_rig()
     imgs = 0.3 + rng.normal(0, 0.01, (12, 120, 160))
@@ -185,7 +186,8 @@ def test_pure_noise_is_not_decoded():
         check_contract(res)
         assert res.valid.sum() == 0
         if not kw:
-            assert res.noise_sigma == pytest.approx(0.01, rel=0.05)
+            assert res.extras["noise_model"]["kind"] == "fit"
+            assert float(fit_noise_model(list(imgs), STEPS)(0.3)) == pytest.approx(0.01, rel=0.05)
 
 
 @pytest.mark.parametrize("known_sigma", [True, False])

@@ -74,3 +74,42 @@ def test_projector_shadow_stays_invalid(sensor, periods, steps):
     assert res.valid[gt.shadow].mean() <= 5e-3
     _, share, coverage = _judge(res, gt, periods)
     assert share <= 5e-4 and coverage >= (0.97 if steps == 4 else 0.8)
+
+
+@pytest.mark.parametrize("read", [1.0, 2.0])
+def test_confidence_is_calibrated_on_the_dark_step(dark_step, read):
+    """Among pixels with confidence >= c at most 1 - c have a wrong order, for the valid pixels of
+    a default decode (directly decoded and neighbour-filled) and for every decoded pixel
+    (``max_wrong=1``, no neighbours); the filled ones sit below every direct one. (The reliability
+    curve over more noise levels: benchmarks/results/sl_confidence.md.)"""
+    cam, proj, gt = dark_step
+    stack = synth.sensor_stack(gt, read=read, seed=7)
+    kw = decode_kw(cam, proj, PERIODS)
+    for res in (sl.decode(stack, **kw), sl.decode(stack, **kw, max_wrong=1.0, spatial=False)):
+        wrong = ~(np.abs(res.proj_x - gt.proj_x) < WP / max(PERIODS) / 2)
+        for bound in (0.5, 0.2, 0.05, 0.01, 1e-3):
+            m = res.valid & (res.confidence >= 1 - bound)
+            assert wrong[m].sum() <= bound * m.sum(), (bound, wrong[m].sum(), m.sum())
+    assert wrong[res.valid & (res.confidence < 0.9)].sum() > 0       # there is something to calibrate
+    dflt = sl.decode(stack, **kw)
+    filled = dflt.reason == sl.Reason.NEIGHBOUR_ORDER
+    direct = dflt.reason == sl.Reason.VALID
+    if read == 1.0:                  # at 2 DN the dark box top is a hole: nothing to fill
+        assert filled.sum() > 100
+    assert not filled.any() or dflt.confidence[filled].max() <= dflt.confidence[direct].min()
+
+
+def test_scanner_decodes_with_the_sensor_noise(dark_step):
+    """In the pipeline the decoder weighs with the sensor model's own per-pixel noise (no estimate
+    from the images, the result says so); the dark patch beside the step comes out as trustworthy
+    as with the stand-alone fit."""
+    cam, proj, gt = dark_step
+    T_cam_proj = np.linalg.inv(cam.T) @ proj.T
+    scanner = sl.Scanner(PERIODS, 4, proj.size, proj.K, T_cam_proj, sensor="industrial", edge_filter=False,
+                         multipath_filter=False)
+    scan = scanner.scan(gt.images, 3, cam.K, cam.T)
+    res = scan.result
+    assert res.extras["noise_model"]["kind"] == "sensor"
+    wrong, share, coverage = _judge(res, gt, PERIODS)
+    assert share <= 5e-4 and coverage >= 0.97
+    assert res.valid[gt.shadow].mean() <= 5e-3
