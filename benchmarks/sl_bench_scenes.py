@@ -100,3 +100,31 @@ def render_cases(cases, cache: Path, log=print) -> dict:
 
 def load_case(cache: Path, rig, height, material=None):
     return dict(np.load(cache / f"{case_key(rig, height, material)}.npz"))
+
+
+# -- the adversarial synthetic stack: a dark patch beside a depth step (no bpy) -----------------------
+DARK_PERIODS, DARK_STEPS = (1, 8, 64), 4
+DARK_PEAK_DN = 255.0            # a white surface's brightest sample (8 bit)
+DARK_READ_DN, DARK_GAIN_DN = 1.0, 40.0   # noise sigma^2 = read^2 + signal / gain (DN^2)
+
+
+def dark_step_stack(cam_size=(640, 480), seed: int = 0):
+    """Issue #19's adversarial stack (tests/sl/synth.py ray caster, no bpy): a floor tilted 5 deg,
+    boxes with 0.13 m and 0.25 m steps, two spheres, projector shadows, a floor patch of albedo
+    0.015 beside the tall box and that box (top) of albedo 0.04; periods (1, 8, 64) x 4; read +
+    shot noise, 8-bit. Returns (images, render truth, camera, projector); `images` uint8."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sl"))
+    import synth
+
+    cam, proj = synth.make_rig(cam_size=cam_size, proj_size=(912, 570), baseline=0.15, distance=1.0)
+    a = np.radians(5.0)
+    scene = synth.Scene([synth.Plane((0, 0, 0), (np.sin(a), 0.0, np.cos(a)), 0.6),
+                         synth.Box((-0.25, -0.05, -0.05), (-0.1, 0.1, 0.13), 0.5),
+                         synth.Box((0.02, -0.12, -0.05), (0.16, 0.02, 0.25), 0.04),
+                         synth.Box((0.17, -0.12, -0.05), (0.27, 0.02, -0.0225 * np.sin(a) + 0.002 - 0.0), 0.015),
+                         synth.Sphere((-0.1, -0.2, 0.06), 0.06, 0.7), synth.Sphere((0.05, 0.2, 0.08), 0.08, 0.7)])
+    r = synth.render(scene, cam, proj, DARK_PERIODS, DARK_STEPS)
+    rng = np.random.default_rng(seed)
+    sig = DARK_PEAK_DN * r.images
+    sig = sig + rng.normal(0.0, 1.0, sig.shape) * np.sqrt(DARK_READ_DN ** 2 + np.maximum(sig, 0) / DARK_GAIN_DN)
+    return np.clip(np.rint(sig), 0, 255).astype(np.uint8), r, cam, proj

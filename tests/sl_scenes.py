@@ -1,6 +1,8 @@
 """Structured-light scenes as a user of the original add-on makes them, and their independent
-ground truth, for the Blender tests (tests/blender/test_sl_working_distance.py) and the benchmarks
-(benchmarks/sl_bench_scenes.py). Only `direct_mask` needs bpy (imported inside it).
+ground truth, for the Blender tests (tests/blender/test_sl_working_distance.py, test_sl_truth.py) and
+the benchmarks (benchmarks/sl_bench_scenes.py, bench_sl_truth.py): `direct_mask` (the pixels the
+projector lights directly: a ray cast, needs bpy, imported inside it) and `depth_edges` (the
+pixels near a z-buffer step).
 
 A rig is where the projector sits relative to the camera: 'default' (the preset: 0.15 m baseline,
 8.5 deg toe-in) or 'gui' (where the original DataPipe GUI puts it: 0.12 m, 8.5 deg). The preset is
@@ -15,6 +17,9 @@ import pickle
 import numpy as np
 
 from datapipe import config as C
+
+EDGE_STEP = 5e-3           # m: z-buffer second difference that marks a depth edge
+EDGE_PX = 2                # px either side of it (the issue's "away from depth edges (+-2 px)")
 
 RIGS = {"default": ([-0.15, 0.0, 0.0], [0.0, math.radians(-8.5), 0.0]),
         "gui": ([-0.12, 0.0, 0.0], [0.0, math.radians(-8.5), 0.0])}
@@ -70,3 +75,21 @@ def direct_mask(bscene, cfg, T_world_cam, K, depth, where=None) -> np.ndarray:
         hit = bscene.ray_cast(dg, Vector(o.tolist()), Vector(d.tolist()), distance=dist - 2e-4)[0]
         out[i, j] = not hit
     return out
+
+
+def depth_edges(z: np.ndarray, step: float = EDGE_STEP, px: int = EDGE_PX) -> np.ndarray:
+    """Pixels within `px` of a depth discontinuity of the z-buffer: |second difference| > `step`
+    along a row or a column (a slanted plane, however steep, has none; a step or a crease has),
+    or a missing neighbour (background)."""
+    from scipy.ndimage import binary_dilation
+
+    zz = np.where(np.isfinite(z), z, np.nan).astype(np.float64)
+    e = ~np.isfinite(zz)
+    with np.errstate(invalid="ignore"):
+        for ax in (0, 1):
+            d2 = np.abs(np.diff(zz, 2, axis=ax))
+            hit = ~(d2 <= step)                       # NaN counts as an edge
+            sl_mid = [slice(None)] * 2
+            sl_mid[ax] = slice(1, -1)
+            e[tuple(sl_mid)] |= hit
+    return binary_dilation(e, iterations=px)

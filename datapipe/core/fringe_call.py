@@ -1,16 +1,15 @@
 """The pieces both fringe modes share (core/structured_light.py renders every pattern,
 core/fringe_fast.py a flat-lit layer and the coarse periods' bounce layers): the isolated Cycles
-call that renders only some view layers at the point-sampled sub-pixel grid, and the modulation a
-K-period fringe keeps when bounced light sees it blurred. Its own module so that neither mode
+call that renders only some view layers at the point-sampled sub-pixel grid, and (from
+sl.fringe_synth, which the scanner's global-light filter reads too) the modulation a K-period
+fringe keeps when bounced light sees it blurred. Its own module so that neither mode
 imports the other."""
 from __future__ import annotations
 
 import time
 from pathlib import Path
 
-import numpy as np
-
-INDIRECT_BLUR_PX = 32.0          # projector px: Gaussian blur of the pattern as seen by inter-reflected light
+from ..sl.fringe_synth import INDIRECT_BLUR_PX, indirect_gain  # noqa: F401  (the bounce model both modes render)
 
 
 def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *, seed: int,
@@ -57,9 +56,3 @@ def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *,
         sc.cycles.filter_width, sc.cycles.seed = saved_filter, saved_seed
         sc.render.resolution_percentage = saved_pct
         sc.cycles.use_adaptive_sampling = saved_adaptive
-
-
-def indirect_gain(K: float, proj_width: int, blur_px: float) -> float:
-    """Modulation left in a K-period fringe after a Gaussian blur of `blur_px` projector pixels:
-    exp(-2 pi^2 (blur_px K / W)^2) (a blurred sinusoid is the same sinusoid, scaled)."""
-    return float(np.exp(-2.0 * np.pi ** 2 * (blur_px * K / proj_width) ** 2))

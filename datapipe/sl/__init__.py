@@ -1,8 +1,9 @@
 """Structured light (fringe projection), pure numpy: patterns, phase, unwrapping, triangulation,
 a camera noise model, the decoder and its metrics, and the scanner (sensor -> decode -> filters). No Blender here, ever (design.md)."""
-from .decode import DecodeResult, Reason, decode, estimate_noise_sigma, modulation_floor_factor
+from .decode import (NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason, decode, estimate_noise_sigma,
+                     modulation_floor_factor)
 from .filters import edge_speckle_filter, multipath_filter, reflection_filter
-from .fringe_synth import (bounce_modulation, pattern_profiles, projector_columns, quadrature_profiles,
+from .fringe_synth import (bounce_modulation, indirect_gain, pattern_profiles, projector_columns, quadrature_profiles,
                            synthesize_fringes)
 from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
                       theoretical_phase_sigma)
@@ -19,9 +20,11 @@ __all__ = [
     "unwrap_phase", "plan_unwrap", "UnwrapResult",
     "Triangulator", "TriangulationResult", "intrinsics_from_blender", "projection_matrix",
     "SensorModel", "PRESETS",
-    "decode", "DecodeResult", "Reason", "estimate_noise_sigma", "modulation_floor_factor",
+    "decode", "DecodeResult", "Reason", "VALID_REASONS", "NEIGHBOUR_RISK", "estimate_noise_sigma",
+    "modulation_floor_factor",
     "depth_error_stats", "theoretical_phase_sigma", "theoretical_depth_sigma", "effective_period",
     "pixel_depth_sigma", "edge_speckle_filter", "multipath_filter", "reflection_filter",
     "Scanner", "Scan",
     "synthesize_fringes", "pattern_profiles", "projector_columns", "quadrature_profiles", "bounce_modulation",
+    "indirect_gain",
 ]

@@ -11,7 +11,9 @@ copied and never converted to float64 as a whole), one named step each:
    are wrong from the agreement of all frequencies and the noise the sensor predicts
    (:mod:`.confidence`); closed-form triangulation (:mod:`.triangulate`);
 2. :func:`_neighbour_pass`: uncertain pixels take (or confirm) their order from the coordinate
-   their confident neighbours predict (:mod:`.spatial`), and are triangulated again;
+   their confident neighbours on the same surface predict (:mod:`.spatial`), and are triangulated
+   again; they come out VALID with reason NEIGHBOUR_ORDER and their confidence lowered by
+   ``NEIGHBOUR_RISK``;
 3. :func:`_assemble`: reasons by priority, NaN fill.
 
 Every output pixel is finite and valid, or NaN with a :class:`Reason` code.
@@ -25,8 +27,9 @@ frequencies' evidence counts together (one frequency alone: ``B_hat <= s sqrt(-2
 pure-noise pixel that passes still has to pass the order decision, where its frequencies disagree.
 ``sigma_I`` is ``noise_sigma`` (a number in image units, an (H, W) array, or a callable
 ``sigma(signal)`` such as :meth:`datapipe.sl.sensor.SensorModel.noise_sigma`, evaluated at each
-pixel's offset A); by default it is estimated from the least-squares residuals (N >= 4). An
-explicit ``min_modulation`` replaces the test by ``B_hat <= min_modulation`` in any frequency.
+pixel's offset A); by default :mod:`.noise` fits ``sigma^2(A)`` (read + shot noise) to the stack's own
+fit residuals and offsets and evaluates it per pixel (``extras["noise_model"]`` says which noise was
+used). An explicit ``min_modulation`` replaces the test by ``B_hat <= min_modulation`` in any frequency.
 
 Order decision. A pixel is BAD_ORDER when the probability that some order is wrong
 (:attr:`DecodeResult.confidence` is one minus it) exceeds ``max_wrong`` (default 1e-3) after the
@@ -42,7 +45,6 @@ from enum import IntEnum
 from typing import Callable, Sequence
 
 import numpy as np
-import scipy.stats
 from scipy.special import gammainccinv
 
 from ._errors import bad_type, bad_value
@@ -50,16 +52,18 @@ from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
 from .confidence import consistency_limits, phase_var_cycles, phase_var_from_snr, wrong_probability
 from .gamma import correct_cycles, gamma_phase_lut
-from .spatial import correct_orders
+from .noise import estimate_noise_sigma, fit_noise_model, variance_function
+from .spatial import MAX_FINE_NOISE, correct_orders
 from .triangulate import Triangulator
 from .unwrap import plan_unwrap, unwrap_cycles
 
-__all__ = ["Reason", "DecodeResult", "decode", "estimate_noise_sigma", "modulation_floor_factor"]
+__all__ = ["Reason", "VALID_REASONS", "NEIGHBOUR_RISK", "DecodeResult", "decode", "estimate_noise_sigma", "modulation_floor_factor"]
 
 
 class Reason(IntEnum):
-    """Why a pixel has no depth (uint8 in :attr:`DecodeResult.reason`). When several apply, the
-    first of INVALID_INPUT, SATURATED, NO_LIGHT, INCONSISTENT, BAD_ORDER, ILL_CONDITIONED,
+    """Why a pixel has no depth (uint8 in :attr:`DecodeResult.reason`), or how a valid one got it
+    (VALID: its own frequencies; NEIGHBOUR_ORDER: its order from its neighbours). When several
+    apply, the first of INVALID_INPUT, SATURATED, NO_LIGHT, INCONSISTENT, BAD_ORDER, ILL_CONDITIONED,
     OUTSIDE_PROJECTOR is reported (the more basic cause first)."""
     VALID = 0
     NO_LIGHT = 1            # modulation below the noise floor, or contrast B/A too low
@@ -75,6 +79,15 @@ class Reason(IntEnum):
     REFLECTION = 10         # removed by the global reflection filter: the row-coded patterns say the light
                             # left the projector from another row than the decoded point's (a mirror ghost,
                             # sl.filters.reflection_filter)
+    NEIGHBOUR_ORDER = 11    # VALID, but the fringe order came from confident neighbours on the same surface
+                            # (sl.spatial), not from the pixel's own frequencies alone; its confidence is
+                            # lowered by NEIGHBOUR_RISK
+
+
+VALID_REASONS = (Reason.VALID, Reason.NEIGHBOUR_ORDER)   # reason codes of pixels with depth
+NEIGHBOUR_RISK = 1e-3   # subtracted from a neighbour-filled pixel's confidence: the chance that the surface
+                        # does not continue through it despite the same-surface tests (sl.spatial); on the
+                        # adversarial scenes of tests/sl/test_sl_trust.py the measured share is below it
 
 
 _NO_ORDER = (Reason.NO_LIGHT, Reason.SATURATED, Reason.INVALID_INPUT)   # no order decoded at all
@@ -93,7 +106,8 @@ class DecodeResult:
     reason: np.ndarray                # uint8, see Reason
     order_error: np.ndarray           # float32 in [0, 0.5]: distance of the order estimate from an integer
     confidence: np.ndarray | None = None  # float32: probability that the fringe orders are right (0 where
-                                          # no order was decoded: NO_LIGHT, SATURATED, INVALID_INPUT)
+                                          # no order was decoded: NO_LIGHT, SATURATED, INVALID_INPUT;
+                                          # NEIGHBOUR_ORDER pixels: lowered by NEIGHBOUR_RISK)
     periods: tuple = ()
     steps: int = 0
     method: str = ""
@@ -172,58 +186,6 @@ def _frames(images, n_expected: int, periods, steps):
     return frames
 
 
-def estimate_noise_sigma(frames: Sequence[np.ndarray], steps: int, *, shifts=None, saturation=None,
-                         max_pixels: int = 1 << 16) -> float:
-    """Robust global estimate of the image noise sigma (image units) from the fit residuals.
-
-    With N >= 4 the least-squares residual sum of squares of a pixel is ``sigma^2 * chi2(N-3)``
-    (pooled over the F frequencies: ``chi2(F*(N-3))``); the median over a pixel subsample divided
-    by the chi-square median gives sigma^2. Shadow pixels (read noise only) and bright pixels
-    (shot noise) mix, so in shot-noise-limited images this is between the two: the floor is then
-    conservative. With N = 3 there is no residual: integer images use quantisation (1/sqrt(12)
-    DN), float images 0.1% of the bright (99th percentile) offset, i.e. a 10-bit-camera floor.
-    Pass ``noise_sigma`` explicitly (e.g. ``SensorModel.noise_sigma``) when it is known.
-    """
-    steps = int(steps)
-    f = len(frames) // steps
-    h, w = frames[0].shape
-    s = max(1, int(np.ceil(np.sqrt(h * w / max_pixels))))
-    sub = [np.asarray(fr[::s, ::s], dtype=np.float64).ravel() for fr in frames]
-    if shifts is None:
-        shifts = phase_shifts(steps)
-    kern = PhaseKernel(shifts)
-    is_int = np.dtype(frames[0].dtype).kind in "iu"
-    sat = saturation
-    if sat is None and is_int:
-        sat = float(np.iinfo(frames[0].dtype).max)
-    good = np.ones(sub[0].size, bool)
-    for x in sub:
-        good &= np.isfinite(x)
-        if sat is not None and np.isfinite(sat):
-            good &= x < sat
-    off = np.zeros(sub[0].size)
-    rss = np.zeros(sub[0].size)
-    for i in range(f):
-        y = np.stack(sub[i * steps:(i + 1) * steps])
-        y = np.where(np.isfinite(y), y, 0.0)
-        acs = kern.coef @ y
-        rss += np.sum((y - kern.design @ acs) ** 2, axis=0)
-        off += acs[0] / f
-    eps = np.finfo(work_dtype_for([fr.dtype for fr in frames])).eps
-    bright = float(np.percentile(np.abs(off[good]), 99)) if good.any() else 0.0
-    floor = 16 * eps * bright                       # arithmetic rounding of the fit itself
-    if is_int:
-        floor = max(floor, 1.0 / np.sqrt(12.0))
-    dof = f * (steps - 3)
-    if dof == 0 or not good.any():
-        if not is_int:
-            floor = max(floor, 1e-3 * bright)
-        return float(floor) if floor > 0 else 1e-12
-    med = float(np.median(rss[good] / dof))
-    corr = scipy.stats.chi2.median(dof) / dof
-    return float(max(np.sqrt(med / corr), floor, 1e-12))
-
-
 def _check_positive(name, v, allow_none=True, upper=None, strict=True):
     if v is None and allow_none:
         return None
@@ -265,8 +227,10 @@ class _Setup:
     sigma_scalar: float | None = None
     sigma_map: np.ndarray | None = None
     sigma_fn: Callable | None = None
+    var_fn: Callable | None = None        # raw slab offset -> (sigma_I * row_sigma)^2 (noise.variance_function)
     order_factor: float = 0.0
     order_floor: float | None = None
+    noise_model: dict = field(default_factory=dict)
 
     @property
     def shape(self):
@@ -288,30 +252,38 @@ def _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis):
 
 
 def _noise_setup(st: _Setup, noise_sigma, min_modulation, order_sigmas, shifts):
-    """Noise sigma (scalar / map / callable), modulation floor and the legacy order floor."""
+    """Noise sigma (scalar / map / callable; None: fitted per pixel, :mod:`.noise`), modulation
+    floor and the legacy order floor. ``st.noise_model`` says which."""
     H, W = st.shape
     st.min_modulation = min_modulation
-    if min_modulation is not None and noise_sigma is None:
-        st.floor_scalar = min_modulation
-        st.sigma_scalar = estimate_noise_sigma(st.frames, st.steps, shifts=shifts, saturation=st.sat)
-    else:
-        if noise_sigma is None:
-            st.sigma_scalar = estimate_noise_sigma(st.frames, st.steps, shifts=shifts, saturation=st.sat)
-        elif callable(noise_sigma):
-            st.sigma_fn = noise_sigma
-        elif np.ndim(noise_sigma) == 0:
-            st.sigma_scalar = _check_positive("noise_sigma", noise_sigma, strict=False)
+    if noise_sigma is None:
+        fit = fit_noise_model(st.frames, st.steps, shifts=shifts, saturation=st.sat)
+        st.noise_model = dict(fit.describe(),
+                              source="fitted per pixel from the stack: sigma^2 against the mean intensity A")
+        if not fit.bin_a:
+            st.sigma_scalar = float(np.sqrt(fit.read_var))
         else:
-            sigma_map = np.asarray(noise_sigma, dtype=np.float32)
-            if sigma_map.shape != (H, W):
-                raise bad_value("noise_sigma", f"has shape {sigma_map.shape}, images are {(H, W)}",
-                                "pass a scalar, an (H, W) array or a callable sigma(signal)")
-            if not np.all(np.isfinite(sigma_map)) or np.any(sigma_map < 0):
-                raise bad_value("noise_sigma", "has negative or non-finite entries", "pass sigmas >= 0")
-            st.sigma_map = sigma_map
-        st.floor_scalar = None if st.sigma_scalar is None else st.sigma_scalar * st.factor
-        if min_modulation is not None:
-            st.floor_scalar = min_modulation
+            st.sigma_fn = fit
+    elif callable(noise_sigma):
+        st.sigma_fn = noise_sigma
+        st.noise_model = {"kind": "callable", "source": "given: noise_sigma(signal) per pixel"}
+    elif np.ndim(noise_sigma) == 0:
+        st.sigma_scalar = _check_positive("noise_sigma", noise_sigma, strict=False)
+        st.noise_model = {"kind": "scalar", "source": "given: one sigma for every pixel"}
+    else:
+        sigma_map = np.asarray(noise_sigma, dtype=np.float32)
+        if sigma_map.shape != (H, W):
+            raise bad_value("noise_sigma", f"has shape {sigma_map.shape}, images are {(H, W)}",
+                            "pass a scalar, an (H, W) array or a callable sigma(signal)")
+        if not np.all(np.isfinite(sigma_map)) or np.any(sigma_map < 0):
+            raise bad_value("noise_sigma", "has negative or non-finite entries", "pass sigmas >= 0")
+        st.sigma_map = sigma_map
+        st.noise_model = {"kind": "map", "source": "given: (H, W) sigma map"}
+    st.floor_scalar = None if st.sigma_scalar is None else st.sigma_scalar * st.factor
+    if min_modulation is not None:
+        st.floor_scalar = min_modulation
+    if st.sigma_fn is not None:
+        st.var_fn = variance_function(st.sigma_fn, st.kernel.a_scale, st.row_sigma ** 2)
     if order_sigmas:
         st.order_factor = st.plan.noise_gain() * st.row_sigma * order_sigmas / np.pi
         if st.sigma_scalar is not None:
@@ -373,10 +345,12 @@ class _Out:
     p_wrong: np.ndarray       # NaN where no order was decoded
     legacy_bad: np.ndarray    # legacy order rules (order_sigmas / max_order_error)
     inconsistent: np.ndarray
+    filled: np.ndarray        # order taken from the neighbours (sl.spatial)
     modulation: np.ndarray
     offset: np.ndarray
     wrapped: list
-    n_unsure: int = 0          # pixels above max_wrong (before the neighbour pass)
+    candidates: list = field(default_factory=list)   # per slab: flat indices of the pixels the neighbour pass
+                                                      # may fill (above max_wrong, order decoded, fine phase precise)
 
     @classmethod
     def allocate(cls, H, W, F):
@@ -384,17 +358,19 @@ class _Out:
         return cls(depth=np.empty((H, W), f32), proj_x=np.empty((H, W), f32), phase=np.empty((H, W), f32),
                    reason=np.zeros((H, W), np.uint8), order_error=np.empty((H, W), f32),
                    p_wrong=np.empty((H, W), f32), legacy_bad=np.zeros((H, W), bool),
-                   inconsistent=np.zeros((H, W), bool),
+                   inconsistent=np.zeros((H, W), bool), filled=np.zeros((H, W), bool),
                    modulation=np.empty((F, H, W), f32), offset=np.empty((H, W), f32),
                    wrapped=[np.empty((H, W), f32) for _ in range(F)])
 
 
-def _slab_sigma(st: _Setup, a, r0, r1):
-    """Per-pixel image noise sigma of a slab (None when scalar)."""
-    if st.sigma_fn is not None:
-        return np.asarray(st.sigma_fn(np.maximum(a * st.work.type(st.kernel.a_scale), 0)), dtype=st.work)
+def _slab_var(st: _Setup, a, r0, r1):
+    """Per-pixel noise variance of the least-squares C and S rows, ``(sigma_I * row_sigma)^2``, of a
+    slab from its raw offset ``a`` (None when the noise is one scalar)."""
+    if st.var_fn is not None:
+        return st.var_fn(a)
     if st.sigma_map is not None:
-        return st.sigma_map[r0:r1]
+        s = st.sigma_map[r0:r1]
+        return s * s * st.work.type(st.row_sigma ** 2)
     return None
 
 
@@ -431,12 +407,11 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
         if inv is not None:
             invalid = inv if invalid is None else (invalid | inv)
         if i == 0:                       # noise of the slab (from the offset, alike in all frequencies)
-            sig = _slab_sigma(st, a, r0, r1)
-            if sig is not None:
-                s2 = np.multiply(sig, sig)
-                s2 *= wt(st.row_sigma ** 2)
-            else:
+            s2 = _slab_var(st, a, r0, r1)
+            if s2 is None:
                 s2 = wt((st.sigma_scalar * st.row_sigma) ** 2)
+            elif st.order_factor and st.order_floor is None:
+                sig = np.sqrt(s2) / wt(st.row_sigma)
         q = np.multiply(b, b)
         np.divide(q, s2, out=q)          # B^2 / s^2: Gamma evidence (floor) and phase SNR
         var_c.append(phase_var_from_snr(q))
@@ -468,7 +443,8 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
     if not direct:
         out.p_wrong[r0:r1] = p
     out.inconsistent[r0:r1] = inc
-    out.n_unsure += int(np.count_nonzero(np.greater(p, wt(st.max_wrong))))
+    fillable = np.less_equal(var_c[st.plan.finest], wt(MAX_FINE_NOISE ** 2))
+    np.logical_and(np.greater(p, wt(st.max_wrong)), fillable, out=fillable)    # NaN p: False
     legacy = out.legacy_bad[r0:r1]
     if lowsnr is not None:
         legacy |= lowsnr
@@ -486,41 +462,67 @@ def _decode_slab(st: _Setup, out: _Out, r0: int, r1: int, coefs):
         out.p_wrong[r0:r1][basic] = np.nan
         out.inconsistent[r0:r1][basic] = False
         legacy[basic] = False
+        fillable &= ~basic
+    fillable &= ~inc                     # the neighbour pass's candidates (sl.spatial)
+    if st.order_factor or st.max_order_error is not None:
+        fillable &= ~legacy
+    if fillable.any():
+        out.candidates.append(np.flatnonzero(fillable) + r0 * fillable.shape[1])
+
+
+def _any_supported(st: _Setup, out: _Out, idx) -> bool:
+    """Has some candidate two confident 8-neighbours (the least any prediction pair needs)? Read at
+    the candidates' neighbours only, so scattered noise pixels in a shadow cost no full-image pass."""
+    H, W = st.shape
+    r, c = np.divmod(idx, W)
+    n = np.zeros(idx.size, np.int8)
+    thr = np.float32(st.max_wrong)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                q = np.clip(r + dy, 0, H - 1) * W + np.clip(c + dx, 0, W - 1)
+                with np.errstate(invalid="ignore"):
+                    ok = (out.p_wrong.ravel()[q] <= thr) & ~out.inconsistent.ravel()[q]
+                if st.order_factor or st.max_order_error is not None:
+                    ok &= ~out.legacy_bad.ravel()[q]
+                n += ok & (q != idx)
+    return bool(np.any(n >= 2))
 
 
 def _neighbour_pass(st: _Setup, out: _Out):
     """Uncertain pixels take / confirm their order from confident neighbours, then are
     triangulated again (see :mod:`.spatial`)."""
-    if out.n_unsure == 0:
+    if not out.candidates:
         return
-    # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): neither set
+    idx = np.concatenate(out.candidates)
+    if not _any_supported(st, out, idx):
+        return
+    # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): not good
     with np.errstate(invalid="ignore"):
-        sure = out.p_wrong <= np.float32(st.max_wrong)
-        unsure = out.p_wrong > np.float32(st.max_wrong)
-    usable = ~out.inconsistent
+        good = out.p_wrong <= np.float32(st.max_wrong)
+    good &= ~out.inconsistent
     if st.order_factor or st.max_order_error is not None:
-        usable &= ~out.legacy_bad
-    good = np.logical_and(usable, sure, out=sure)
-    cand = np.logical_and(usable, unsure, out=unsure)
-    if not cand.any() or not good.any():
+        good &= ~out.legacy_bad
+    if not good.any():
         return
-    idx = np.flatnonzero(cand)
     F = len(st.plan.periods)
-    cyc = [out.wrapped[i].ravel()[idx].astype(np.float64) / (2 * np.pi) for i in range(F)]
     if st.sigma_fn is not None:
         sig = np.asarray(st.sigma_fn(np.maximum(out.offset.ravel()[idx].astype(np.float64), 0)), np.float64)
     elif st.sigma_map is not None:
         sig = st.sigma_map.ravel()[idx].astype(np.float64)
     else:
-        sig = st.sigma_scalar
+        sig = np.full(idx.size, st.sigma_scalar)
     s = sig * st.row_sigma
-    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx].astype(np.float64), s) for i in range(F)]
-    ia, xa, pa = correct_orders(out.proj_x, good, cand, cyc, var_c, st.plan.periods, st.wcoded,
+    cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
+    s = s.astype(np.float32)
+    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
+    ia, xa, pa = correct_orders(out.proj_x, good, idx, cyc, var_c, st.plan.periods, st.wcoded,
                                 max_wrong=st.max_wrong)
     if ia.size == 0:
         return
     out.proj_x.ravel()[ia] = xa
     out.p_wrong.ravel()[ia] = pa
+    out.filled.ravel()[ia] = True
     out.phase.ravel()[ia] = xa * (2 * np.pi * max(st.plan.periods) / st.wcoded)
     H, W = st.shape
     rows = np.unique(ia // W)
@@ -550,19 +552,23 @@ def _assemble(st: _Setup, out: _Out) -> DecodeResult:
     reason[bad] = Reason.BAD_ORDER
     reason[out.inconsistent] = Reason.INCONSISTENT
     valid = reason == 0
+    filled = np.logical_and(out.filled, valid, out=out.filled)
+    reason[filled] = Reason.NEIGHBOUR_ORDER
     inv = ~valid
     nan = np.float32(np.nan)
     for a in (out.depth, out.proj_x, out.phase):
         np.copyto(a, nan, where=inv)
     conf = np.subtract(np.float32(1), out.p_wrong, out=out.p_wrong)   # in place: p_wrong is not returned
     np.nan_to_num(conf, copy=False, nan=0.0)
+    if filled.any():
+        conf[filled] = np.maximum(conf[filled] - np.float32(NEIGHBOUR_RISK), 0)
     plan = st.plan
     return DecodeResult(depth=out.depth, valid=valid, proj_x=out.proj_x, modulation=out.modulation,
                         offset=out.offset, wrapped=out.wrapped, phase=out.phase, reason=reason,
                         order_error=out.order_error, confidence=conf, periods=plan.periods, steps=st.steps,
                         method=plan.method, noise_sigma=st.sigma_scalar, modulation_floor=st.floor_scalar,
                         extras={"order_floor": st.order_floor, "noise_gain": plan.noise_gain(),
-                                "max_wrong": st.max_wrong},
+                                "max_wrong": st.max_wrong, "noise_model": st.noise_model},
                         triangulator=st.tri)
 
 
@@ -584,7 +590,8 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
     P_cam, P_proj: 3x4 world -> pixel matrices (``K @ inv(T_world_cam)[:3]``); depth and points
         are in the camera frame of P_cam. proj_size: projector (width, height) in pixels.
     unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`).
-    noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = estimate.
+    noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = fitted per
+        pixel from the stack (:func:`datapipe.sl.noise.fit_noise_model`).
     saturation: samples >= this are excluded (default: integer type max; none for floats).
     min_modulation: explicit modulation floor (image units), replaces the noise-derived floor.
     min_contrast: pixels with ``B < min_contrast * A`` are NO_LIGHT (washed-out fringes).

@@ -73,6 +73,86 @@ def multipath_filter(modulation, offset, periods, steps: int, noise_sigma, valid
         return valid & (B.min(axis=0) < ratio * B.max(axis=0) - sigmas * np.sqrt(1.0 + ratio * ratio) * sigma_b)
 
 
+# -- global-light filter: direct vs global light ---------------------------------------------------
+GLOBAL_MAX_RATIO = 0.7           # global / direct light above this: the bounce may decide the coarse phases
+GLOBAL_SIGMAS = 3.0              # noise margin of that test, in sigmas
+DIRECT_MAX_GAIN = 0.5            # frequencies a bounce keeps less modulation of than this read the direct light
+
+
+def direct_frequencies(periods, proj_width: int) -> np.ndarray:
+    """(F,) bool: the frequencies whose modulation a diffuse bounce blurs to below DIRECT_MAX_GAIN
+    (sl.fringe_synth.indirect_gain: 8 and 64 periods of (1, 8, 64) on a 912 px projector keep 21%
+    and 0%); the finest always counts."""
+    from .fringe_synth import indirect_gain
+
+    per = np.asarray(periods, np.float64)
+    out = np.array([indirect_gain(K, int(proj_width)) < DIRECT_MAX_GAIN for K in per])
+    out[np.argmax(per)] = True
+    return out
+
+
+def direct_offset_ratio(projector_gamma: float = 1.0, steps: int = 4) -> float:
+    """Offset / modulation (A / B) that direct light alone gives an N-step decode of patterns
+    (1/2 + 1/2 cos)^gamma: 1 for a linear projector; otherwise the profile's mean over its first
+    harmonic as `steps` samples see it (the harmonics alias into it and make it depend on the
+    phase: the largest value over the phase, so direct light is never taken for global light;
+    gamma 2.2, 4 steps: 0.74, gamma 0.25: 3.3). Global light gets the mean only."""
+    from .patterns import phase_shifts
+
+    if float(projector_gamma) == 1.0:
+        return 1.0
+    d = np.asarray(phase_shifts(int(steps)), np.float64)
+    phi = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)[:, None]
+    p = (0.5 + 0.5 * np.cos(phi + d[None, :])) ** float(projector_gamma)
+    B = 2.0 / d.size * np.abs((p * np.exp(1j * d[None, :])).sum(axis=1))
+    return float(np.max(p.mean(axis=1) / B))
+
+
+def global_light_filter(modulation, offset, direct_freqs, steps: int, noise_sigma, valid, *,
+                        max_ratio: float = GLOBAL_MAX_RATIO, sigmas: float = GLOBAL_SIGMAS,
+                        direct_offset: float = 1.0) -> np.ndarray:
+    """Pixels that receive more light over other paths (inter-reflection) than straight from the
+    projector, so that the bounce decides their coarse phases and fringe order; returns the bool
+    mask of pixels to remove.
+
+    Why this test (direct/global separation, Nayar et al. 2006): with patterns a + b cos (a = b =
+    1/2) a pixel's offset is A = (d + g) / 2 (d direct, g global light) whatever the frequency,
+    while a fringe that a bounce blurs away (`direct_freqs`) keeps only the direct light's
+    modulation, B = d / 2 (times the pixel's footprint MTF, ~1 at 8 periods). So g / d = (A - B) /
+    B. Coarse fringes survive a bounce (1 period on 912 px: 98%), and a bounce phasor of relative
+    size g_K g / d shifts the coarse phase by up to asin(g_K g / d); the unwrapping stage 1 -> 8
+    fails beyond pi / 8 (g / d > 0.39 in the worst phase, which cost 10-19% of the correct part
+    pixels; measured bounce phasors are mostly not in quadrature). On 16 real renders of bins
+    (benchmarks/results/sl_truth.md: the demo's wall lit at grazing incidence with floor light
+    bounced onto it, the original rig, metal parts) the limit 0.7 left at most 0.05% of the valid
+    pixels more than 5 mm off away from depth edges (1.0: 0.08%, 0.5: 0.01%) for 0.8 points of
+    the correct part pixels (0.5: 3.3 points). A pixel lit *only* by bounced light has B = g_K g / 2, so g / d =
+    1 / g_K - 1 >= 1 and is removed too (a projector-shadowed wall). The multipath filter's
+    ratio test misses both: the wall's fine and coarse modulations differ by less than its 0.6.
+    Not a test of ambient light: fringe renders hold the projector's light only.
+
+    With a projector gamma the emitted profile's mean and first harmonic differ: direct light
+    alone has A / B = `direct_offset` (`direct_offset_ratio`), and g / d = A / (direct_offset B) - 1.
+    A valid pixel is removed when
+
+        A - (1 + max_ratio) c B > sigmas * sqrt((1 + max_ratio)^2 c^2 sigma_B^2 + sigma_A^2),  c = direct_offset,
+
+    B = max over `direct_freqs` of B_K, sigma_B = sqrt(2/N) sigma_I, sigma_A = sigma_I / sqrt(F N)
+    (dark pixels are not removed for noise alone). modulation: (F, H, W); offset: (H, W) mean A;
+    direct_freqs: (F,) bool (`direct_frequencies`); noise_sigma: a number, an (H, W) array or a
+    callable sigma(signal) such as SensorModel.noise_sigma."""
+    B = np.asarray(modulation)
+    sel = np.asarray(direct_freqs, bool)
+    Bd = B[sel].max(axis=0).astype(np.float64)
+    A = np.asarray(offset, np.float64)
+    sig = noise_sigma(np.maximum(A, 0)) if callable(noise_sigma) else noise_sigma
+    sig = np.asarray(sig, np.float64)
+    k = (1.0 + float(max_ratio)) * float(direct_offset)
+    tol = sigmas * sig * np.sqrt(k * k * 2.0 / int(steps) + 1.0 / (B.shape[0] * int(steps)))
+    with np.errstate(invalid="ignore"):
+        return np.asarray(valid, bool) & (A - k * Bd > tol)
+
+
 # -- global reflection filter: row-coded patterns (epipolar consistency) ----------------------------
 ROW_SIGMAS = 5.0                 # noise part of the row tolerance, in sigmas of the decoded row
 ROW_MIN_PX = 2.0                 # projector px always allowed (benchmarks/results/sl_materials.md)

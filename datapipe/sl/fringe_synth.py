@@ -35,7 +35,17 @@ from ._errors import bad_value
 from .patterns import fringe_patterns
 
 __all__ = ["projector_columns", "pattern_profiles", "synthesize_fringes", "quadrature_profiles",
-           "bounce_modulation"]
+           "bounce_modulation", "indirect_gain", "INDIRECT_BLUR_PX"]
+
+INDIRECT_BLUR_PX = 32.0          # projector px: Gaussian blur of the pattern as seen by inter-reflected light
+
+
+def indirect_gain(K: float, proj_width: int, blur_px: float = INDIRECT_BLUR_PX) -> float:
+    """Modulation left in a K-period fringe after a Gaussian blur of `blur_px` projector pixels:
+    exp(-2 pi^2 (blur_px K / W)^2) (a blurred sinusoid is the same sinusoid, scaled). Both fringe
+    modes render bounced light with it (core/fringe_call.py); the scanner's global-light filter
+    reads the direct light from the frequencies it blurs away (sl.filters.global_light_filter)."""
+    return float(np.exp(-2.0 * np.pi ** 2 * (blur_px * K / proj_width) ** 2))
 
 
 def projector_columns(points: np.ndarray, P_proj: np.ndarray) -> np.ndarray:

@@ -18,7 +18,10 @@ Validity (what "valid" means)
    unsaturated exposure, rescaled, with its noise); `hdr="auto"` adds shorter exposures per render
    while highlights clip (`sl.exposure.auto_hdr`). `Scan.exposure` is the base exposure used, the
    summary's `hdr` the factors used.
-1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated.
+1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated. The
+   noise is the sensor model's own, per pixel (shot + read + quantisation at the pixel's signal and
+   exposure; with HDR the fused exposure's, rescaled), never a global estimate from the images
+   (`DecodeResult.extras["noise_model"]` says so).
    Contrast B/A >= MIN_CONTRAST = 0.05 is only a sanity floor: ambient light (the key light on a
    part) lowers B/A without harming the phase; a fixed 0.5 discarded lit parts near the camera.
 1b. multipath / reflection filter (`sl.filters.multipath_filter`, reason MULTIPATH = 8): the
@@ -26,6 +29,11 @@ Validity (what "valid" means)
    second path pulls the coarse phase and so the fringe order (e.g. the projector's shadow next to
    a bin wall, lit by the wall). On the demo bin it removes what B/A >= 0.5 removed, without
    punishing ambient light (benchmarks/results/sl_materials.md).
+1b'. global-light filter (`sl.filters.global_light_filter`, reason MULTIPATH too): more light
+   over other paths than straight from the projector (offset - modulation of the frequencies a
+   bounce blurs away > 0.7 x that modulation): the bounce keeps the coarse fringes and decides the
+   order (a bin wall lit at grazing incidence beside a bright floor; a surface lit by bounced light
+   alone). Runs with the multipath filter (benchmarks/results/sl_truth.md).
 1c. global reflection filter (`sl.filters.reflection_filter`, reason REFLECTION = 10): only when
    the radiance stack carries `steps` row-coded images after the F*N fringe images (ROW_PERIODS
    periods of row fringes over the projector height; the Blender side renders them when
@@ -58,8 +66,8 @@ from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from ._errors import bad_value
 from .decode import DecodeResult, Reason, decode
 from .exposure import Capture, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set, lit_pixels
-from .filters import (edge_speckle_filter, multipath_filter, projector_rows, reflection_filter, row_from_phase,
-                      row_residual)
+from .filters import (direct_frequencies, direct_offset_ratio, edge_speckle_filter, global_light_filter, multipath_filter,
+                      projector_rows, reflection_filter, row_from_phase, row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
 from .metrics import pixel_depth_sigma
 from .patterns import fringe_patterns, phase_shifts
@@ -216,11 +224,18 @@ class Scanner:
         res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
                      proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=cap.noise_sigma,
                      saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma)
+        res.extras["noise_model"] = {          # never a global estimate: the sensor's own per-pixel noise
+            "kind": "sensor", "source": "sensor model: shot + read + quantisation at each pixel's signal"
+            + (", per pixel at its HDR exposure after fusion" if cap.chosen is not None else
+               f", exposure {cap.reference:.4g}")}
         sigma_z = pixel_depth_sigma(res, cap.noise_sigma, self.proj_size[0], self.steps)
         multipath = None
         if self.multipath_filter:
             multipath = multipath_filter(res.modulation, res.offset, res.periods, self.steps, cap.noise_sigma,
                                          res.valid)
+            multipath |= global_light_filter(res.modulation, res.offset, direct_frequencies(res.periods, self.proj_size[0]),
+                                             self.steps, cap.noise_sigma, res.valid,
+                                             direct_offset=direct_offset_ratio(self.projector_gamma, self.steps))
             _remove(res, multipath, MULTIPATH)
         reflection = residual = None
         if self.row_check and cap.images.shape[0] > n:

@@ -87,6 +87,12 @@ class SensorModel:
             lvl = float(np.floor(lvl))
         return float(lvl)
 
+    def variance_terms(self) -> tuple[float, float, float]:
+        """``(black, const, per_dn)``: :meth:`noise_sigma` squared is ``const + per_dn * max(S - black, 0)``."""
+        g = self.gain
+        const = (self.read_noise / g) ** 2 + (1.0 / 12.0 if self.adc_bits is not None else 0.0)
+        return float(self.black_level), float(const), (1.0 / g if self.shot_noise else 0.0)
+
     def noise_sigma(self, signal_dn):
         """Expected temporal noise sigma (DN) at mean signal ``signal_dn`` (DN, black included)."""
         s = np.maximum(np.asarray(signal_dn, dtype=np.float64) - self.black_level, 0.0)

@@ -1,22 +1,38 @@
 """Neighbourhood order correction: pixels whose own frequencies leave the order uncertain take it
 from the projector coordinate their confident neighbours predict (as scanners' spatial filters
-do), and may so get a *different* order than their temporal decoding gave.
+do), and may so get a *different* order than their temporal decoding gave -- but only where the
+neighbours and the pixel are one surface: a neighbour never vouches across an edge.
 
 Per uncertain pixel and pass: predictions of its coordinate from confident 8-neighbours, two-sided
 ``(x[p-d] + x[p+d]) / 2`` (4 axes) and one-sided ``2 x[p+d] - x[p+2d]`` (8 directions), all exact on
 planes. Each prediction votes for the order of the pixel's own finest phase it implies; the median
 ``x_hat`` is trusted only when at least ``min_support`` (2) predictions and 3/4 of those available vote
 for the order ``x_hat`` implies (at a depth step of more than half a period the two sides vote
-differently and the pixel is left alone). Candidates are the finest phase's three coordinates
-``x_n = (n + c_f) T`` nearest ``x_hat``; each is scored with the spatial term
-``(x_n - x_hat)^2 / (sigma_p^2 + sigma_f^2)`` (``sigma_p``: spread of the agreeing predictions plus
-``0.05 T``; ``sigma_f``: the pixel's own fine-phase noise) plus the temporal term
-``sum_i wrap(K_i x_n / W - c_i)^2 / v_i`` of every other frequency. The posterior of the best
-candidate against the other two must leave ``p_wrong <= max_wrong``, and its temporal term must pass
-a chi-square test at 1e-4 (its frequencies must not contradict the neighbours). Accepted pixels
-count as confident in the next pass, so corrections grow into dark regions one pixel per pass;
-a pass looks only at the uncertain pixels next to those accepted in the pass before (a frontier),
-so its cost follows the frontier, not the whole uncertain area.
+differently and the pixel is left alone).
+
+Same surface. A depth step whose projector-coordinate jump is close to a whole number of periods
+fools that vote when all the confident neighbours lie on one side of it (issue #19: a dark box top
+filled with the floor's orders). So the pixel must also lie *on* the neighbours' surface: along at
+least one axis the four neighbours ``p-2d, p-d, p+d, p+2d`` are confident and the three predictions
+through the pixel (the two-sided one and the one-sided one from each side) agree within
+``SAME_SURFACE * T``: no step between the two sides and a continuous gradient across the pixel
+(an interpolation, never an extrapolation from one side). And the pixel's own finest phase must
+locate it within a period by itself (phase noise ``<= MAX_FINE_NOISE`` cycles), so a pixel of pure
+noise (a projector shadow that slipped past the modulation floor) is not given its neighbours' depth.
+
+Candidates are the finest phase's three coordinates ``x_n = (n + c_f) T`` nearest ``x_hat``; each is
+scored with the spatial term ``(x_n - x_hat)^2 / (sigma_p^2 + sigma_f^2)`` (``sigma_p``: spread of the
+agreeing predictions plus ``0.05 T``; ``sigma_f``: the pixel's own fine-phase noise) plus the temporal
+term ``sum_i wrap(K_i x_n / W - c_i)^2 / v_i`` of every other frequency. The posterior of the best
+candidate against the other two must leave ``p_wrong <= max_wrong``; its spatial term must pass a
+chi-square test at 1e-3 (the pixel's fine phase agrees with the neighbours' prediction within its
+noise) and its temporal term one at 1e-4 (its frequencies do not contradict the neighbours).
+Accepted pixels count as confident in the next pass, so corrections grow into uncertain regions one
+pixel per pass; a pass looks only at the uncertain pixels next to those accepted in the pass before
+(a frontier), so its cost follows the frontier, not the whole uncertain area.
+
+The decoder marks accepted pixels NEIGHBOUR_ORDER and lowers their confidence by ``NEIGHBOUR_RISK``
+(:mod:`.decode`): the tests above make a fill across an edge unlikely, not impossible.
 """
 from __future__ import annotations
 
@@ -29,6 +45,9 @@ _AXES = ((0, 1), (1, 0), (1, 1), (1, -1))
 _DIRS = _AXES + tuple((-dy, -dx) for dy, dx in _AXES)
 
 
+SAME_SURFACE = 0.1     # of a finest period: the predictions through the pixel must agree within this
+MAX_FINE_NOISE = 0.05  # cycles: the pixel's own finest phase must be at least this precise
+SPATIAL_P = 1e-3       # chi-square tail of the spatial term (own fine phase vs the neighbours)
 PAD = 2      # border of NaN around the image: neighbour look-ups need no bounds checks
 
 
@@ -54,6 +73,17 @@ def _nan_median(P):
     return 0.5 * (S[lo, cols] + S[np.minimum(hi, P.shape[0] - 1), cols]), k
 
 
+def _through(P, tol):
+    """(n,) bool: along some axis j the two-sided prediction (row j) and both one-sided ones (rows
+    4 + j, 8 + j) exist and agree within tol (the pixel lies on the surface of both sides)."""
+    ok = np.zeros(P.shape[1], bool)
+    with np.errstate(invalid="ignore"):
+        for j in range(len(_AXES)):
+            m, a, b = P[j], P[len(_AXES) + j], P[2 * len(_AXES) + j]
+            ok |= (np.abs(a - m) <= tol) & (np.abs(b - m) <= tol) & (np.abs(a - b) <= tol)
+    return ok
+
+
 def _wrapd(t):
     return t - np.rint(t)
 
@@ -62,9 +92,9 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
                    min_support=2, weights_min=0.01):
     """Correct / confirm the orders of ``cand`` pixels from confident neighbours (module doc).
 
-    x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good, cand:
-    (H, W) bool; cyc, var_c: per frequency 1D arrays over ``flatnonzero(cand)`` (cycles,
-    cycles^2). Returns (idx, x_new, p_wrong) of the accepted pixels (flat indices)."""
+    x: (H, W) float32 coordinates (temporal decode; NaN allowed outside good/cand); good: (H, W)
+    bool; cand: (H, W) bool or the sorted flat indices of the candidates; cyc, var_c: per frequency
+    1D arrays over the candidates (cycles, cycles^2). Returns (idx, x_new, p_wrong) of the accepted pixels (flat indices)."""
     H, W = x.shape
     per = np.asarray(periods, np.float64)
     f = int(np.argmax(per))
@@ -75,16 +105,21 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     inner = xg[PAD:PAD + H, PAD:PAD + W]
     np.copyto(inner, x, where=good)
     xg = xg.ravel()
-    idx_all = np.flatnonzero(cand)
+    idx_all = np.flatnonzero(cand) if cand.dtype == bool else np.asarray(cand)
     r_all, c_all = np.divmod(idx_all, W)
     p_all = (r_all + PAD) * Wp + (c_all + PAD)
     offs = np.array([dy * Wp + dx for dy, dx in _DIRS])
     todo = np.ones(idx_all.size, bool)
+    slot = np.full(xg.size, -1, np.int32)        # padded pixel -> its candidate number (-1: none)
+    slot[p_all] = np.arange(idx_all.size, dtype=np.int32)
+    mark = np.zeros(idx_all.size, bool)
     active = np.zeros(idx_all.size, bool)
     for o in offs:
         active |= np.isfinite(xg[p_all + o])
     frontier = np.flatnonzero(active)
     chi_max = chi2.isf(1e-4, max(1, len(per) - 1))
+    chi_sp = chi2.isf(SPATIAL_P, 1)
+    own_min = 2.0 * np.log(1.0 / max_wrong)          # likelihood ratio 1 / max_wrong
     w = per * per
     keep = w >= weights_min * w.sum()
     out_idx, out_x, out_p = [], [], []
@@ -94,39 +129,42 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         if sel.size == 0:
             break
         pp = p_all[sel]
-        P = _predictions(xg, pp, Wp).astype(np.float64)
+        P = _predictions(xg, pp, Wp)           # float32 throughout: x to 1e-4 px, enough for orders
         xh, avail = _nan_median(P)
         has = avail >= min_support
         if not has.any():
             continue
         sel, pp, P, avail, xh = sel[has], pp[has], P[:, has], avail[has], xh[has]
         # each prediction votes for the fine order it implies for this pixel's own fine phase
-        cf_all = cyc[f][sel].astype(np.float64)
+        cf_all = cyc[f][sel]
         with np.errstate(invalid="ignore"):
             votes = np.rint(P / T - cf_all)
             agree = votes == np.rint(xh / T - cf_all)
             dev = np.abs(P - xh)
         n_agree = agree.sum(0)
-        spread = np.sqrt(np.sum(np.where(agree, dev * dev, 0.0), 0) / np.maximum(n_agree, 1))
-        ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail)
+        spread = np.sqrt(np.sum(np.where(agree, dev * dev, np.float32(0)), 0) / np.maximum(n_agree, 1))
+        ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail) & (var_c[f][sel] <= MAX_FINE_NOISE ** 2)
+        through = _through(P, SAME_SURFACE * T)
         if not ok.any():
             continue
-        sel, pp, xh, spread = sel[ok], pp[ok], xh[ok], spread[ok]
-        cf = cyc[f][sel].astype(np.float64)
-        vf = var_c[f][sel].astype(np.float64)
+        sel, pp, xh, spread, through = sel[ok], pp[ok], xh[ok], spread[ok], through[ok]
+        cf = cyc[f][sel]
+        vf = var_c[f][sel]
         var_sp = spread ** 2 + (0.05 * T) ** 2 + vf * T * T
         n0 = np.rint(xh / T - cf)
-        scores, temps, xs = [], [], []
+        scores, temps, spat, xs = [], [], [], []
         for dn in (-1.0, 0.0, 1.0):
             xn = (n0 + dn + cf) * T
-            temp = np.zeros(xn.shape)
+            temp = np.zeros(xn.shape, xn.dtype)
             for i, k in enumerate(per):
                 if i == f:
                     continue
-                v = var_c[i][sel].astype(np.float64) + (k / per[f]) ** 2 * vf
+                v = var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf
                 temp += _wrapd(k * xn / L - cyc[i][sel]) ** 2 / v
-            scores.append((xn - xh) ** 2 / var_sp + temp)
+            sp = (xn - xh) ** 2 / var_sp
+            scores.append(sp + temp)
             temps.append(temp)
+            spat.append(sp)
             xs.append(xn)
         S = np.stack(scores)
         b = np.argmin(S, 0)
@@ -135,20 +173,26 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         with np.errstate(over="ignore"):
             p = np.sum(np.exp(-0.5 * (S - sb)), 0) - 1.0
         p = p / (1.0 + p)
-        tb = np.stack(temps)[b, cols]
-        acc = (p <= max_wrong) & (tb <= chi_max)
+        Tm = np.stack(temps)
+        tb = Tm[b, cols]
+        # off the same-surface axis (extrapolation from one side): the pixel's own frequencies alone
+        # must rule out the orders next to the chosen one (a step of ~ a whole period looks smooth)
+        own = np.min(np.where(np.arange(3)[:, None] == b[None, :], np.inf, Tm), 0) - tb
+        acc = (p <= max_wrong) & (tb <= chi_max) & (np.stack(spat)[b, cols] <= chi_sp) \
+            & (through | (own >= own_min))
         if not acc.any():
             continue
         xbest = np.stack(xs)[b, cols][acc]
         sel_a = sel[acc]
-        xnew = _combine_from_fine(xbest, [cyc[i][sel_a].astype(np.float64) for i in range(len(per))],
+        xnew = _combine_from_fine(xbest, [cyc[i][sel_a] for i in range(len(per))],
                                   per, L, keep)
         pa = pp[acc]
         xg[pa] = xnew
         todo[sel_a] = False
-        near = (pa[:, None] + offs[None, :]).ravel()        # candidates among them: p_all is sorted
-        j = np.minimum(np.searchsorted(p_all, near), p_all.size - 1)
-        frontier = np.unique(j[p_all[j] == near])
+        j = slot[(pa[:, None] + offs[None, :]).ravel()]    # the candidates next to the accepted ones
+        mark[j[j >= 0]] = True
+        frontier = np.flatnonzero(mark)
+        mark[frontier] = False
         out_idx.append(idx_all[sel_a])
         out_x.append(xnew)
         out_p.append(p[acc])
@@ -160,7 +204,7 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
 
 def _combine_from_fine(xbest, cyc, per, L, keep):
     """Every frequency's coordinate from its order next to ``xbest``, K^2-weighted (as unwrap)."""
-    num = np.zeros(xbest.shape)
+    num = np.zeros(xbest.shape, xbest.dtype)
     den = 0.0
     for i, k in enumerate(per):
         if not keep[i]:

@@ -254,12 +254,13 @@ def test_debug_output_and_annotations(tmp_path):
     assert reason.shape == (H, W) and set(np.unique(reason)) <= set(REASON_NAMES)
     conf = ch["confidence"]                       # P(orders right): >= 1 - max_wrong where valid
     assert np.all(conf[reason == 0] >= 1 - 1e-3) and np.all((conf >= 0) & (conf <= 1))
+    assert np.all(conf[reason == sl.Reason.NEIGHBOUR_ORDER] >= 1 - 1e-3 - sl.NEIGHBOUR_RISK)
     for k in range(F):
         w = ch[f"wrapped_{k}"]
         assert np.nanmin(w) >= 0 and np.nanmax(w) < 2 * np.pi + 1e-6
     sld = read_depth(rdir / "sl_depth.exr")
     valid_png = cv2.imread(str(rdir / "sl_valid.png"), cv2.IMREAD_UNCHANGED) == 255
-    assert (valid_png == np.isfinite(sld)).all() and (valid_png == (reason == 0)).all()
+    assert (valid_png == np.isfinite(sld)).all() and (valid_png == np.isin(reason, sl.VALID_REASONS)).all()
     assert np.isfinite(ch["phase"][valid_png]).all() and np.isnan(ch["phase"][~valid_png]).all()
     # absolute phase of the finest frequency is 2 pi K x / W_p of the decoded projector column
     K = max(cfg.structured_light.periods)

@@ -174,6 +174,8 @@ class Box:
 @dataclass
 class Scene:
     prims: list = field(default_factory=list)
+    patches: list = field(default_factory=list)   # (primitive index, lo xyz, hi xyz, albedo): albedo of the
+                                                  # primitive's surface points inside that world box
 
     def cast(self, o, d):
         """Nearest hit: t (inf = none), primitive index, normal."""
@@ -222,6 +224,35 @@ def box_scene(size=0.2, height=0.15, albedo=1.0, centre=(0.0, 0.0)):
                   Box((cx - size / 2, cy - size / 2, 0.0), (cx + size / 2, cy + size / 2, height), albedo)])
 
 
+def dark_step_scene():
+    """The adversarial scene of issue #19: a floor tilted by 8 degrees, two boxes whose tops stand
+    0.13 m and 0.25 m above it (depth steps, projector shadows beside them), two spheres, a floor
+    patch of albedo 0.015 and the high box's top at albedo 0.04 (dark patches beside depth steps);
+    the rest albedo 0.5-0.7. Sized for ``make_rig(distance=1.0)`` (0.8 x 0.6 m in view)."""
+    a = np.radians(8.0)
+    floor = Plane((0, 0, 0), (np.sin(a), 0.0, np.cos(a)), 0.5)
+    zf = lambda x: -np.tan(a) * x                     # floor height at x (y-independent)
+    low = Box((-0.26, -0.2, zf(-0.06) - 0.05), (-0.06, 0.0, zf(-0.06) + 0.13), 0.6)
+    high = Box((0.04, -0.05, zf(0.2) - 0.05), (0.2, 0.17, zf(0.2) + 0.25), 0.6)
+    s1 = Sphere((-0.2, 0.16, zf(-0.2) + 0.05), 0.07, 0.7)
+    s2 = Sphere((0.29, -0.17, zf(0.29) + 0.04), 0.06, 0.7)
+    top = zf(0.2) + 0.25
+    return Scene([floor, low, high, s1, s2],
+                 patches=[(0, (-0.05, -0.26, -1.0), (0.01, -0.2, 1.0), 0.015),
+                          (2, (0.04, -0.05, top - 1e-6), (0.2, 0.17, top + 1e-6), 0.04)])
+
+
+def sensor_stack(render, *, full_scale=250.0, read=1.0, e_per_dn=40.0, seed=0, dtype=np.float32):
+    """A render's images in DN (``full_scale`` x radiance) with read + shot noise: Gaussian of
+    variance ``read^2 + I / e_per_dn`` per sample of mean ``I`` DN (the normal limit of Poisson
+    shot noise at ``e_per_dn`` electrons per DN), not quantised. The true per-pixel
+    noise model is ``lambda A: sqrt(read^2 + A / e_per_dn)``."""
+    rng = np.random.default_rng(seed)
+    mean = render.images * full_scale if hasattr(render, "images") else np.asarray(render) * full_scale
+    noisy = mean + rng.standard_normal(mean.shape) * np.sqrt(read ** 2 + mean / e_per_dn)
+    return noisy.astype(dtype)
+
+
 # ------------------------------------------------------------------ rendering
 @dataclass
 class Render:
@@ -243,6 +274,8 @@ def _surface(scene, cam, proj, offset=(0.0, 0.0)):
     alb = np.zeros(t.shape)
     for i, p in enumerate(scene.prims):
         alb[idx == i] = p.albedo
+    for i, lo, hi, a in scene.patches:
+        alb[(idx == i) & np.all((X >= np.asarray(lo, float)) & (X <= np.asarray(hi, float)), -1)] = a
     pxy, zp = proj.project(X)
     w, h = proj.size
     inside = hit & (zp > 0) & (pxy[..., 0] >= -0.5) & (pxy[..., 0] <= w - 0.5) \

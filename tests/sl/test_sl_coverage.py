@@ -7,7 +7,7 @@ import pytest
 
 import synth
 from sl_helpers import STEPS, add_noise, decode_kw
-from datapipe.sl import Reason, decode, unwrap_phase
+from datapipe.sl import NEIGHBOUR_RISK, Reason, decode, unwrap_phase
 
 
 def albedo_map(shape):
@@ -43,15 +43,19 @@ def coverage(dark_scene, periods, noise, seed=5, **kw):
 @pytest.mark.parametrize("periods", [(1, 8, 64), (70, 64, 59), (16, 15), (1, 16)])
 def test_coverage_at_the_oracle(dark_scene, periods):
     """1% noise (B = 0.02 .. 0.4: phase SNR down to 2.8): correct coverage of lit pixels within
-    3 points of the oracle, wrong orders <= 0.1% of the valid pixels, nothing valid in the shadow;
-    the per-pixel decision alone (no neighbours) is still wrong on <= 0.1% of its valid pixels."""
+    17 points of the oracle, wrong orders <= 0.1% of the valid pixels, nothing valid in the shadow;
+    the per-pixel decision alone (no neighbours) is still wrong on <= 0.1% of its valid pixels and
+    the neighbours add to it. (Before issue #19 the neighbour pass grew into the dark patches from
+    their edges, within 3 points of the oracle; it no longer extrapolates from one side where the
+    pixel's own frequencies cannot rule out the orders next to the neighbours', since a depth step
+    of a whole period looks the same: the patches' cores are holes, as on a real scanner.)"""
     res, r, oracle, correct, wrong = coverage(dark_scene, periods, 0.01)
     assert oracle < 0.97                         # the scene is hard: the oracle itself loses pixels
-    assert correct >= oracle - 0.03, (correct, oracle)
+    assert correct >= oracle - 0.17, (correct, oracle)
     assert wrong <= 1e-3
     assert not res.valid[r.shadow].any()
     own = coverage(dark_scene, periods, 0.01, spatial=False)
-    assert own[4] <= 1e-3
+    assert own[4] <= 1e-3 and own[3] <= correct
 
 
 @pytest.mark.parametrize("periods", [(13, 7), (9, 10, 11)])
@@ -66,7 +70,8 @@ def test_coprime_sets_decode(dark_scene, periods):
 
 def test_neighbours_correct_orders(dark_scene):
     """The neighbour pass changes orders, not only confirms them: some pixels whose own (temporal)
-    order was wrong come out valid with the right order."""
+    order was wrong come out valid with the right order, marked NEIGHBOUR_ORDER, with a confidence
+    below every directly decoded pixel's."""
     periods = (16, 15)
     cam, proj, alb = dark_scene
     res, r, *_ = coverage(dark_scene, periods, 0.01)
@@ -74,6 +79,10 @@ def test_neighbours_correct_orders(dark_scene):
     half = proj.size[0] / max(periods) / 2
     was_wrong = loose.valid & ~(np.abs(loose.proj_x - r.proj_x) < half)
     fixed = was_wrong & res.valid & (np.abs(res.proj_x - r.proj_x) < half)
-    assert fixed.sum() > 100
-    assert np.all(res.confidence[res.valid] >= 1 - 1e-3)
+    assert fixed.sum() >= 3
+    assert np.all(res.reason[fixed] == Reason.NEIGHBOUR_ORDER)
+    direct = res.reason == Reason.VALID
+    filled = res.reason == Reason.NEIGHBOUR_ORDER
+    assert np.all(res.confidence[direct] >= 1 - 1e-3)
+    assert np.all(res.confidence[filled] <= np.float32(1 - NEIGHBOUR_RISK)) and np.all(res.confidence[filled] >= 1 - 2e-3)
     assert np.all(res.confidence[res.reason == Reason.NO_LIGHT] == 0)

@@ -7,7 +7,8 @@ from scipy.ndimage import binary_erosion
 import synth
 from sl_helpers import PERIODS, STEPS, add_noise, decode_kw
 from datapipe.errors import DataPipeError
-from datapipe.sl import Reason, SensorModel, decode, depth_error_stats, fringe_patterns
+from datapipe.sl import VALID_REASONS, Reason, SensorModel, decode, depth_error_stats, fringe_patterns
+from datapipe.sl.noise import fit_noise_model
 from datapipe.sl.metrics import effective_period, theoretical_depth_sigma, theoretical_phase_sigma
 
 
@@ -18,7 +19,7 @@ def check_contract(res):
         np.testing.assert_array_equal(np.isfinite(a), res.valid)
     assert not np.isinf(res.points).any()
     np.testing.assert_array_equal(np.isfinite(res.points).all(-1), res.valid)
-    np.testing.assert_array_equal(res.valid, res.reason == Reason.VALID)
+    np.testing.assert_array_equal(res.valid, np.isin(res.reason, VALID_REASONS))
     assert res.reason.dtype == np.uint8 and res.reason.max() <= max(Reason)
     assert np.all(res.depth[res.valid] > 0)
 
@@ -176,7 +177,7 @@ def test_pure_noise_is_not_decoded():
     """B = 0 exactly (no fringe, only noise sigma = 0.01 on A = 0.3). Estimated modulation follows a
     Rayleigh law with scale sigma*sqrt(2/N); the floor passes a frequency with probability
     p = 1e-3, all three with 1e-9, so among 19200 pixels none may be valid (expected 2e-5).
-    Checked with the true sigma and with the default residual estimate of sigma."""
+    Checked with the true sigma and with the default per-pixel estimate of sigma (datapipe.sl.noise)."""
     rng = np.random.default_rng(9)
     cam, proj = synth.make_rig()
     imgs = 0.3 + rng.normal(0, 0.01, (12, 120, 160))
@@ -185,7 +186,8 @@ def test_pure_noise_is_not_decoded():
         check_contract(res)
         assert res.valid.sum() == 0
         if not kw:
-            assert res.noise_sigma == pytest.approx(0.01, rel=0.05)
+            assert res.extras["noise_model"]["kind"] == "fit"
+            assert float(fit_noise_model(list(imgs), STEPS)(0.3)) == pytest.approx(0.01, rel=0.05)
 
 
 @pytest.mark.parametrize("known_sigma", [True, False])
@@ -335,7 +337,8 @@ def test_nonfinite_inputs(rig, plane_render):
     np.testing.assert_array_equal(res.depth[~hit], clean.depth[~hit])
     # the default noise estimate ignores the non-finite samples
     dflt = decode(bad, **decode_kw(cam, proj))
-    assert np.isfinite(dflt.noise_sigma) and (dflt.reason == Reason.INVALID_INPUT).sum() == 4
+    nm = dflt.extras["noise_model"]
+    assert nm["kind"] in ("fit", "floor") and np.isfinite(nm["read_sigma"]) and (dflt.reason == Reason.INVALID_INPUT).sum() == 4
 
 
 def test_input_layouts_and_axis_y():
@@ -419,8 +422,7 @@ def test_low_snr_orders_are_refused(rig):
     estimate has sigma_k = 27.6 * sqrt(2/4) * 0.01 / 0.1 = 1.95 rad and is wrong with probability
     erfc(pi / (sqrt(2) sigma_k)) = 11%. Decoding every pixel (max_wrong=1, no neighbours) gets
     hundreds of orders wrong; the default decision keeps none of them, and with the neighbours'
-    help keeps (nearly) every lit pixel (the ramp is a plane: the dark end takes its orders from the
-    bright one, beyond the per-pixel oracle). The former worst-case floor (order_sigmas=5: B >= 0.31)
+    help keeps more (the scattered uncertain pixels between confident ones). The former worst-case floor (order_sigmas=5: B >= 0.31)
     still works and refuses the dark half."""
     cam, proj = rig
     per = (20, 19)
@@ -433,8 +435,10 @@ def test_low_snr_orders_are_refused(rig):
     for x in (own, res):
         check_contract(x)
         assert not order_errors(x, r, per).any()
-    assert 0.7 < own.valid[r.lit].mean() < 0.9
-    assert res.valid[r.lit].mean() > 0.999
+    # the neighbours fill scattered uncertain pixels, not the dark end as a whole: there they would
+    # extrapolate from one side, and 20/19's own phases cannot tell the orders next to the
+    # neighbours' from it (issue #19: a neighbour never vouches across an edge it cannot see)
+    assert 0.7 < own.valid[r.lit].mean() + 0.01 < res.valid[r.lit].mean() < 0.9
     legacy = decode(imgs, **kw, order_sigmas=5, spatial=False)
     floor = legacy.extras["order_floor"]
     assert floor == pytest.approx(5 * 27.586 * np.sqrt(0.5) * 0.01 / np.pi, rel=1e-3)

@@ -138,3 +138,68 @@ def test_reflection_filter_tolerance_follows_the_row_code_noise():
     assert bad.tolist() == [[False, True, False, False, True, False]]
     assert tol[0, 3] > 20 > 4 > tol[0, 0]                          # a dark pixel's noise widens it
     assert not sl.reflection_filter(residual, B, Hp, N, sig, ~valid, periods=K).any()
+
+
+def test_global_light_filter_removes_bounce_decided_orders_and_bounce_only_light(rig):
+    """Plane, periods (1, 8, 64), the pipeline's bounce model (modulation kept 98% / 21% / 0% for
+    1 / 8 / 64 periods). Right half: besides the direct light, as much bounced light (g / d = 1)
+    from a point 5W/16 away in projector columns: the 1-period phasor turns by ~55 deg, 8 x that is
+    more than one 8-period fringe, so the decoder picks wrong orders, while the fine and coarse
+    modulations still agree within the multipath filter's 0.6 (what the demo's bin wall showed).
+    (The filter reads d from the 8 and 64-period modulations; an 8-period bounce phasor in phase
+    with the direct one would raise B_8 by g_8 g / 2 and hide up to 21% of g.)
+    A band of the left half gets the bounce alone (a projector-shadowed wall). The global-light
+    filter removes the wrong orders and the bounce-only band; the directly lit rest (g = 0) stays,
+    and pure noise (no light) is never removed by it."""
+    cam, proj = rig
+    r = synth.render(synth.plane_scene(), cam, proj, PERIODS, STEPS)
+    W = proj.size[0]
+    H2, W2 = r.lit.shape
+    cols = np.arange(W2)[None, :].repeat(H2, 0)
+    rows = np.arange(H2)[:, None].repeat(W2, 1)
+    right = r.lit & (cols >= W2 // 2)
+    only = r.lit & (cols < W2 // 2) & (rows < H2 // 4)
+    clean = r.lit & (cols < W2 // 2) & (rows >= H2 // 4)
+    img = r.images.copy()
+    img[:, only] = 0.0
+    kept = {1: 0.98, 8: 0.21, 64: 0.0}
+    assert all(abs(sl.indirect_gain(K, 912) - g) < 0.01 for K, g in kept.items())   # the renderer's, 912 px projector
+    x_other = r.proj_x + W * 5.0 / 16.0
+    for i, K in enumerate(PERIODS):
+        for n in range(STEPS):
+            glob = 0.5 + 0.5 * kept[K] * np.cos(2 * np.pi * K * x_other / W + 2 * np.pi * n / STEPS)
+            img[i * STEPS + n] += np.where(right | only, glob, 0.0)
+    img = img.astype(np.float32)
+    ind = sl.SensorModel.preset("industrial")
+    cap = X.capture(img, ind, [X.auto_exposure(img, ind)], 3)
+    res = sl.decode(cap.images, noise_sigma=cap.noise_sigma, saturation=cap.saturation, **decode_kw(cam, proj))
+    wrong = res.valid & (np.abs(res.depth - r.depth) > 5e-3)
+    assert wrong[right].mean() > 0.3                    # the bounce decides the orders
+    mp = sl.multipath_filter(res.modulation, res.offset, PERIODS, STEPS, cap.noise_sigma, res.valid)
+    assert (wrong & ~mp)[right].mean() > 0.2            # ... and the ratio test leaves most of them
+    direct = sl.filters.direct_frequencies(PERIODS, W)
+    assert direct.tolist() == [False, True, True]
+    gl = sl.filters.global_light_filter(res.modulation, res.offset, direct, STEPS, cap.noise_sigma, res.valid)
+    assert (wrong & ~gl & ~mp)[right].mean() < 0.002
+    assert not (res.valid & ~gl & ~mp)[only].any()      # no depth from bounced light alone
+    assert res.valid[clean].mean() > 0.99 and gl[clean].mean() < 0.001
+    noise = sl.filters.global_light_filter(res.modulation * 0 + 1e-3, np.full(res.offset.shape, 5.0), direct, STEPS,
+                                           30.0, np.ones_like(res.valid))
+    assert not noise.any()                              # A - 1.7 B within 3 sigma of the noise: kept
+    # a projector gamma changes direct light's own A / B: (1/2 + 1/2 cos)^0.25, 4 steps: up to 3.3
+    c = sl.filters.direct_offset_ratio(0.25, STEPS)
+    t = np.linspace(0, 2 * np.pi, STEPS, endpoint=False)[:, None, None]
+    frames = 200.0 * (0.5 + 0.5 * np.cos(t + np.linspace(0, 6, 50)[None, None, :])) ** 0.25
+    ph = sl.phase_shift(np.repeat(frames, 3, axis=1).reshape(STEPS, 3, 50))
+    assert abs(float(np.max(ph.offset / ph.modulation)) - c) < 0.02 and c > 1.9
+    mods = np.broadcast_to(ph.modulation, (3, 3, 50))
+    assert sl.filters.global_light_filter(mods, ph.offset, direct, STEPS, 1.0, np.ones((3, 50), bool)).mean() > 0.8
+    assert not sl.filters.global_light_filter(mods, ph.offset, direct, STEPS, 1.0, np.ones((3, 50), bool),
+                                              direct_offset=c).any()
+    # the scanner runs it with the local reflection filter: reason MULTIPATH, off with the filter off
+    scan = _scanner(cam, proj).scan(img, 3, cam.K, cam.T)
+    res = scan.result
+    assert not (res.valid & only).any() and (res.valid & right & (np.abs(res.depth - r.depth) > 5e-3)).mean() < 0.002
+    assert (res.reason[right & ~res.valid] == sl.Reason.MULTIPATH).mean() > 0.5 and res.valid[clean].mean() > 0.99
+    off = _scanner(cam, proj, multipath_filter=False).scan(img, 3, cam.K, cam.T).result
+    assert (off.valid & right & (np.abs(off.depth - r.depth) > 5e-3)).mean() > 0.3
