@@ -435,8 +435,7 @@ def _write_coverage(rows, curves, points, lines, speed, rep):
         "| scene | periods x 4 | neighbour pass | best ms | median ms | CPU ms | correct / lit |",
         "|---|---|---|---|---|---|---|",
     ] + speed + [""]
-    with open(os.path.join(RESULTS, "sl_coverage.md"), "w") as fh:
-        fh.write("\n".join(md))
+    write_with_notes(Path(RESULTS) / "sl_coverage.md", md)
     print("\n".join(md))
 
 
