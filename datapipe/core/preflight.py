@@ -1,8 +1,10 @@
-"""Mesh checks that need Blender's importers, run before the output folder is touched.
+"""Checks that need Blender, run before the output folder is touched.
 
 `check_meshes(cfg)` imports every distinct mesh file once, measures it and removes everything the
 import added, so `datapipe validate` and `datapipe run` refuse the same broken part files (no
-faces, NaN vertices, a part bigger than the bin or too small to see) before anything is written.
+faces, NaN vertices, a part bigger than the bin or too small to see) and part counts whose convex
+hulls cannot fit the bin (part_fit.fill_problems) before anything is written. `check_blend(cfg)`
+reads `scene.blend_file` with Blender's own reader without opening it (the open scene stays).
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import numpy as np
 
 from ..config import Config, camera_distances
 from ..errors import ConfigError, Problem
+from ..part_fit import fill_problems
 from ..sl.triangulate import intrinsics_from_blender
 from .objects import _IMPORTERS, _run_importer, remove_import_leftovers
 
@@ -42,10 +45,21 @@ def _import_measure(path: str) -> tuple[int, int, np.ndarray]:
         remove_import_leftovers(before_objs, before_meshes, before_colls)
 
 
+def hull_volume(pts: np.ndarray) -> float:
+    """Convex hull volume of points (m^3); 0 for flat or degenerate point sets."""
+    from scipy.spatial import ConvexHull, QhullError
+    try:
+        return float(ConvexHull(pts).volume)
+    except (QhullError, ValueError):
+        return 0.0
+
+
 def check_meshes(cfg: Config) -> list[Problem]:
     """Problems of the part files themselves (call after Config.validate() passed)."""
     problems: list[Problem] = []
     measured: dict[str, tuple] = {}
+    hulls: dict[str, float] = {}
+    volumes: dict[int, float] = {}          # entry -> one part's hull volume, m^3
     zone = np.asarray(cfg.scene.drop_zone_scale, dtype=np.float64) * 2        # full extents, m
     c = cfg.camera
     fx = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
@@ -85,12 +99,37 @@ def check_meshes(cfg: Config) -> list[Problem]:
             problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}: "
                                     f"{longest * fx / far:.2g} px on the camera image from {far:.2f} m",
                                     "check the scale (file units -> metres), or move the camera closer"))
+        if path not in hulls:
+            hulls[path] = hull_volume(pts)
+        volumes[i] = hulls[path] * o.scale ** 3
+    if not problems and cfg.scene.blend_file is None:       # a .blend's drop_zone is known only once open
+        problems += fill_problems(cfg, volumes)
     return problems
+
+
+def check_blend(cfg: Config) -> list[Problem]:
+    """scene.blend_file read by Blender (its header, DNA and block list), without opening it: a file
+    Blender cannot load fails here instead of after the run wrote its first files."""
+    path = cfg.scene.blend_file
+    if not path:
+        return []
+    before = set(bpy.data.libraries)
+    try:
+        with bpy.data.libraries.load(path) as (src, _dst):
+            _ = list(src.objects)
+    except (OSError, RuntimeError) as e:
+        why = str(e).strip().splitlines()[-1].removeprefix("Error: ") if str(e).strip() else type(e).__name__
+        return [Problem("scene.blend_file", f"Blender cannot read {path}: {why}", "give a .blend saved by "
+                        "Blender: re-save it from Blender, or restore it from a backup")]
+    finally:
+        for lib in set(bpy.data.libraries) - before:     # reading links nothing; be sure nothing stays
+            bpy.data.libraries.remove(lib)
+    return []
 
 
 def preflight(cfg: Config) -> None:
     """Every input check, Blender's included: ConfigError when anything would fail or be useless."""
     cfg.validate()
-    problems = check_meshes(cfg)
+    problems = check_blend(cfg) + check_meshes(cfg)
     if problems:
         raise ConfigError(problems)
