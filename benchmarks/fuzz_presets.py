@@ -83,12 +83,14 @@ def targeted(rng: random.Random, d: dict, files: dict) -> None:
     objs = d.get("objects")
     if isinstance(objs, dict):                                   # the legacy layout
         lst = objs.get("objects_list")
-        if isinstance(lst, list) and lst and isinstance(lst[0], dict):
-            lst[0][rng.choice(["filepath", "scale", "max", "min"])] = rng.choice(
+        entries = [e for e in lst if isinstance(e, dict)] if isinstance(lst, list) else []
+        if entries:
+            rng.choice(entries)[rng.choice(["filepath", "scale", "max", "min"])] = rng.choice(
                 [rng.choice(HOSTILE_TEXT) + ".obj", rng.choice(list(files.values())), hostile_value(rng)])
         return
     choice = rng.randrange(8)
-    o = objs[rng.randrange(len(objs))] if isinstance(objs, list) and objs and isinstance(objs[0], dict) else None
+    entries = [e for e in objs if isinstance(e, dict)] if isinstance(objs, list) else []
+    o = rng.choice(entries) if entries else None
     if choice == 0 and o is not None:
         o["filepath"] = rng.choice([rng.choice(HOSTILE_TEXT) + ".obj", rng.choice(list(files.values()))])
     elif choice == 1 and o is not None:

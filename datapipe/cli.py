@@ -22,6 +22,7 @@ from pathlib import Path
 from . import config as config_mod
 from .errors import ConfigError, DataPipeError
 from .outdir import OutLock, OutputStateError
+from .text_rules import output_folder_problem
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -181,6 +182,9 @@ def _run(cfg, args, preset_path) -> int:
     if args.out is not None and not args.out.strip():
         raise DataPipeError("--out: empty folder name (fix: give the output folder, e.g. --out out; "
                             "nothing was written)")
+    bad_out = args.out is not None and output_folder_problem(args.out)
+    if bad_out:
+        raise DataPipeError(f"--out: {bad_out[0]} (fix: {bad_out[1]}; nothing was written)")
     if args.seed is not None:
         cfg.scene.seed = args.seed
     cfg.validate()                  # before the scene plan is drawn: its bounds are checked here

@@ -24,7 +24,7 @@ from typing import Any
 
 from .errors import ConfigError, Problem
 from .io.files import write_text_atomic
-from .text_rules import name_problem, path_problem, short as _short
+from .text_rules import name_problem, output_folder_problem, path_problem, short as _short
 
 SCHEMA_VERSION = 1
 
@@ -880,8 +880,8 @@ def _check_output(ck: _Checks, cfg: Config, check_files: bool) -> None:
     o, r = cfg.output, cfg.render
     if not o.path:
         ck.add("output.path", "empty", "give an output folder")
-    else:
-        ck.path("output.path", o.path)
+    elif output_folder_problem(o.path):
+        ck.add("output.path", *output_folder_problem(o.path))
     for i, f in enumerate(o.formats):
         ck.choice(f"output.formats[{i}]", f, FORMATS)
     if not o.formats:

@@ -62,6 +62,16 @@ def path_problem(text: str) -> tuple[str, str] | None:
     return None
 
 
+def output_folder_problem(text: str) -> tuple[str, str] | None:
+    """path_problem, and braces: Blender 5 reads '{...}' in a File Output path as a template and
+    skips the write (core/compat.set_file_output_path refuses it, but only once the run has begun)."""
+    problem = path_problem(text)
+    if problem is None and ("{" in text or "}" in text):
+        problem = (f"{short(text)} holds a brace: Blender 5 reads '{{...}}' in the path of the files it "
+                   "renders as a template and skips the write", "choose an output folder without '{' or '}'")
+    return problem
+
+
 def name_problem(text: str, *, prefix: str = "", suffix: str = "") -> tuple[str, str] | None:
     """(what is wrong, the fix) for a name Blender cannot hold as given, else None. `prefix` and
     `suffix` are what DataPipe adds around it (an instance number, a material prefix): the whole

@@ -52,6 +52,7 @@ JSON_CASES = [
     ("objects[0].filepath", "a\u0000.obj", "objects[0].filepath", "NUL"),
     ("objects[0].filepath", "\ud800.obj", "objects[0].filepath", "surrogate"),
     ("output.path", "out\u0000put", "output.path", "NUL"),
+    ("output.path", "out/{frame}", "output.path", "brace"),      # Blender 5 would skip every write
     ("objects[0].material", {"roughness": 10**400}, "objects[0].material", "roughness"),
     ("objects[0].material", {"ior": int("9" * 401)}, "objects[0].material", "ior"),
     ("scene.bin_material", _nested(950), "scene.bin_material", "nested"),
@@ -186,3 +187,12 @@ def test_file_stem_too_long_for_a_name_says_to_set_name(tmp_path, assets_dir):
     cfg.objects[0].filepath, cfg.objects[0].name = str(long), ""
     p = {q.path: q for q in cfg.problems()}["objects[0].name"]
     assert "taken from the file name" in p.message and "objects[0].name" in p.fix
+
+
+def test_out_argument_with_braces_is_refused_before_anything_is_written(tmp_path):
+    """validate said OK and `run --out 'o{x}'` wrote manifest.json, run.json, models/ and a scene
+    folder before compat.set_file_output_path refused the path (Blender 5 path templates)."""
+    out = tmp_path / "o{x}"
+    r = _cli("run", str(C.presets_dir() / "default.json"), "--out", str(out))
+    assert r.returncode == 2 and "--out" in r.stderr and "brace" in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()
