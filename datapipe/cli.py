@@ -71,6 +71,12 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _printable(path) -> str:
+    """A path for stdout: a file name's non-UTF-8 bytes (surrogate escapes in Python) as \\x.. escapes,
+    so a strict UTF-8 terminal prints it instead of raising UnicodeEncodeError."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")
+
+
 def _err(msg: str, code: int = 2) -> int:
     print(f"datapipe: error: {msg}", file=sys.stderr)
     return code
@@ -131,7 +137,7 @@ def _command(args) -> int:
                 else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
         sl = cfg.structured_light
         sl_text = (f"on ({'; '.join(_sl_plan(cfg))})" if sl.enabled else "off")
-        print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
+        print(f"{_printable(args.preset)}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
               f"{cams}, structured light {sl_text})")
         return 0
     if args.command == "show":
@@ -218,7 +224,7 @@ def _run(cfg, args, preset_path) -> int:
             pipe.manifest.update()  # the sheets are the run's files too
     if last is not None and last.stage == "cancelled":
         return 130
-    print(f"dataset: {pipe.out} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
+    print(f"dataset: {_printable(pipe.out)} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
     return 0
 
 

@@ -648,6 +648,9 @@ def _check_object_names(ck: _Checks, cfg: Config) -> None:
         if ck.has(f"objects[{i}].filepath") and not o.name:
             continue                          # the name would come from a path already refused
         problem = name_problem(cfg.object_name(i), suffix="_000")   # instance k: f"{name}_{k:03d}"
+        if problem is None and cfg.object_name(i).startswith("datapipe_"):
+            problem = (f"{_short(cfg.object_name(i))} starts with 'datapipe_', the prefix of DataPipe's own objects "
+                       "(templates, lights, the bin), whose names it could take", "give a name without that prefix")
         if problem is not None:
             what, fix = problem
             if not o.name:

@@ -5,6 +5,7 @@ ValueError (NUL), UnicodeEncodeError (lone surrogate), OverflowError (10**400 in
 AssertionError (periods of a million), RecursionError (a material nested 950 deep)."""
 import copy
 import json
+import os
 import pickle
 import struct
 import subprocess
@@ -61,6 +62,7 @@ JSON_CASES = [
     ("objects[0].name", "peg\nx", "objects[0].name", "control character"),
     ("objects[0].name", "p" * (MAX_ID_NAME_BYTES - 3), "objects[0].name", "63 bytes"),
     ("objects[0].material", {"name": "\ud800"}, "objects[0].material", "surrogate"),
+    ("objects[0].name", "datapipe_template_x", "objects[0].name", "prefix"),
 ]
 PERIOD_CASES = [([1000003, 999983], "3 px per fringe"), ([2**62 + 1, 2**62 - 1], "3 px per fringe"),
                 ([1, 8, 3000], "3 px per fringe")]
@@ -196,3 +198,14 @@ def test_out_argument_with_braces_is_refused_before_anything_is_written(tmp_path
     r = _cli("run", str(C.presets_dir() / "default.json"), "--out", str(out))
     assert r.returncode == 2 and "--out" in r.stderr and "brace" in r.stderr and "Traceback" not in r.stderr
     assert not out.exists()
+
+
+def test_validate_ok_on_a_file_name_that_is_not_utf8(tmp_path, assets_dir):
+    """A preset named with a non-UTF-8 byte (Python: a surrogate escape) printed its OK line with a
+    UnicodeEncodeError traceback on a strict UTF-8 terminal."""
+    name = os.fsdecode(b"preset\xff.json")
+    (tmp_path / name).write_text(json.dumps(_base(assets_dir)))
+    r = subprocess.run([sys.executable, "-m", "datapipe", "validate", str(tmp_path / name)], capture_output=True,
+                       env={**os.environ, "PYTHONIOENCODING": "utf-8:strict"})
+    assert r.returncode == 0 and b"Traceback" not in r.stderr, r.stderr[-1500:]
+    assert b"preset\\xff.json: OK" in r.stdout

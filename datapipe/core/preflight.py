@@ -109,14 +109,16 @@ def check_meshes(cfg: Config) -> list[Problem]:
 
 def check_blend(cfg: Config) -> list[Problem]:
     """scene.blend_file read by Blender (its header, DNA and block list), without opening it: a file
-    Blender cannot load fails here instead of after the run wrote its first files."""
+    Blender cannot load fails here instead of after the run wrote its first files. The objects of
+    that file (or, without one, of the scene open in Blender) must not already carry the name of an
+    instance (`{entry name}_{k:03d}`): the run would stop at the first scene that makes it."""
     path = cfg.scene.blend_file
     if not path:
-        return []
+        return _name_clashes(cfg, [o.name for o in bpy.data.objects], "the scene open in Blender")
     before = set(bpy.data.libraries)
     try:
         with bpy.data.libraries.load(path) as (src, _dst):
-            _ = list(src.objects)
+            names = list(src.objects)
     except (OSError, RuntimeError) as e:
         why = str(e).strip().splitlines()[-1].removeprefix("Error: ") if str(e).strip() else type(e).__name__
         return [Problem("scene.blend_file", f"Blender cannot read {path}: {why}", "give a .blend saved by "
@@ -124,7 +126,19 @@ def check_blend(cfg: Config) -> list[Problem]:
     finally:
         for lib in set(bpy.data.libraries) - before:     # reading links nothing; be sure nothing stays
             bpy.data.libraries.remove(lib)
-    return []
+    return _name_clashes(cfg, names, path)
+
+
+def _name_clashes(cfg: Config, names: list[str], where: str) -> list[Problem]:
+    taken, problems = set(names), []
+    for i, o in enumerate(cfg.objects):
+        name = cfg.object_name(i)
+        hit = next((f"{name}_{k:03d}" for k in range(o.max_instances) if f"{name}_{k:03d}" in taken), None)
+        if hit is not None:
+            problems.append(Problem(f"objects[{i}].name", f"{where} already has an object named {hit!r}, the "
+                                    "name one of this entry's instances gets", "give the entry another name, or "
+                                    f"rename {hit!r} in the .blend"))
+    return problems
 
 
 def preflight(cfg: Config) -> None:

@@ -59,6 +59,24 @@ def test_a_real_blend_passes_and_the_open_scene_stays(tmp_path):
     assert len(bpy.data.libraries) == 0 and bpy.data.filepath == ""
 
 
+def test_an_object_with_an_instance_name_in_the_blend_is_refused(tmp_path):
+    """populate() stops at an existing 'peg_001' (instance names must be deterministic): found by
+    the preflight now, from the .blend's object list or the open scene's."""
+    bpy.ops.mesh.primitive_cube_add()
+    bpy.context.active_object.name = "peg_001"
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    cfg = C.default_config()
+    problems = check_blend(cfg)                                      # the open scene has it
+    assert [p.path for p in problems] == ["objects[0].name"] and "'peg_001'" in problems[0].message
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assert check_blend(cfg) == []
+    cfg.scene.blend_file = str(blend)
+    assert [p.path for p in check_blend(cfg)] == ["objects[0].name"]
+    cfg.objects[0].max_instances = 1                                 # only peg_000 is made: no clash
+    assert check_blend(cfg) == []
+
+
 def _crowded(n_entries: int, max_instances: int) -> C.Config:
     cfg = C.default_config()
     cfg.objects = [copy.deepcopy(cfg.objects[i % 3]) for i in range(n_entries)]
