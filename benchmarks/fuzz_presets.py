@@ -14,7 +14,7 @@ and in this order: `config.load` (the CLI's loader), `Config.validate()` (files 
 given share of the presets validate accepts, `core.preflight.preflight` (mesh imports, the .blend
 read by Blender, the bin volume) on the bpy module.
 
-Writes benchmarks/results/fuzz_presets.md. A foreign exception (anything but ConfigError /
+Writes benchmarks/results/fuzz_presets.md (with fuzz_presets_notes.md appended). A foreign exception (anything but ConfigError /
 DataPipeError, or one of those without a field path and a fix) is listed with its traceback's last
 line, and its preset kept in the folder printed at the end.
 """
@@ -40,6 +40,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT))
 
 from datapipe import config as C  # noqa: E402
+from report_util import write_with_notes  # noqa: E402
 from datapipe.errors import ConfigError, DataPipeError  # noqa: E402
 
 HOSTILE_TEXT = ["", "\x00", "a\x00.obj", "\x00.blend", "\ud800", "\ud800.obj", "\udc80.obj", "peg\n", "\t",
@@ -218,7 +219,7 @@ def main() -> None:
     fields = collections.Counter()
     foreign: list[tuple[str, str]] = []
     cpu = collections.Counter()
-    t_start = time.process_time()
+    t_start, wall_start = time.process_time(), time.perf_counter()
     made = 0
     while made < args.n:
         as_pickle = rng.random() < 0.3
@@ -258,17 +259,18 @@ def main() -> None:
                 path.unlink()
             else:
                 counts["project error without path or fix"] += 1
-                foreign.append((path.name, f"{type(e).__name__}: {str(e)[:200]}"))
+                foreign.append((path.name, f"{stage}: {type(e).__name__} without a path or fix", str(e)[:160]))
         except Exception as e:  # noqa: BLE001 - the point: anything else is a defect
             counts["foreign exception"] += 1
-            last = traceback.format_exception(e)[-2].strip().splitlines()[0]
-            foreign.append((path.name, f"{stage}: {type(e).__name__}: {str(e)[:160]} ({last})"))
-    total_cpu = time.process_time() - t_start
+            frame = traceback.extract_tb(e.__traceback__)[-1]
+            where = f"{Path(frame.filename).name}:{frame.lineno} in {frame.name}"
+            foreign.append((path.name, f"{stage}: {type(e).__name__} at {where}", str(e)[:160]))
+    total_cpu, wall = time.process_time() - t_start, time.perf_counter() - wall_start
     if foreign:
         kept.mkdir(exist_ok=True)
-        for name, _ in foreign:
+        for name, _, _ in foreign:
             shutil.copy(work / name, kept / name)
-    write_report(Path(args.out), args, counts, stages, fields, foreign, cpu, total_cpu)
+    write_report(Path(args.out), args, counts, stages, fields, foreign, cpu, total_cpu, wall)
     print(Path(args.out).read_text())
     if foreign:
         print(f"presets with foreign exceptions kept in {kept}")
@@ -276,7 +278,13 @@ def main() -> None:
         shutil.rmtree(work)
 
 
-def write_report(out: Path, args, counts, stages, fields, foreign, cpu, total_cpu) -> None:
+def _example(foreign, kind) -> str:
+    """One preset of a kind of foreign exception and its message, safe inside a Markdown table."""
+    name, msg = next((p, m) for p, k, m in foreign if k == kind)
+    return f"{name}: {msg!r}".replace("|", "\\|")
+
+
+def write_report(out: Path, args, counts, stages, fields, foreign, cpu, total_cpu, wall) -> None:
     n = args.n
     pf = counts["went through the Blender preflight"]
     lines = [
@@ -301,8 +309,9 @@ def write_report(out: Path, args, counts, stages, fields, foreign, cpu, total_cp
         f"Refused by the loader: {stages['load']}; by validate: {stages['validate']}. "
         f"Generated but not writable as JSON/pickle (skipped, not counted): {counts['not writable (skipped)']}.",
         "",
-        f"CPU time: {total_cpu:.0f} s in all ({cpu['load + validate']:.1f} s load + validate of the accepted, "
-        f"{cpu['preflight']:.1f} s preflight).",
+        f"Time: {wall:.0f} s wall, {total_cpu:.0f} s CPU in all (of it {cpu['load + validate']:.1f} s load + "
+        f"validate of the accepted presets, {cpu['preflight']:.1f} s their preflight; the rest writes the files "
+        "and refuses the others), on a shared 2-core machine.",
         "",
         "First problem's field (section.field) of the clear errors, most frequent:",
         "",
@@ -311,8 +320,11 @@ def write_report(out: Path, args, counts, stages, fields, foreign, cpu, total_cp
         *[f"| `{k}` | {v} |" for k, v in fields.most_common(15)],
     ]
     if foreign:
-        lines += ["", "## Foreign exceptions", "", *[f"- {name}: {what}" for name, what in foreign[:50]]]
-    out.write_text("\n".join(lines) + "\n")
+        kinds = collections.Counter(kind for _, kind, _ in foreign)
+        lines += ["", "## Foreign exceptions", "", "| stage: exception at (last frame) | presets | e.g. |", "|---|---:|---|",
+                  *[f"| {kind} | {n} | {_example(foreign, kind)} |"
+                    for kind, n in kinds.most_common()]]
+    write_with_notes(out, lines)          # + fuzz_presets_notes.md (the run before the fixes)
 
 
 if __name__ == "__main__":

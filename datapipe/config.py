@@ -1013,9 +1013,9 @@ def loads(text: str, *, base_dir=None) -> Config:
     except RecursionError:
         raise ConfigError(Problem("<file>", "JSON nested too deeply to be a preset",
                                   "give a preset: a few levels of objects and lists")) from None
-    except ValueError as e:                    # an integer of more than 4,300 digits (Python's limit)
-        raise ConfigError(Problem("<file>", f"cannot read a number: {e}", "give numbers of a sensible size "
-                                  "(no field needs more than 20 digits)")) from None
+    except ValueError:                         # an integer of more than 4,300 digits (Python's limit)
+        raise ConfigError(Problem("<file>", "cannot read a number: an integer of more than 4,300 digits",
+                                  "give numbers of a sensible size (no field needs more than 20 digits)")) from None
     return Config.from_dict(data, base_dir=base_dir)
 
 
