@@ -217,6 +217,8 @@ def main() -> None:
     counts = collections.Counter()
     stages = collections.Counter()
     fields = collections.Counter()
+    preflight_fields = collections.Counter()      # what only the Blender preflight finds
+    preflight_examples: dict[str, str] = {}
     foreign: list[tuple[str, str]] = []
     cpu = collections.Counter()
     t_start, wall_start = time.process_time(), time.perf_counter()
@@ -254,8 +256,12 @@ def main() -> None:
                 counts["clear error"] += 1
                 stages[stage] += 1
                 for p in getattr(e, "problems", [])[:1]:
-                    fields[p.path.split("[")[0].split(".")[0] + ("." + p.path.split(".")[-1].split("[")[0]
-                                                                  if "." in p.path else "")] += 1
+                    field = p.path.split("[")[0].split(".")[0] + ("." + p.path.split(".")[-1].split("[")[0]
+                                                                  if "." in p.path else "")
+                    fields[field] += 1
+                    if stage == "preflight":
+                        preflight_fields[field] += 1
+                        preflight_examples.setdefault(field, p.message.replace(str(work), "DIR")[:110])
                 path.unlink()
             else:
                 counts["project error without path or fix"] += 1
@@ -270,7 +276,8 @@ def main() -> None:
         kept.mkdir(exist_ok=True)
         for name, _, _ in foreign:
             shutil.copy(work / name, kept / name)
-    write_report(Path(args.out), args, counts, stages, fields, foreign, cpu, total_cpu, wall)
+    write_report(Path(args.out), args, counts, stages, fields, (preflight_fields, preflight_examples), foreign,
+                 cpu, total_cpu, wall)
     print(Path(args.out).read_text())
     if foreign:
         print(f"presets with foreign exceptions kept in {kept}")
@@ -284,7 +291,8 @@ def _example(foreign, kind) -> str:
     return f"{name}: {msg!r}".replace("|", "\\|")
 
 
-def write_report(out: Path, args, counts, stages, fields, foreign, cpu, total_cpu, wall) -> None:
+def write_report(out: Path, args, counts, stages, fields, preflight_fields, foreign, cpu, total_cpu,
+                 wall) -> None:
     n = args.n
     pf = counts["went through the Blender preflight"]
     lines = [
@@ -318,6 +326,13 @@ def write_report(out: Path, args, counts, stages, fields, foreign, cpu, total_cp
         "| field | presets |",
         "|---|---:|",
         *[f"| `{k}` | {v} |" for k, v in fields.most_common(15)],
+        "",
+        "Refused by the Blender preflight (validate had accepted them), by first problem:",
+        "",
+        "| field | presets | e.g. |",
+        "|---|---:|---|",
+        *[f"| `{k}` | {v} | {preflight_fields[1][k].replace('|', '/')}... |"
+          for k, v in preflight_fields[0].most_common(10)],
     ]
     if foreign:
         kinds = collections.Counter(kind for _, kind, _ in foreign)
