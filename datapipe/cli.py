@@ -199,6 +199,9 @@ def _run(cfg, args, preset_path) -> int:
         if preset_path is None:
             raise DataPipeError("--ray needs a preset file (fix: `python -m datapipe run "
                                 f"{config_mod.presets_dir() / 'default.json'} --ray` runs the demo preset)")
+        _prepare_blender()
+        from .core.preflight import preflight
+        preflight(cfg)              # here, not in each shard after OUT/_shards/ was written
         run_distributed(preset_path, args.out or cfg.output.path,
                         address=None if args.ray == "local" else args.ray,
                         num_shards=args.shards, seed=args.seed, retries=args.retries,

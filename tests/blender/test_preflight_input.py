@@ -44,6 +44,8 @@ def test_garbage_blend_is_refused_before_anything_is_written(tmp_path, capsys):
     cfg.scene.blend_file = str(blend)
     assert not cfg.problems()                     # the header is a Blender one: only Blender can tell
     _refused_by_both(capsys, tmp_path, cfg, "scene.blend_file", "Missing DNA block")
+    code, _, err = main(capsys, "run", tmp_path / "p.json", "--out", tmp_path / "o", "--ray")   # Ray or not
+    assert code == 2 and "Missing DNA block" in err and not (tmp_path / "o").exists()
 
 
 def test_a_real_blend_passes_and_the_open_scene_stays(tmp_path):
