@@ -139,3 +139,25 @@ def test_names_at_the_byte_limit_come_out_of_a_run_whole(tmp_path, capsys):
     assert code == 0, err
     scene = json.loads((tmp_path / "o" / "scene.0001" / "scene.json").read_text())
     assert sorted(o["name"] for o in scene["objects"]) == [f"{name}_000", f"{name}_001"]
+
+
+def test_the_add_on_checks_and_runs_through_the_same_preflight(ui_props, tmp_path):
+    """Check Settings said 'ready to run' without the Blender checks; Run then failed in its first
+    scene. Both refuse now, naming the field, and write nothing."""
+    d = ui_props
+    bpy.ops.datapipe.initialize(preset="builtin:default")
+    d.output.path = str(tmp_path / "out")
+    for o in d.objects:
+        o.max_instances = 500                # 1,500 parts, 24 litres of hulls, in a 12 litre bin
+    for op in (bpy.ops.datapipe.check, lambda: bpy.ops.datapipe.run(blocking=True)):
+        with pytest.raises(RuntimeError, match=r"objects\[0\]\.max_instances: a scene may hold 1500 parts"):
+            op()
+    for o in d.objects:
+        o.max_instances = 2
+    blend = tmp_path / "broken.blend"
+    blend.write_bytes(b"BLENDER-v300" + os.urandom(4096))
+    d.scene.blend_file = str(blend)
+    for op in (bpy.ops.datapipe.check, lambda: bpy.ops.datapipe.run(blocking=True)):
+        with pytest.raises(RuntimeError, match=r"scene\.blend_file: Blender cannot read .*Missing DNA block"):
+            op()
+    assert not (tmp_path / "out").exists()
