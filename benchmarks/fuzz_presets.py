@@ -103,6 +103,7 @@ def targeted(rng: random.Random, d: dict, files: dict) -> None:
         o["scale"] = rng.choice([1.0, 1.0, 2.0, 3.0, 1e-6, 1e3])
     elif choice == 4 and isinstance(d.get("scene"), dict):
         d["scene"]["blend_file"] = rng.choice([files["blend_ok"], files["blend_garbage"], files["blend_text"],
+                                               files["blend_loop"],
                                                rng.choice(HOSTILE_TEXT) + ".blend", None])
     elif choice == 5 and isinstance(d.get("scene"), dict):
         d["scene"]["bin_material"] = hostile_value(rng)
@@ -178,11 +179,14 @@ def make_files(folder: Path) -> dict:
     (folder / "flat.obj").write_text("v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nf 1 2 3\n")
     (folder / "garbage.blend").write_bytes(b"BLENDER-v300" + random.Random(0).randbytes(4096))
     (folder / "text.blend").write_text("not a blend file")
+    os.symlink("loop.obj", folder / "loop.obj")
+    os.symlink("loop.blend", folder / "loop.blend")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.save_as_mainfile(filepath=str(folder / "ok.blend"), copy=True)
     return {"peg": "peg.obj", "nut": "nut.obj", "bracket": "bracket.obj", "empty": "empty.obj",
             "no_faces": "no_faces.obj", "nan": "nan.obj", "flat": "flat.obj", "blend_ok": "ok.blend",
-            "blend_garbage": "garbage.blend", "blend_text": "text.blend", "missing": "missing.obj"}
+            "blend_garbage": "garbage.blend", "blend_text": "text.blend", "missing": "missing.obj",
+            "loop": "loop.obj", "blend_loop": "loop.blend"}
 
 
 def well_formed(e: Exception) -> bool:

@@ -273,7 +273,10 @@ class Config:
         def resolved(p):
             if not isinstance(p, str) or not p or os.path.isabs(p) or path_problem(p):
                 return p
-            return str((base / p).resolve())
+            try:
+                return str((base / p).resolve())
+            except (RuntimeError, OSError):      # a symlink loop (RuntimeError before Python 3.13)
+                return os.path.abspath(base / p)
         for obj in self.objects:
             obj.filepath = resolved(obj.filepath)
         self.scene.blend_file = resolved(self.scene.blend_file)
@@ -579,7 +582,7 @@ def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
     if s.blend_file and ck.path("scene.blend_file", s.blend_file) and check_files:
         if not os.path.isfile(s.blend_file):
-            ck.add("scene.blend_file", f"file not found: {s.blend_file}", "give the path of an existing .blend")
+            ck.add("scene.blend_file", _not_found(s.blend_file), "give the path of an existing .blend")
         elif not s.blend_file.lower().endswith(".blend"):
             ck.add("scene.blend_file", f"not a .blend file: {s.blend_file}", "give a .blend file")
         else:
@@ -603,6 +606,12 @@ def _check_blend_header(ck: _Checks, path: str) -> None:
                "b'BLENDER' or a compressed .blend)", "give a .blend saved by Blender")
 
 
+def _not_found(path: str) -> str:
+    if os.path.islink(path):
+        return f"file not found: {path} is a symbolic link to nothing (its target is missing, or a loop)"
+    return f"file not found: {path}"
+
+
 def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -> None:
     if not filepath:
         ck.add(path, "empty", "give the path of a mesh file (.obj, .ply, .stl, .glb, .gltf)")
@@ -615,7 +624,7 @@ def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -
     elif suffix not in MESH_SUFFIXES:
         ck.add(path, f"not a mesh file: {filepath}", f"use one of {', '.join(MESH_SUFFIXES)}")
     elif check_files and not os.path.isfile(filepath):
-        ck.add(path, f"file not found: {filepath}", "check the path (relative paths are resolved against the "
+        ck.add(path, _not_found(filepath), "check the path (relative paths are resolved against the "
                "preset's folder)")
 
 

@@ -36,7 +36,7 @@ FUZZ = settings(max_examples=EXAMPLES, derandomize=True, database=None, deadline
 # the strings the OS or Blender refuse (issue 21: NUL, lone surrogates, control characters, names
 # past Blender 4.x's 63 bytes).
 HOSTILE_TEXT = ["\x00", "a\x00.obj", "\x00.blend", "\ud800", "\ud800.obj", "\udc80.obj", "peg\n", "\t",
-                "é" * 40, "x" * 70, "bad.blend", "datapipe_template_peg"]
+                "é" * 40, "x" * 70, "bad.blend", "datapipe_template_peg", "loop"]
 scalars = st.one_of(
     st.none(), st.booleans(),
     st.integers(), st.sampled_from([0, -1, 1, 2, 3, 2**31, 2**32, 2**63, 10**9, 10**400, int("9" * 401),
@@ -273,6 +273,8 @@ def test_preset_files_raise_only_config_errors(data, as_pickle):
     with tempfile.TemporaryDirectory() as d:
         for a in ASSETS.iterdir():
             os.symlink(a, Path(d) / a.name)
+        os.symlink("loop.obj", Path(d) / "loop.obj")              # a symlink loop (issue 21 found none;
+        os.symlink("loop.blend", Path(d) / "loop.blend")          # Path.resolve raised RuntimeError)
         path = Path(d) / ("inputs.pickle" if as_pickle else "preset.json")
         try:
             path.write_bytes(pickle.dumps(data) if as_pickle else json.dumps(data).encode())

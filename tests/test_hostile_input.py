@@ -209,3 +209,15 @@ def test_validate_ok_on_a_file_name_that_is_not_utf8(tmp_path, assets_dir):
                        env={**os.environ, "PYTHONIOENCODING": "utf-8:strict"})
     assert r.returncode == 0 and b"Traceback" not in r.stderr, r.stderr[-1500:]
     assert b"preset\\xff.json: OK" in r.stdout
+
+
+def test_symlink_loops_are_a_field_error(tmp_path, assets_dir):
+    """Path.resolve() raised RuntimeError('Symlink loop ...') from config.resolve_paths (Python 3.11)."""
+    os.symlink("loop.obj", tmp_path / "loop.obj")
+    os.symlink("b.blend", tmp_path / "a.blend")
+    os.symlink("a.blend", tmp_path / "b.blend")
+    d = _set(_set(_base(assets_dir), "objects[1].filepath", "loop.obj"), "scene.blend_file", "a.blend")
+    preset = _write_json(tmp_path, d)
+    _assert_refused(preset, "objects[1].filepath", "symbolic link to nothing")
+    _assert_refused(preset, "scene.blend_file", "symbolic link to nothing")
+    _assert_cli_refuses(tmp_path, preset, "objects[1].filepath")
