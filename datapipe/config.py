@@ -1041,7 +1041,7 @@ def load(path: str | os.PathLike) -> Config:
     if raw[:1] == b"\x80" or path.suffix.lower() in (".pickle", ".pkl"):
         return load_legacy_pickle(raw, base_dir=path.parent)
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")         # a BOM (Windows editors) is not a JSON error
     except UnicodeDecodeError:
         raise ConfigError(Problem("<file>", f"{path} is neither JSON nor a pickle", "give a .json preset")) from None
     return loads(text, base_dir=path.parent)

@@ -221,3 +221,9 @@ def test_symlink_loops_are_a_field_error(tmp_path, assets_dir):
     _assert_refused(preset, "objects[1].filepath", "symbolic link to nothing")
     _assert_refused(preset, "scene.blend_file", "symbolic link to nothing")
     _assert_cli_refuses(tmp_path, preset, "objects[1].filepath")
+
+
+def test_json_with_a_byte_order_mark_loads(tmp_path, assets_dir):
+    """Windows editors save UTF-8 with a BOM; json.loads refused it ('Unexpected UTF-8 BOM')."""
+    (tmp_path / "bom.json").write_bytes(b"\xef\xbb\xbf" + json.dumps(_base(assets_dir)).encode())
+    C.load(tmp_path / "bom.json").validate()
