@@ -88,20 +88,26 @@ def check_meshes(cfg: Config) -> list[Problem]:
             problems.append(Problem(field, f"{path} has NaN or infinite vertex coordinates",
                                     "repair the mesh in a modeller and export it again"))
             continue
-        size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
+        with np.errstate(over="ignore"):       # a scale of 1e308: reported below, not warned about
+            size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
         longest = float(size.max())
         if cfg.scene.blend_file is None and longest > float(np.linalg.norm(zone)):
             problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}, "
                                     f"longer than the drop zone's diagonal ({np.linalg.norm(zone):.3g} m)",
                                     "check the scale (file units -> metres: mm files need 0.001) or enlarge "
                                     "scene.drop_zone_scale"))
+        elif not longest <= c.clip_end:          # with a .blend too (its zone is unknown here); inf, NaN
+            problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}, "
+                                    f"longer than the camera sees (camera.clip_end {c.clip_end:g} m)",
+                                    "check the scale (file units -> metres: mm files need 0.001)"))
         elif longest * fx / far < MIN_PART_PX:
             problems.append(Problem(f"objects[{i}].scale", f"the part is {longest:.3g} m long at scale {o.scale:g}: "
                                     f"{longest * fx / far:.2g} px on the camera image from {far:.2f} m",
                                     "check the scale (file units -> metres), or move the camera closer"))
-        if path not in hulls:
-            hulls[path] = hull_volume(pts)
-        volumes[i] = hulls[path] * o.scale ** 3
+        elif cfg.scene.blend_file is None:      # a sane size: the scale cubed stays finite (1e308 would not)
+            if path not in hulls:
+                hulls[path] = hull_volume(pts)
+            volumes[i] = hulls[path] * o.scale ** 3
     if not problems and cfg.scene.blend_file is None:       # a .blend's drop_zone is known only once open
         problems += fill_problems(cfg, volumes)
     return problems

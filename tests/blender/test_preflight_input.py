@@ -117,6 +117,22 @@ def test_the_volume_bound_is_the_packing_limit():
     assert check_meshes(cfg) == []
 
 
+def test_a_huge_scale_is_refused_with_or_without_a_blend(tmp_path):
+    """scale 1e308: the bin check raised OverflowError (scale ** 3; found by benchmarks/fuzz_presets.py),
+    and with a .blend (no drop zone size check) a 3.5e306 m nut passed."""
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"), copy=True)
+    cfg = C.default_config()
+    for scale, blend, expect in ((1e308, None, ("objects[1].scale", "drop zone's diagonal")),
+                                 (1e308, "scene.blend", ("objects[1].scale", "camera sees")),
+                                 (1000.0, "scene.blend", ("objects[1].scale", "camera sees")),
+                                 (100.0, "scene.blend", None),      # a 3.5 m nut: the .blend's zone is unknown here
+                                 (10.0, None, ("objects[1].max_instances", "litres"))):   # 4 x 9.4 litres
+        cfg.objects[1].scale = scale
+        cfg.scene.blend_file = str(tmp_path / blend) if blend else None
+        problems = check_meshes(cfg)                 # (1e308: no OverflowError from the bin check)
+        assert [(p.path, expect[1] in p.message) for p in problems] == ([(expect[0], True)] if expect else [])
+
+
 def test_names_at_the_byte_limit_come_out_of_a_run_whole(tmp_path, capsys):
     """validate accepts names up to 63 bytes of UTF-8 with the instance suffix; the run must
     give exactly those names to the objects and the annotations (no cut, no '.001')."""
