@@ -9,7 +9,8 @@ the demo meshes, broken meshes and .blend files (a real one, one with a Blender 
 bytes, one that is text). Mutations: a field set to a hostile value (NUL bytes and lone surrogates in
 paths and names, names past 63 bytes, 401-digit ints, 1e308, NaN, lists nested up to 1,200 deep,
 periods of a million or 2**62, part counts past the bin's volume), a random position replaced, a key
-removed or added, a list grown; a few files are cut short or have bytes flipped. Then, in process
+removed or added, a list grown; a few files are cut short or have bytes flipped, and a few pickles
+hold a dict key nested up to 200,000 tuples deep. Then, in process
 and in this order: `config.load` (the CLI's loader), `Config.validate()` (files checked), and for the
 given share of the presets validate accepts, `core.preflight.preflight` (mesh imports, the .blend
 read by Blender, the bin volume) on the bpy module.
@@ -158,6 +159,9 @@ def encode(rng: random.Random, d, as_pickle: bool) -> bytes | None:
     except (RecursionError, ValueError, OverflowError):
         return None                       # json/pickle cannot write it: no user can have such a file
     r = rng.random()
+    if as_pickle and r < 0.02:            # a dict key nested deep, as opcodes (pickle.dumps refuses it):
+        depth = rng.choice([3, 40, 2000, 200_000])              # hashing it crashed CPython in C
+        return b"\x80\x02}K\x01" + b"\x85" * depth + b"K\x02s."
     if r < 0.03:
         raw = raw[:rng.randrange(len(raw) + 1)]
     elif r < 0.06 and raw:

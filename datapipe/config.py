@@ -24,6 +24,7 @@ from typing import Any
 
 from .errors import ConfigError, Problem
 from .io.files import write_text_atomic
+from .pickle_depth import pickle_depth
 from .text_rules import name_problem, output_folder_problem, path_problem, short as _short
 
 SCHEMA_VERSION = 1
@@ -53,6 +54,7 @@ MAX_PERIODS = 8                    # fringe frequencies
 MAX_INSTANCES = 500                # instances of one object per scene
 MAX_FRINGE_BYTES = 16 * 2**30      # one render's fringe patterns + stack (see fringe_memory_bytes)
 MAX_FREE_NESTING = 8              # lists/dicts inside a free-form field (a material list of dicts of lists: 3)
+MAX_PICKLE_NESTING = 32            # containers in an input pickle (the original's: 5; datapipe/pickle_depth.py)
 MAX_FIELD_OF_VIEW_DEG = 150.0      # camera/projector full angle across the sensor width
 MIN_FRINGE_CAMERA_PX = 3.0         # finest fringe period on the camera sensor (sampling limit, > 2)
 FRINGE_SUPERSAMPLE = 2             # = core.structured_light.FRINGE_SUPERSAMPLE (this module has no bpy)
@@ -1057,6 +1059,11 @@ class _RefusingUnpickler(pickle.Unpickler):
 
 
 def load_legacy_pickle(raw: bytes, *, base_dir=None) -> Config:
+    depth = pickle_depth(raw, MAX_PICKLE_NESTING)
+    if depth is not None and depth > MAX_PICKLE_NESTING:     # before unpickling: deep tuples crash hash()
+        raise ConfigError(Problem("<pickle>", f"containers nested more than {MAX_PICKLE_NESTING} levels deep: "
+                                  "no DataPipe inputs pickle is", "give an original DataPipe inputs pickle "
+                                  "(5 levels) or a JSON preset"))
     try:
         data = _RefusingUnpickler(io.BytesIO(raw)).load()
     except ConfigError:

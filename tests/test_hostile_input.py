@@ -227,3 +227,36 @@ def test_json_with_a_byte_order_mark_loads(tmp_path, assets_dir):
     """Windows editors save UTF-8 with a BOM; json.loads refused it ('Unexpected UTF-8 BOM')."""
     (tmp_path / "bom.json").write_bytes(b"\xef\xbb\xbf" + json.dumps(_base(assets_dir)).encode())
     C.load(tmp_path / "bom.json").validate()
+
+
+def _deep_key_pickle(depth: int) -> bytes:
+    """{((...(1,),...),): 2} with `depth` tuples, as opcodes (pickle.dumps itself refuses the depth)."""
+    return b"\x80\x02}K\x01" + b"\x85" * depth + b"K\x02s."
+
+
+def test_a_deep_tuple_key_in_a_pickle_is_refused_not_a_segfault(tmp_path):
+    """Unpickling builds it in a loop, but hashing it as a dict key recursed in C: the process died
+    with a segmentation fault (exit -11), no message. Run in a subprocess so a regression cannot take
+    the test run down."""
+    p = tmp_path / "deep.pickle"
+    p.write_bytes(_deep_key_pickle(200_000))
+    r = _cli("validate", str(p))
+    assert r.returncode == 2, (r.returncode, r.stderr[-500:])
+    assert "<pickle>" in r.stderr and "nested more than" in r.stderr and "Traceback" not in r.stderr
+    with pytest.raises(ConfigError, match="unknown section"):          # shallow: the usual path
+        C.load_legacy_pickle(_deep_key_pickle(3))
+
+
+def test_pickle_depth_counts_what_the_unpickler_builds():
+    from datapipe.pickle_depth import pickle_depth
+    legacy = C.to_legacy_dict(C.default_config())
+    assert {pickle_depth(pickle.dumps(legacy, protocol=p), 32) for p in range(6)} == {5}
+    cyclic = []
+    cyclic.append(cyclic)                                 # memo: the list fetched again and appended
+    assert pickle_depth(pickle.dumps(cyclic), 32) == 2
+    deep = leaf = []
+    for _ in range(40):
+        leaf.append([])
+        leaf = leaf[0]
+    assert pickle_depth(pickle.dumps(deep), 32) == 33     # stops one past the limit
+    assert pickle_depth(b"\x80\x04\x8e" + struct.pack("<Q", 2**62) + b"x", 32) is None   # the unpickler's case
