@@ -259,4 +259,5 @@ def test_pickle_depth_counts_what_the_unpickler_builds():
         leaf.append([])
         leaf = leaf[0]
     assert pickle_depth(pickle.dumps(deep), 32) == 33     # stops one past the limit
+    assert pickle_depth(_deep_key_pickle(200_000), C.MAX_PICKLE_NESTING) == C.MAX_PICKLE_NESTING + 1
     assert pickle_depth(b"\x80\x04\x8e" + struct.pack("<Q", 2**62) + b"x", 32) is None   # the unpickler's case
