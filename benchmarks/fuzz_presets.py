@@ -1,23 +1,25 @@
 """Generated hostile presets through load + validate + the Blender preflight: every answer must be a
 valid Config or one of DataPipe's own errors naming the field and the fix.
 
-    .venv/bin/python benchmarks/fuzz_presets.py [--n 3000] [--seed 21] [--preflight-share 1.0]
+    .venv/bin/python benchmarks/fuzz_presets.py [--n 3000] [--seed 21] [--preflight-share 1.0] [--cli 80]
 
 Each preset starts from the demo preset (JSON, relative mesh paths) or the original add-on's input
 dict (pickle, any protocol), gets 1-4 mutations and is written to a file in a folder that also holds
-the demo meshes, broken meshes and .blend files (a real one, one with a Blender header and random
-bytes, one that is text). Mutations: a field set to a hostile value (NUL bytes and lone surrogates in
-paths and names, names past 63 bytes, 401-digit ints, 1e308, NaN, lists nested up to 1,200 deep,
-periods of a million or 2**62, part counts past the bin's volume), a random position replaced, a key
-removed or added, a list grown; a few files are cut short or have bytes flipped, and a few pickles
-hold a dict key nested up to 200,000 tuples deep. Then, in process
-and in this order: `config.load` (the CLI's loader), `Config.validate()` (files checked), and for the
-given share of the presets validate accepts, `core.preflight.preflight` (mesh imports, the .blend
-read by Blender, the bin volume) on the bpy module.
+the demo meshes, broken meshes, symlink loops and .blend files (a real one, one with a Blender header
+and random bytes, one that is text). Mutations: a field set to a hostile value (NUL bytes and lone
+surrogates in paths and names, names past 63 bytes, 401-digit ints, 1e308, NaN, lists nested up to
+1,200 deep, periods of a million or 2**62, part counts past the bin's volume), a random position
+replaced, a key removed or added, a list grown; a few files are cut short or have bytes flipped, and
+a few pickles hold a dict key nested up to 200,000 tuples deep. Then, in process and in this order:
+`config.load` (the CLI's loader), `Config.validate()` (files checked), and for the given share of
+the presets validate accepts, `core.preflight.preflight` (mesh imports, the .blend read by Blender,
+the bin volume) on the bpy module. `--cli N` then runs N of them (a quarter accepted, the rest
+refused, evenly by the stage that refused them) through `python -m datapipe validate` and
+`run --out` in subprocesses: exit codes, a fix in the message, nothing written, no traceback.
 
-Writes benchmarks/results/fuzz_presets.md (with fuzz_presets_notes.md appended). A foreign exception (anything but ConfigError /
-DataPipeError, or one of those without a field path and a fix) is listed with its traceback's last
-line, and its preset kept in the folder printed at the end.
+Writes benchmarks/results/fuzz_presets.md (with fuzz_presets_notes.md appended). A foreign exception
+(anything but ConfigError / DataPipeError, or one of those without a field path and a fix) is listed
+by kind with an example, and its preset kept in the folder printed at the end.
 """
 from __future__ import annotations
 
@@ -206,6 +208,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--preflight-share", type=float, default=1.0,
                     help="share of the presets validate accepts that also go through the Blender preflight")
+    ap.add_argument("--cli", type=int, default=0, metavar="N",
+                    help="also run N of the presets through `python -m datapipe validate` and `run` (subprocesses)")
     ap.add_argument("--out", default=str(RESULTS / "fuzz_presets.md"))
     args = ap.parse_args()
 
@@ -228,6 +232,7 @@ def main() -> None:
     preflight_fields = collections.Counter()      # what only the Blender preflight finds
     preflight_examples: dict[str, str] = {}
     foreign: list[tuple[str, str]] = []
+    outcomes: dict[str, list[Path]] = collections.defaultdict(list)   # stage refused at (or accepted) -> files
     cpu = collections.Counter()
     t_start, wall_start = time.process_time(), time.perf_counter()
     made = 0
@@ -258,7 +263,7 @@ def main() -> None:
                 preflight(cfg)
                 cpu["preflight"] += time.process_time() - t
             counts["accepted"] += 1
-            path.unlink()
+            outcomes["accepted"].append(path)
         except (ConfigError, DataPipeError) as e:
             if well_formed(e):
                 counts["clear error"] += 1
@@ -270,7 +275,7 @@ def main() -> None:
                     if stage == "preflight":
                         preflight_fields[field] += 1
                         preflight_examples.setdefault(field, p.message.replace(str(work), "DIR")[:110])
-                path.unlink()
+                outcomes[stage].append(path)
             else:
                 counts["project error without path or fix"] += 1
                 foreign.append((path.name, f"{stage}: {type(e).__name__} without a path or fix", str(e)[:160]))
@@ -280,17 +285,49 @@ def main() -> None:
             where = f"{Path(frame.filename).name}:{frame.lineno} in {frame.name}"
             foreign.append((path.name, f"{stage}: {type(e).__name__} at {where}", str(e)[:160]))
     total_cpu, wall = time.process_time() - t_start, time.perf_counter() - wall_start
+    cli = cli_check(outcomes, args.cli, args.seed, work) if args.cli else None
     if foreign:
         kept.mkdir(exist_ok=True)
         for name, _, _ in foreign:
             shutil.copy(work / name, kept / name)
     write_report(Path(args.out), args, counts, stages, fields, (preflight_fields, preflight_examples), foreign,
-                 cpu, total_cpu, wall)
+                 cpu, total_cpu, wall, cli)
     print(Path(args.out).read_text())
-    if foreign:
-        print(f"presets with foreign exceptions kept in {kept}")
+    if foreign or (cli and cli["bad"]):
+        print(f"presets with foreign exceptions kept in {kept}; all presets in {work}")
     else:
         shutil.rmtree(work)
+
+
+def cli_check(outcomes: dict, n: int, seed: int, work: Path) -> dict:
+    """N presets through the CLI, as a user runs it: a quarter of them accepted ones (`validate`:
+    exit 0, OK), the rest refused ones, drawn evenly from the stage that refused them (`validate`
+    and `run --out`: exit 2, a fix, nothing written). Any traceback or other outcome is listed."""
+    import subprocess
+    rng = random.Random(seed + 1)                 # its own stream: the presets above do not change
+    picks = [("accepted", p) for p in rng.sample(outcomes["accepted"], min(n // 4, len(outcomes["accepted"])))]
+    refused = [k for k in ("load", "validate", "preflight") if outcomes[k]]
+    for i in range(n - len(picks)):
+        stage = refused[i % len(refused)]
+        picks.append((stage, rng.choice(outcomes[stage])))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    result = {"presets": len(picks), "calls": 0, "bad": [], "seconds": 0.0}
+    t0 = time.perf_counter()
+    for k, (stage, path) in enumerate(picks):
+        out = work / f"cli_out_{k}"
+        calls = [["validate", str(path)]] + ([] if stage == "accepted" else [["run", str(path), "--out", str(out)]])
+        for argv in calls:
+            r = subprocess.run([sys.executable, "-m", "datapipe", *argv], capture_output=True, text=True, env=env,
+                               cwd=work, errors="backslashreplace")
+            result["calls"] += 1
+            want = 0 if stage == "accepted" else 2
+            ok = (r.returncode == want and "Traceback" not in r.stderr and not out.exists()
+                  and ("OK" in r.stdout if want == 0 else "(fix:" in r.stderr))
+            if not ok:
+                result["bad"].append(f"{path.name} ({stage}) {argv[0]}: exit {r.returncode}, "
+                                     f"{r.stderr.strip().splitlines()[-1][:160] if r.stderr.strip() else ''}")
+    result["seconds"] = time.perf_counter() - t0
+    return result
 
 
 def _example(foreign, kind) -> str:
@@ -300,13 +337,14 @@ def _example(foreign, kind) -> str:
 
 
 def write_report(out: Path, args, counts, stages, fields, preflight_fields, foreign, cpu, total_cpu,
-                 wall) -> None:
+                 wall, cli) -> None:
     n = args.n
     pf = counts["went through the Blender preflight"]
     lines = [
         "# Generated hostile presets: load + validate + Blender preflight",
         "",
-        f"`benchmarks/fuzz_presets.py --n {n} --seed {args.seed} --preflight-share {args.preflight_share:g}` "
+        f"`benchmarks/fuzz_presets.py --n {n} --seed {args.seed} --preflight-share {args.preflight_share:g}"
+        f"{f' --cli {args.cli}' if args.cli else ''}` "
         "(in process, bpy 5.0.1 module). Each preset: the demo preset (JSON) or the original add-on's input "
         "dict (pickle) with 1-4 hostile mutations (see the script's docstring), loaded with `config.load`, "
         "validated with files checked, and, for the given share of those validate accepts, put through "
@@ -342,6 +380,11 @@ def write_report(out: Path, args, counts, stages, fields, preflight_fields, fore
         *[f"| `{k}` | {v} | {preflight_fields[1][k].replace('|', '/')}... |"
           for k, v in preflight_fields[0].most_common(10)],
     ]
+    if cli is not None:
+        lines += ["", f"Through the CLI (`--cli {args.cli}`, subprocesses): {cli['presets']} of these presets, "
+                  f"{cli['calls']} calls (`validate`, and `run --out` for the refused ones) in {cli['seconds']:.0f} s; "
+                  f"**{len(cli['bad'])} not as expected** (accepted: exit 0 and OK; refused: exit 2 with a fix, "
+                  "nothing written; never a traceback).", *[f"- {b}" for b in cli["bad"][:20]]]
     if foreign:
         kinds = collections.Counter(kind for _, kind, _ in foreign)
         lines += ["", "## Foreign exceptions", "", "| stage: exception at (last frame) | presets | e.g. |", "|---|---:|---|",
