@@ -24,6 +24,7 @@ from .blender_log import BlenderLog
 from .errors import ConfigError, DataPipeError
 from .io.layout import BLENDER_LOG
 from .outdir import OutLock, OutputStateError
+from .text_rules import output_folder_problem
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -80,6 +81,12 @@ def _parser() -> argparse.ArgumentParser:
                    "the official train_pbr splits)")
     b.add_argument("--jpg-quality", type=int, default=95, help="JPEG quality 1..100 (default 95)")
     return p
+
+
+def _printable(path) -> str:
+    """A path for stdout: a file name's non-UTF-8 bytes (surrogate escapes in Python) as \\x.. escapes,
+    so a strict UTF-8 terminal prints it instead of raising UnicodeEncodeError."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")
 
 
 def _err(msg: str, code: int = 2) -> int:
@@ -146,7 +153,7 @@ def _command(args) -> int:
                 else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
         sl = cfg.structured_light
         sl_text = (f"on ({'; '.join(_sl_plan(cfg))})" if sl.enabled else "off")
-        print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
+        print(f"{_printable(args.preset)}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
               f"{cams}, structured light {sl_text})")
         return 0
     if args.command == "sensors":
@@ -202,6 +209,9 @@ def _run(cfg, args, preset_path) -> int:
     if args.out is not None and not args.out.strip():
         raise DataPipeError("--out: empty folder name (fix: give the output folder, e.g. --out out; "
                             "nothing was written)")
+    bad_out = args.out is not None and output_folder_problem(args.out)
+    if bad_out:
+        raise DataPipeError(f"--out: {bad_out[0]} (fix: {bad_out[1]}; nothing was written)")
     if args.seed is not None:
         cfg.scene.seed = args.seed
     cfg.validate()                  # before the scene plan is drawn: its bounds are checked here
@@ -210,6 +220,9 @@ def _run(cfg, args, preset_path) -> int:
         if preset_path is None:
             raise DataPipeError("--ray needs a preset file (fix: `python -m datapipe run "
                                 f"{config_mod.presets_dir() / 'default.json'} --ray` runs the demo preset)")
+        _prepare_blender()
+        from .core.preflight import preflight
+        preflight(cfg)              # here, not in each shard after OUT/_shards/ was written
         run_distributed(preset_path, args.out or cfg.output.path,
                         address=None if args.ray == "local" else args.ray,
                         num_shards=args.shards, seed=args.seed, retries=args.retries,
@@ -240,7 +253,7 @@ def _run(cfg, args, preset_path) -> int:
     blender_log.close()
     if last is not None and last.stage == "cancelled":
         return 130
-    print(f"dataset: {pipe.out} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
+    print(f"dataset: {_printable(pipe.out)} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
     return 0
 
 

@@ -24,6 +24,8 @@ from typing import Any
 
 from .errors import ConfigError, Problem
 from .io.files import write_text_atomic
+from .pickle_depth import pickle_depth
+from .text_rules import name_problem, output_folder_problem, path_problem, short as _short
 
 SCHEMA_VERSION = 1
 
@@ -51,6 +53,9 @@ MAX_STEPS = 32                     # phase steps: noise falls as 1/sqrt(steps); 
 MAX_PERIODS = 8                    # fringe frequencies
 MAX_INSTANCES = 500                # instances of one object per scene
 MAX_FRINGE_BYTES = 16 * 2**30      # one render's fringe patterns + stack (see fringe_memory_bytes)
+MAX_FREE_NESTING = 8              # lists/dicts inside a free-form field (a material list of dicts of lists: 3)
+MAX_PICKLE_NESTING = 1000          # containers in an input pickle (the original's: 5); hashing a key nested
+                                   # ~120,000 deep overflowed CPython's 8 MB C stack (datapipe/pickle_depth.py)
 MAX_FIELD_OF_VIEW_DEG = 150.0      # camera/projector full angle across the sensor width
 MIN_FRINGE_CAMERA_PX = 3.0         # finest fringe period on the camera sensor (sampling limit, > 2)
 FRINGE_SUPERSAMPLE = 2             # = core.structured_light.FRINGE_SUPERSAMPLE (this module has no bpy)
@@ -276,14 +281,21 @@ class Config:
         return cfg
 
     def resolve_paths(self, base_dir: str | os.PathLike) -> None:
+        """Relative mesh and .blend paths -> absolute, against `base_dir`. A path the OS cannot take
+        (NUL, lone surrogate) stays as given: validate() names it."""
         base = Path(base_dir)
+
+        def resolved(p):
+            if not isinstance(p, str) or not p or os.path.isabs(p) or path_problem(p):
+                return p
+            try:
+                return str((base / p).resolve())
+            except (RuntimeError, OSError):      # a symlink loop (RuntimeError before Python 3.13)
+                return os.path.abspath(base / p)
         for obj in self.objects:
-            if obj.filepath and not os.path.isabs(obj.filepath):
-                obj.filepath = str((base / obj.filepath).resolve())
-            if obj.bop_models and not os.path.isabs(obj.bop_models):
-                obj.bop_models = str((base / obj.bop_models).resolve())
-        if self.scene.blend_file and not os.path.isabs(self.scene.blend_file):
-            self.scene.blend_file = str((base / self.scene.blend_file).resolve())
+            obj.filepath = resolved(obj.filepath)
+            obj.bop_models = resolved(obj.bop_models)
+        self.scene.blend_file = resolved(self.scene.blend_file)
 
     def copy(self) -> "Config":
         return copy.deepcopy(self)
@@ -317,6 +329,12 @@ def _type_name(tp) -> str:
 
 def _build(tp, value, path: str, problems: list[Problem]):
     if tp is Any:                    # free-form JSON (materials): checked by validate()
+        depth = _nesting(value, MAX_FREE_NESTING)
+        if depth > MAX_FREE_NESTING:
+            problems.append(Problem(path, f"nested more than {MAX_FREE_NESTING} levels deep (lists or objects "
+                                    "inside each other)", "give a name, an object of values, or a list of those "
+                                    "(a material needs 3 levels)"))
+            return None
         return copy.deepcopy(value)
     origin = typing.get_origin(tp)
     if dataclasses.is_dataclass(tp):
@@ -386,16 +404,18 @@ def _build(tp, value, path: str, problems: list[Problem]):
     raise TypeError(f"unsupported config type {_type_name(tp)} at {path}")
 
 
-def _short(value) -> str:
-    """A bad value for a message: scalars as written (cut at 80 characters), containers by type
-    (their repr may be huge or nested deeper than repr can go)."""
-    if value is None or isinstance(value, (bool, int, float, str, bytes)):
-        try:
-            text = repr(value)
-        except ValueError:                     # an int with more digits than repr allows
-            text = "a very long integer"
-        return text if len(text) <= 80 else text[:77] + "..."
-    return f"a {type(value).__name__}"
+def _nesting(value, limit: int) -> int:
+    """How deep lists/dicts nest in `value` (a scalar: 0), counted without recursion and only up
+    to limit + 1 (a preset nested 950 deep must not reach Python's recursion limit)."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, (list, tuple, dict)):
+            if d + 1 > limit:
+                return d + 1
+            deepest = max(deepest, d + 1)
+            stack.extend((x, d + 1) for x in (v.values() if isinstance(v, dict) else v))
+    return deepest
 
 
 def _join(path: str, key) -> str:
@@ -425,9 +445,14 @@ def _check_sl_periods(sl, pr, add) -> None:
     if any(k < 1 for k in sl.periods):
         add("structured_light.periods", f"periods must be >= 1, got {sl.periods}", "give positive periods")
         return
-    if pr.resolution and len(pr.resolution) == 2 and max(sl.periods) * 3 > pr.resolution[0]:
-        add("structured_light.periods", f"{max(sl.periods)} periods across {pr.resolution[0]} px leave "
-            "fewer than 3 px per fringe", "lower the finest period count or raise the projector width")
+    # >= 3 projector px per fringe: the real limit on any period (a wider projector than
+    # MAX_RESOLUTION is refused anyway), checked before the unwrapping maths sees the numbers
+    width = pr.resolution[0] if len(pr.resolution) == 2 and 1 <= pr.resolution[0] <= MAX_RESOLUTION \
+        else MAX_RESOLUTION
+    if max(sl.periods) * 3 > width:
+        add("structured_light.periods", f"{_short(max(sl.periods))} periods across {width} px leave fewer than 3 "
+            "px per fringe", f"give at most {width // 3} periods (the finest fringe), or raise the projector width")
+        return
     if sl.unwrap in UNWRAP_METHODS:
         from .sl import plan_unwrap      # pure numpy; the decoder owns the rules for period sets
         try:
@@ -515,6 +540,13 @@ class _Checks:
                 ok = False
         return ok
 
+    def path(self, path, v: str) -> bool:
+        """A path string the OS can take (no NUL, no lone surrogate: text_rules)."""
+        problem = path_problem(v)
+        if problem is not None:
+            self.add(path, *problem)
+        return problem is None
+
     def choice(self, path, v, options) -> bool:
         if v not in options:
             self.add(path, f"unknown value {_short(v)}", f"use one of {', '.join(map(str, options))}")
@@ -568,16 +600,43 @@ def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
     ck.choice("scene.other_objects", s.other_objects, OTHER_OBJECTS)
     if not 0 <= s.seed < 2**32:
         ck.add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
-    if s.blend_file and check_files:
+    if s.blend_file and ck.path("scene.blend_file", s.blend_file) and check_files:
         if not os.path.isfile(s.blend_file):
-            ck.add("scene.blend_file", f"file not found: {s.blend_file}", "give the path of an existing .blend")
+            ck.add("scene.blend_file", _not_found(s.blend_file), "give the path of an existing .blend")
         elif not s.blend_file.lower().endswith(".blend"):
             ck.add("scene.blend_file", f"not a .blend file: {s.blend_file}", "give a .blend file")
+        else:
+            _check_blend_header(ck, s.blend_file)
+
+
+BLEND_MAGICS = (b"BLENDER", b"\x28\xb5\x2f\xfd", b"\x1f\x8b")   # plain, zstd (3.0+), gzip (older) .blend
+
+
+def _check_blend_header(ck: _Checks, path: str) -> None:
+    """The first bytes of a .blend: a file that is not one fails here, before Blender is started
+    (the Blender preflight then reads the file itself: core/preflight.check_blend)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(12)
+    except OSError as e:
+        ck.add("scene.blend_file", f"cannot read {path}: {e.strerror or e}", "check the file's permissions")
+        return
+    if not head.startswith(BLEND_MAGICS):
+        ck.add("scene.blend_file", f"{path} is not a Blender file (it starts with {_short(head[:7])}, not "
+               "b'BLENDER' or a compressed .blend)", "give a .blend saved by Blender")
+
+
+def _not_found(path: str) -> str:
+    if os.path.islink(path):
+        return f"file not found: {path} is a symbolic link to nothing (its target is missing, or a loop)"
+    return f"file not found: {path}"
 
 
 def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -> None:
     if not filepath:
         ck.add(path, "empty", "give the path of a mesh file (.obj, .ply, .stl, .glb, .gltf)")
+        return
+    if not ck.path(path, filepath):
         return
     suffix = Path(filepath).suffix.lower()
     if check_files and os.path.isdir(filepath):
@@ -585,7 +644,7 @@ def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -
     elif suffix not in MESH_SUFFIXES:
         ck.add(path, f"not a mesh file: {filepath}", f"use one of {', '.join(MESH_SUFFIXES)}")
     elif check_files and not os.path.isfile(filepath):
-        ck.add(path, f"file not found: {filepath}", "check the path (relative paths are resolved against the "
+        ck.add(path, _not_found(filepath), "check the path (relative paths are resolved against the "
                "preset's folder)")
 
 
@@ -663,6 +722,26 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
                 ck.add(origin.split(" ")[0] + ".obj_id", f"obj_id {k} is also the id of {ids[k]}",
                        "give each object a unique obj_id (0: its position + 1)")
             ids.setdefault(k, origin)
+    if cfg.objects and sum(o.max_instances for o in cfg.objects) < 1:
+        ck.add("objects", "every entry has max_instances = 0, so scenes would be empty",
+               "give at least one entry max_instances >= 1")
+    _check_object_names(ck, cfg)
+
+
+def _check_object_names(ck: _Checks, cfg: Config) -> None:
+    """Names Blender can hold whole with an instance number (text_rules), and unique ones."""
+    for i, o in enumerate(cfg.objects):
+        if ck.has(f"objects[{i}].filepath") and not o.name:
+            continue                          # the name would come from a path already refused
+        problem = name_problem(cfg.object_name(i), suffix="_000")   # instance k: f"{name}_{k:03d}"
+        if problem is None and cfg.object_name(i).startswith("datapipe_"):
+            problem = (f"{_short(cfg.object_name(i))} starts with 'datapipe_', the prefix of DataPipe's own objects "
+                       "(templates, lights, the bin), whose names it could take", "give a name without that prefix")
+        if problem is not None:
+            what, fix = problem
+            if not o.name:
+                what, fix = f"the name taken from the file name, {what}", f"set objects[{i}].name: {fix}"
+            ck.add(f"objects[{i}].name", what, fix)
     seen: dict[str, int] = {}
     for i, o in enumerate(cfg.objects):
         name = o.name or Path(o.filepath or o.bop_models).stem
@@ -670,9 +749,6 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
             ck.add(f"objects[{i}].name", f"name {name!r} is already used by objects[{seen[name]}] (instance names "
                    "and annotations would collide)", "give this entry a unique name")
         seen.setdefault(name, i)
-    if cfg.objects and sum(o.max_instances for o in cfg.objects) < 1:
-        ck.add("objects", "every entry has max_instances = 0, so scenes would be empty",
-               "give at least one entry max_instances >= 1")
 
 
 def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
@@ -893,6 +969,8 @@ def _check_output(ck: _Checks, cfg: Config, check_files: bool) -> None:
     o, r = cfg.output, cfg.render
     if not o.path:
         ck.add("output.path", "empty", "give an output folder")
+    elif output_folder_problem(o.path):
+        ck.add("output.path", *output_folder_problem(o.path))
     for i, f in enumerate(o.formats):
         ck.choice(f"output.formats[{i}]", f, FORMATS)
     if not o.formats:
@@ -1029,6 +1107,9 @@ def loads(text: str, *, base_dir=None) -> Config:
     except RecursionError:
         raise ConfigError(Problem("<file>", "JSON nested too deeply to be a preset",
                                   "give a preset: a few levels of objects and lists")) from None
+    except ValueError:                         # an integer of more than 4,300 digits (Python's limit)
+        raise ConfigError(Problem("<file>", "cannot read a number: an integer of more than 4,300 digits",
+                                  "give numbers of a sensible size (no field needs more than 20 digits)")) from None
     return Config.from_dict(data, base_dir=base_dir)
 
 
@@ -1045,7 +1126,7 @@ def load(path: str | os.PathLike) -> Config:
     if raw[:1] == b"\x80" or path.suffix.lower() in (".pickle", ".pkl"):
         return load_legacy_pickle(raw, base_dir=path.parent)
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")         # a BOM (Windows editors) is not a JSON error
     except UnicodeDecodeError:
         raise ConfigError(Problem("<file>", f"{path} is neither JSON nor a pickle", "give a .json preset")) from None
     return loads(text, base_dir=path.parent)
@@ -1061,12 +1142,22 @@ class _RefusingUnpickler(pickle.Unpickler):
 
 
 def load_legacy_pickle(raw: bytes, *, base_dir=None) -> Config:
+    depth = pickle_depth(raw, MAX_PICKLE_NESTING)
+    if depth is not None and depth > MAX_PICKLE_NESTING:     # before unpickling: deep tuples crash hash()
+        raise ConfigError(Problem("<pickle>", f"containers nested more than {MAX_PICKLE_NESTING} levels deep: "
+                                  "no DataPipe inputs pickle is", "give an original DataPipe inputs pickle "
+                                  "(5 levels) or a JSON preset"))
     try:
         data = _RefusingUnpickler(io.BytesIO(raw)).load()
     except ConfigError:
         raise
+    except MemoryError:     # a length field (BINBYTES8, ...) larger than memory: corrupt or hostile
+        raise ConfigError(Problem("<pickle>", f"cannot read the pickle: it declares a value larger than the "
+                                  f"memory ({len(raw)} bytes in the file)", "give an original DataPipe inputs "
+                                  "pickle or a JSON preset; this one is damaged")) from None
     except Exception as e:  # truncated or corrupt pickles raise many types
-        raise ConfigError(Problem("<pickle>", f"cannot read the pickle: {e}", "give an original DataPipe "
+        reason = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+        raise ConfigError(Problem("<pickle>", f"cannot read the pickle ({reason})", "give an original DataPipe "
                                   "inputs pickle or a JSON preset")) from None
     cfg = from_legacy_dict(data)
     if base_dir is not None:

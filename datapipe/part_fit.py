@@ -1,4 +1,6 @@
-"""Does each part fit the drop zone? A warning for `validate`, before any Blender work. No bpy.
+"""Does each part fit the drop zone, and do all of them fit the bin? No bpy.
+
+`part_fit_warnings`: a warning for `validate`, before any Blender work.
 
 Parts are spawned as bounding spheres on a grid over the drop zone's footprint. A part whose
 bounding sphere is wider than the footprint's shorter side, or taller than the zone, cannot be
@@ -6,6 +8,15 @@ placed inside it: it starts overlapping the walls and is thrown out of the bin (
 0.3 m part in the default bin: 3 of 4 lost). The bounding box is read straight from the mesh file
 (OBJ, PLY, STL; glTF is not checked here), times the entry's scale, against the configured
 drop zone (a .blend's own `drop_zone` object is only known once Blender opens it).
+
+`fill_problems`: the refusal of part counts that cannot fit the bin, from each part's convex hull
+volume (the Blender preflight measures it on the imported mesh, every format). A dropped pile is a
+random packing: spheres settle at 0.55-0.64 of the space they are in (random loose to random close
+packing), elongated convex shapes reach up to ~0.74 at the most (ellipsoids, compressed: Donev et
+al., Science 303, 990 (2004)), and shaking-free drops stay well below. So if the hull volumes of a
+scene's most parts exceed RANDOM_PACKING_MAX of the smallest bin a scene can draw, they cannot all
+lie in it: the surplus is thrown over the walls, scene after scene. Below that bound a full bin is
+the user's choice (parts may still pile over the walls: the simulation reports those it loses).
 """
 from __future__ import annotations
 
@@ -13,6 +24,10 @@ import struct
 from pathlib import Path
 
 import numpy as np
+
+from .errors import Problem
+
+RANDOM_PACKING_MAX = 0.74   # densest random packing of convex parts (see the module doc), of hull volume
 
 
 def mesh_extent(path: str | Path) -> np.ndarray | None:
@@ -98,3 +113,34 @@ def part_fit_warnings(cfg) -> list[str]:
                        "starts against the walls and is likely thrown out of the bin (fix: enlarge "
                        "scene.drop_zone_scale or reduce objects[i].scale)".replace("objects[i]", f"objects[{i}]"))
     return out
+
+
+def bin_volume(scene_cfg) -> float:
+    """Inner volume (m^3) of the smallest bin a scene can draw: the drop zone's footprint times the
+    wall height (the zone's height without walls), each at the low end of scene.bin_size_scale /
+    bin_wall_scale (datapipe.bin_shape)."""
+    hx, hy, hz = (float(v) for v in scene_cfg.drop_zone_scale)
+    size = min(scene_cfg.bin_size_scale)
+    wall = min(scene_cfg.bin_wall_scale) if scene_cfg.make_bin else 1.0
+    return (2 * hx * size) * (2 * hy * size) * (2 * hz * wall)
+
+
+def fill_problems(cfg, hull_volumes: dict[int, float]) -> list[Problem]:
+    """A problem at the object entry that adds the most volume when the convex hulls of a scene's
+    largest part count (each entry's max_instances) cannot be packed into the bin (module doc).
+    `hull_volumes`: object entry index -> one part's hull volume in m^3 (scale applied)."""
+    room = RANDOM_PACKING_MAX * bin_volume(cfg.scene)
+    parts = {i: cfg.objects[i].max_instances * v for i, v in hull_volumes.items()}
+    total = sum(parts.values())
+    if total <= room or not parts:
+        return []
+    worst = max(parts, key=parts.get)
+    o, v = cfg.objects[worst], hull_volumes[worst]
+    keep = int(max(0.0, room - (total - parts[worst])) // v) if v > 0 else o.max_instances
+    fix = (f"lower objects[{worst}].max_instances to {keep} or less" if keep >= max(o.min_instances, 1) else
+           "lower the max_instances of the object entries") + ", or enlarge scene.drop_zone_scale"
+    return [Problem(f"objects[{worst}].max_instances",
+                    f"a scene may hold {sum(cfg.objects[i].max_instances for i in parts)} parts whose convex hulls "
+                    f"take {total * 1e3:.3g} litres ({o.max_instances} x {v * 1e6:.3g} cm^3 from this entry), and the bin holds {bin_volume(cfg.scene) * 1e3:.3g} litres: no random pile is "
+                    f"denser than {RANDOM_PACKING_MAX:g} of that ({room * 1e3:.3g} litres), so the rest would be "
+                    "thrown out of the bin", fix)]

@@ -29,6 +29,8 @@ import zlib
 
 import numpy as np
 
+from ..text_rules import name_problem, short
+
 FILE = "file"
 PRESETS: dict[str, dict] = {
     "matte_plastic": {"base_color": [0.5, 0.5, 0.5], "metallic": 0.0, "roughness": 0.6, "ior": 1.5},
@@ -46,8 +48,18 @@ BIN_STREAM = 0x62696E            # "bin": the bin's draw within it (object entri
 NOISE_SCALE = 100.0              # noise texture scale in object space (1/m): ~1 cm features
 
 
+def _number(v) -> bool:
+    """A finite number (an int beyond float range, e.g. 10**400, is not: math.isfinite overflows)."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
 def _unit(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v <= 1
+    return _number(v) and 0 <= v <= 1
 
 
 def _dict_problem(d: dict) -> tuple[str, str] | None:
@@ -57,16 +69,21 @@ def _dict_problem(d: dict) -> tuple[str, str] | None:
     if "base_color" in d:
         c = d["base_color"]
         if not (isinstance(c, (list, tuple)) and len(c) in (3, 4) and all(_unit(x) for x in c)):
-            return f"base_color must be 3 numbers in 0..1 (linear RGB), got {c!r}", "e.g. [0.5, 0.5, 0.5]"
+            shown = "[" + ", ".join(short(x) for x in c) + "]" if isinstance(c, (list, tuple)) else short(c)
+            return f"base_color must be 3 numbers in 0..1 (linear RGB), got {shown}", "e.g. [0.5, 0.5, 0.5]"
     for k in ("metallic", "roughness", "specular", "anisotropic", "variation"):
         if k in d and not _unit(d[k]):
-            return f"{k} must be a number in 0..1, got {d[k]!r}", f"give {k} between 0 and 1"
+            return f"{k} must be a number in 0..1, got {short(d[k])}", f"give {k} between 0 and 1"
     if "ior" in d:
         v = d["ior"]
-        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 1 <= v <= 4):
-            return f"ior must be a number in 1..4, got {v!r}", "e.g. 1.5 for plastics"
-    if "name" in d and not isinstance(d["name"], str):
-        return f"name must be a string, got {d['name']!r}", "give a short name for the annotations"
+        if not (_number(v) and 1 <= v <= 4):
+            return f"ior must be a number in 1..4, got {short(v)}", "e.g. 1.5 for plastics"
+    if "name" in d:
+        if not isinstance(d["name"], str):
+            return f"name must be a string, got {short(d['name'])}", "give a short name for the annotations"
+        problem = name_problem(d["name"], prefix=MATERIAL_PREFIX, suffix="_00000000")   # see build()
+        if problem is not None:
+            return f"name {problem[0]}", problem[1]
     return None
 
 
@@ -75,7 +92,7 @@ def material_problem(value, *, allow_list: bool = True) -> tuple[str, str] | Non
     fix = f"give one of {', '.join(NAMES)}, a dict of Principled BSDF values" + \
           (", or a list of those" if allow_list else "")
     if isinstance(value, str):
-        return None if value in NAMES else (f"unknown material {value!r}", fix)
+        return None if value in NAMES else (f"unknown material {short(value)}", fix)
     if isinstance(value, dict):
         return _dict_problem(value)
     if isinstance(value, list) and allow_list:

@@ -1,8 +1,10 @@
-"""Mesh checks that need Blender's importers, run before the output folder is touched.
+"""Checks that need Blender, run before the output folder is touched.
 
 `check_meshes(cfg)` imports every distinct mesh file once, measures it and removes everything the
 import added, so `datapipe validate` and `datapipe run` refuse the same broken part files (no
-faces, NaN vertices, a part bigger than the bin or too small to see) before anything is written.
+faces, NaN vertices, a part bigger than the bin or too small to see) and part counts whose convex
+hulls cannot fit the bin (part_fit.fill_problems) before anything is written. `check_blend(cfg)`
+reads `scene.blend_file` with Blender's own reader without opening it (the open scene stays).
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import numpy as np
 from ..config import Config, camera_distances
 from ..errors import ConfigError, Problem
 from ..io.bop_models import entry_field, expand_bop_objects
+from ..part_fit import fill_problems
 from ..sl.triangulate import intrinsics_from_blender
 from . import collision
 from .objects import _IMPORTERS, DECOMPOSED_SHAPES, _run_importer, remove_import_leftovers
@@ -51,10 +54,21 @@ def _import_measure(path: str) -> tuple[int, int, np.ndarray, np.ndarray]:
         remove_import_leftovers(before_objs, before_meshes, before_colls)
 
 
+def hull_volume(pts: np.ndarray) -> float:
+    """Convex hull volume of points (m^3); 0 for flat or degenerate point sets."""
+    from scipy.spatial import ConvexHull, QhullError
+    try:
+        return float(ConvexHull(pts).volume)
+    except (QhullError, ValueError):
+        return 0.0
+
+
 def check_meshes(cfg: Config) -> list[Problem]:
     """Problems of the part files themselves (call after Config.validate() passed)."""
     problems: list[Problem] = []
     measured: dict[str, tuple] = {}
+    hulls: dict[str, float] = {}
+    volumes: dict[int, float] = {}          # entry -> one part's hull volume, m^3
     zone = np.asarray(cfg.scene.drop_zone_scale, dtype=np.float64) * 2        # full extents, m
     c = cfg.camera
     fx = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
@@ -84,18 +98,63 @@ def check_meshes(cfg: Config) -> list[Problem]:
                                     "repair the mesh in a modeller and export it again"))
             continue
         if not collision.coacd_available() and _needs_pieces(o.collision_shape, pts, tris):
-            problems.append(collision.missing_coacd(f"objects[{i}].collision_shape"))
-        size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
+            problems.append(collision.missing_coacd(f"{entry_field(o, i)}.collision_shape"))
+        with np.errstate(over="ignore"):       # a scale of 1e308: reported below, not warned about
+            size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
         longest = float(size.max())
         if cfg.scene.blend_file is None and longest > float(np.linalg.norm(zone)):
             problems.append(Problem(f"{entry_field(o, i)}.scale", f"the part is {longest:.3g} m long at scale {o.scale:g}, "
                                     f"longer than the drop zone's diagonal ({np.linalg.norm(zone):.3g} m)",
                                     "check the scale (file units -> metres: mm files need 0.001) or enlarge "
                                     "scene.drop_zone_scale"))
+        elif not longest <= c.clip_end:          # with a .blend too (its zone is unknown here); inf, NaN
+            problems.append(Problem(f"{entry_field(o, i)}.scale", f"the part is {longest:.3g} m long at scale {o.scale:g}, "
+                                    f"longer than the camera sees (camera.clip_end {c.clip_end:g} m)",
+                                    "check the scale (file units -> metres: mm files need 0.001)"))
         elif longest * fx / far < MIN_PART_PX:
             problems.append(Problem(f"{entry_field(o, i)}.scale", f"the part is {longest:.3g} m long at scale {o.scale:g}: "
                                     f"{longest * fx / far:.2g} px on the camera image from {far:.2f} m",
                                     "check the scale (file units -> metres), or move the camera closer"))
+        elif cfg.scene.blend_file is None:      # a sane size: the scale cubed stays finite (1e308 would not)
+            if path not in hulls:
+                hulls[path] = hull_volume(pts)
+            volumes[i] = hulls[path] * o.scale ** 3
+    if not problems and cfg.scene.blend_file is None:       # a .blend's drop_zone is known only once open
+        problems += fill_problems(cfg, volumes)
+    return problems
+
+
+def check_blend(cfg: Config) -> list[Problem]:
+    """scene.blend_file read by Blender (its header, DNA and block list), without opening it: a file
+    Blender cannot load fails here instead of after the run wrote its first files. The objects of
+    that file (or, without one, of the scene open in Blender) must not already carry the name of an
+    instance (`{entry name}_{k:03d}`): the run would stop at the first scene that makes it."""
+    path = cfg.scene.blend_file
+    if not path:
+        return _name_clashes(cfg, [o.name for o in bpy.data.objects], "the scene open in Blender")
+    before = set(bpy.data.libraries)
+    try:
+        with bpy.data.libraries.load(path) as (src, _dst):
+            names = list(src.objects)
+    except (OSError, RuntimeError) as e:
+        why = str(e).strip().splitlines()[-1].removeprefix("Error: ") if str(e).strip() else type(e).__name__
+        return [Problem("scene.blend_file", f"Blender cannot read {path}: {why}", "give a .blend saved by "
+                        "Blender: re-save it from Blender, or restore it from a backup")]
+    finally:
+        for lib in set(bpy.data.libraries) - before:     # reading links nothing; be sure nothing stays
+            bpy.data.libraries.remove(lib)
+    return _name_clashes(cfg, names, path)
+
+
+def _name_clashes(cfg: Config, names: list[str], where: str) -> list[Problem]:
+    taken, problems = set(names), []
+    for i, o in enumerate(cfg.objects):
+        name = cfg.object_name(i)
+        hit = next((f"{name}_{k:03d}" for k in range(o.max_instances) if f"{name}_{k:03d}" in taken), None)
+        if hit is not None:
+            problems.append(Problem(f"{entry_field(cfg.objects[i], i)}.name", f"{where} already has an object named {hit!r}, the "
+                                    "name one of this entry's instances gets", "give the entry another name, or "
+                                    f"rename {hit!r} in the .blend"))
     return problems
 
 
@@ -107,6 +166,7 @@ def _needs_pieces(shape: str, pts: np.ndarray, tris: np.ndarray) -> bool:
 def preflight(cfg: Config) -> None:
     """Every input check, Blender's included: ConfigError when anything would fail or be useless."""
     cfg.validate()
-    problems = check_meshes(expand_bop_objects(cfg))
+    expanded = expand_bop_objects(cfg)
+    problems = check_blend(expanded) + check_meshes(expanded)
     if problems:
         raise ConfigError(problems)

@@ -182,7 +182,11 @@ def lattice_code(periods: tuple) -> LatticeCode:
         R[:, a] -= int(round(float(R[:, a] @ Kv) / float(Kv @ Kv))) * Kint
     B = P @ R.astype(np.float64)
     gram = B.T @ B
-    assert np.array_equal(V @ R, np.eye(F - 1, dtype=np.int64))
+    if not np.array_equal(V @ R, np.eye(F - 1, dtype=np.int64)):
+        # the float inverse of W lost integers: periods of a million (no projector has the
+        # pixels for them, 3 px per fringe) leave int64/float64 exactness behind
+        raise ValueError(f"the periods {tuple(ks)} are too large for an exact integer basis; a projector "
+                         "needs >= 3 px per fringe, so no real set comes near")
     offsets = np.array(list(itertools.product((-1, 0, 1), repeat=F - 1)), np.int64)
     # shortest vector: a reduced basis has it among small combinations
     small = np.array([o for o in itertools.product(range(-2, 3), repeat=F - 1) if any(o)], np.float64)

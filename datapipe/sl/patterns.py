@@ -51,6 +51,9 @@ def _check_periods(periods) -> tuple[float, ...]:
         if not np.isfinite(p) or p <= 0:
             raise bad_value("periods", f"every entry must be a finite number > 0, got {periods!r}",
                             "give the number of fringe periods across the projector, e.g. (1, 8, 64)")
+    if any(p != q for p, q in zip(per, periods)):       # compared exactly: 2**62+1 and 2**62-1 differ
+        raise bad_value("periods", f"{periods!r} has entries a float cannot hold exactly (beyond 2^53)",
+                        "give the number of fringe periods across the projector (at most its width / 3)")
     if len(set(per)) != len(per):
         raise bad_value("periods", f"contains duplicates: {periods!r}",
                         "list each fringe frequency once")

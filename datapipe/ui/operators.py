@@ -429,9 +429,11 @@ class DATAPIPE_OT_check(Operator):
     @user_errors
     def execute(self, context):
         from ..core.pipeline import Pipeline
+        from ..core.preflight import preflight
         cfg = props_to_config(_props(context))
         cfg.validate()
         Pipeline(cfg, _output_dir(cfg), resume=_props(context).resume, force=_props(context).force).check()
+        preflight(cfg)          # mesh files, scene.blend_file, the bin's fill: what `datapipe validate` checks
         self.report({"INFO"}, "Settings OK: ready to run")
         return {"FINISHED"}
 
@@ -463,6 +465,8 @@ class DATAPIPE_OT_run(Operator):
         out = Path(bpy.path.abspath(self.output)) if self.output else _output_dir(cfg)
         pipeline = Pipeline(cfg, out, resume=props.resume, force=props.force)
         pipeline.check()
+        from ..core.preflight import preflight
+        preflight(cfg)          # as the CLI: before the run writes anything
         run = runner.start(pipeline, context.scene.name, blocking=blocking)
         if not blocking:
             self.report({"INFO"}, f"DataPipe run started: {pipeline.total} renders into {pipeline.out}")
