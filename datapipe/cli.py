@@ -260,14 +260,14 @@ class _StopOnSignal:
 
     def _stop_now(self) -> None:
         from .io import layout
-        from .io.files import read_json
+        from .io.files import atomic_path, read_json
+        path = self.pipe.out / layout.RUN_FILE
         try:
-            path = self.pipe.out / layout.RUN_FILE
             rec = read_json(path)
             rec["status"] = "cancelled"
-            tmp = path.with_name(f"{path.name}.{os.getpid()}.stop.tmp")   # not the main thread's tmp name
-            tmp.write_text(json.dumps(rec, indent=1) + "\n")
-            os.replace(tmp, path)
+            # not the main thread's temporary name (it may be writing run.json right now)
+            with atomic_path(path, path.with_name(f"{path.name}.{os.getpid()}.stop.tmp")) as tmp:
+                tmp.write_text(json.dumps(rec, indent=1) + "\n")
         except Exception:                   # best effort: a resumable run needs no status
             pass
         print("datapipe: stopped at once; --resume continues", file=sys.stderr, flush=True)
