@@ -133,6 +133,10 @@ def _command(args) -> int:
         print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
               f"{cams}, structured light {sl_text})")
         return 0
+    if args.command in ("show", "bop") and args.out is None:      # writing into the run folder
+        from .io.layout import BOP_DIR, SHEETS_DIR
+        from .outdir import refuse_links_under
+        refuse_links_under(Path(args.run_dir), SHEETS_DIR if args.command == "show" else BOP_DIR)
     if args.command == "show":
         from . import show
         argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \

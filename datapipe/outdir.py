@@ -154,9 +154,15 @@ def refuse_links(out: Path) -> None:
     if (out / LOCK_FILE).is_symlink():
         raise _link_refusal(out, out / LOCK_FILE)
     for top in own_tops(out):
-        for _, p in walk(out, top):
-            if p.is_symlink():
-                raise _link_refusal(out, p)
+        refuse_links_under(out, top)
+
+
+def refuse_links_under(out: Path, top: str) -> None:
+    """OutputStateError for the first symbolic link at `out`/`top` or inside it (a folder about to be
+    written: the run's layout, or `show`'s sheets and the BOP export in a run folder)."""
+    for _, p in walk(out, top):
+        if p.is_symlink():
+            raise _link_refusal(out, p)
 
 
 def foreign_scene_record(scene_dir: Path, scene_id: int, seed: int | None) -> str | None:

@@ -20,6 +20,7 @@ import pytest
 from fake_world import BoxWorld, Crash
 from datapipe import cli, outdir
 from datapipe.core.pipeline import Pipeline
+from datapipe.errors import DataPipeError
 from datapipe.io import files, layout, legacy
 from test_run_loop import run, small_cfg
 
@@ -381,3 +382,76 @@ def test_a_malicious_output_pickle_is_still_refused_on_resume(finished):
         run(cfg, out, resume=True)
     assert "refusing" in refused(ei, out / layout.LEGACY_PICKLE)
     assert (out / layout.LEGACY_PICKLE).read_bytes() == evil
+
+
+@pytest.mark.parametrize("command,folder", [("show", "sheets"), ("bop", "bop")])
+def test_show_and_bop_do_not_write_through_a_link_in_the_run_folder(finished, tmp_path, capsys, command, folder):
+    cfg, out = finished
+    victim = _victim(tmp_path)
+    if (out / folder).exists():
+        os.rename(out / folder, tmp_path / "moved")
+    (out / folder).symlink_to(victim)
+    before = hashes(victim)
+    assert cli.main([command, str(out)]) == 1
+    err = capsys.readouterr().err
+    assert str(out / folder) in err and "symbolic link" in err and "Traceback" not in err
+    assert hashes(victim) == before
+
+
+def test_a_copy_that_fills_the_disk_names_the_file_written(tmp_path, monkeypatch):
+    """shutil's sendfile copy names the source on ENOSPC; the error must name the file being written."""
+    src = tmp_path / "src.ply"
+    src.write_bytes(b"x" * 100)
+
+    def full(fsrc, fdst, *a, **kw):
+        fdst.write(b"x")
+        err = OSError(errno.ENOSPC, "No space left on device")
+        err.filename, err.filename2 = fsrc.name, fdst.name
+        raise err
+    monkeypatch.setattr(files.shutil, "copyfileobj", full)
+    monkeypatch.setattr(files.shutil, "_fastcopy_sendfile", full, raising=False)
+    monkeypatch.setattr(files.shutil, "_USE_CP_SENDFILE", False, raising=False)
+    dst = tmp_path / "out" / "obj_000001.ply"
+    dst.parent.mkdir()
+    with pytest.raises(OSError) as ei:
+        files.copy_atomic(src, dst)
+    assert ei.value.filename == str(dst) and list(dst.parent.iterdir()) == []
+    with pytest.raises(FileNotFoundError) as ei:
+        files.copy_atomic(tmp_path / "missing.ply", dst)               # an unreadable source: its own name
+    assert ei.value.filename == str(tmp_path / "missing.ply")
+
+
+def test_bop_copies_models_info_last(tmp_path, monkeypatch):
+    """BOP takes models_info.json for "the models are copied": a copy stopped by a full disk must not
+    leave it without the models (found by a disk-full sweep: --resume then failed on a missing model)."""
+    import fixtures_native as fx
+    from datapipe.io import bop, models
+    models.write_models(tmp_path / "models", fx.box_meshes(1))
+    real, copied = bop.copy_atomic, []
+
+    def fill_up(src, dst):
+        if len(copied) == 1:
+            raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+        copied.append(os.path.basename(dst))
+        return real(src, dst)
+    monkeypatch.setattr(bop, "copy_atomic", fill_up)
+    w = bop.BopWriter(tmp_path / "bop")
+    with pytest.raises(OSError):
+        w.set_models(tmp_path / "models")
+    assert copied == ["obj_000001.ply"] and not (w.models_dir / layout.MODELS_INFO).exists()
+
+
+def test_disk_full_at_the_first_record_then_resume(one_run, tmp_path, monkeypatch):
+    """Full before run.json could be written: only manifest.json is there, and --resume (what the
+    message tells) starts the run instead of refusing a folder "without run.json"."""
+    cfg, ref = one_run
+    out = tmp_path / "full"
+    monkeypatch.setattr(files, "open", _full_disk_open(open, from_write=2), raising=False)
+    with pytest.raises(OSError) as ei:
+        run(cfg, out)
+    assert ei.value.filename == str(out / layout.RUN_FILE) and outdir.meaningful_entries(out) == ["manifest.json"]
+    monkeypatch.undo()
+    with pytest.raises(DataPipeError, match="not empty"):
+        run(cfg, out)
+    _, events = run(cfg, out, resume=True)
+    assert events[-1].stage == "done" and hashes(out, skip={"run.json"}) == hashes(ref, skip={"run.json"})

@@ -192,7 +192,8 @@ class BopWriter:
                                     "start of a run by datapipe.io.models.write_models)")
             if src.resolve() != self.models_dir.resolve():
                 self.models_dir.mkdir(parents=True, exist_ok=True)
-                for p in sorted(src.iterdir()):
+                # models_info.json last: add_scene takes its presence for "the models are copied"
+                for p in sorted(src.iterdir(), key=lambda p: (p.name == layout.MODELS_INFO, p.name)):
                     if p.is_file() and (p.suffix == ".ply" or p.name == layout.MODELS_INFO):
                         copy_atomic(p, self.models_dir / p.name)
         self._models = None

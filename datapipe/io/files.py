@@ -57,8 +57,9 @@ def atomic_path(path: str | os.PathLike, tmp: str | os.PathLike | None = None) -
         os.replace(tmp, path)
     except OSError as e:
         _remove(tmp)
-        if e.filename not in (None, str(tmp), os.fsdecode(tmp)):
-            raise                          # about another file (a copy's source): its own name
+        ours = (None, str(tmp))
+        if e.filename not in ours and e.filename2 not in ours[1:]:
+            raise                          # about another file (a copy's unreadable source): its own name
         raise named_os_error(e, path) from e
     except BaseException:
         _remove(tmp)
