@@ -455,3 +455,17 @@ def test_disk_full_at_the_first_record_then_resume(one_run, tmp_path, monkeypatc
         run(cfg, out)
     _, events = run(cfg, out, resume=True)
     assert events[-1].stage == "done" and hashes(out, skip={"run.json"}) == hashes(ref, skip={"run.json"})
+
+
+def test_a_distributed_run_refuses_links_before_its_shards_start(tmp_path):
+    from datapipe import distributed
+    victim = _victim(tmp_path)
+    out = tmp_path / "OUT"
+    out.mkdir()
+    for name in ("models", distributed.SHARDS_DIR):
+        (out / name).symlink_to(victim)
+        with pytest.raises(outdir.OutputStateError) as ei:
+            distributed._check_out_dir(out)
+        refused(ei, out / name)
+        (out / name).unlink()
+    distributed._check_out_dir(out)
