@@ -148,18 +148,20 @@ def _link_refusal(out: Path, path: Path) -> OutputStateError:
 
 def refuse_links(out: Path) -> None:
     """OutputStateError for the first symbolic link at a path the run writes or removes: the lock
-    file, a top-level name of the layout, anything inside the layout's folders."""
+    file, a name of the layout (at the top, in models/, bop/, sheets/, scene and render folders)."""
     if not out.is_dir():
         return
     if (out / LOCK_FILE).is_symlink():
         raise _link_refusal(out, out / LOCK_FILE)
     for top in own_tops(out):
-        refuse_links_under(out, top)
+        for rel, p in walk(out, top):
+            if p.is_symlink() and is_run_path(rel):     # a link of yours beside the run's files stays
+                raise _link_refusal(out, p)
 
 
 def refuse_links_under(out: Path, top: str) -> None:
-    """OutputStateError for the first symbolic link at `out`/`top` or inside it (a folder about to be
-    written: the run's layout, or `show`'s sheets and the BOP export in a run folder)."""
+    """OutputStateError for the first symbolic link at `out`/`top` or inside it (a folder written
+    whole: `show`'s sheets or the BOP export in a run folder, a distributed run's shards)."""
     for _, p in walk(out, top):
         if p.is_symlink():
             raise _link_refusal(out, p)

@@ -206,17 +206,19 @@ def test_lock_file_link_is_refused_by_the_lock_itself(tmp_path):
     assert (victim / "obj_000001.ply").read_text() == "victim's model"
 
 
-def test_a_link_of_the_user_outside_the_layout_is_left_alone(finished, tmp_path):
+def test_links_of_the_user_beside_the_runs_files_are_left_alone(finished, tmp_path):
     cfg, out = finished
     victim = _victim(tmp_path)
-    (out / "my_link").symlink_to(victim)                        # not a name the run writes
-    (out / "scene.0001" / "elsewhere").symlink_to(victim)       # nor is this one (inside a scene folder)
+    (out / "my_link").symlink_to(victim)                                # not a name the run writes
+    (out / "scene.0001" / "elsewhere").symlink_to(victim)               # nor this (in a scene folder)
+    (out / "scene.0001" / "render.0001" / "mine").symlink_to(victim)    # nor this (in a render folder)
     before = hashes(victim)
-    with pytest.raises(outdir.OutputStateError, match="symbolic link"):
-        run(cfg, out, force=True)                                # inside a scene folder: refused all the same
-    (out / "scene.0001" / "elsewhere").unlink()
-    _, events = run(cfg, out, force=True)
-    assert events[-1].stage == "done" and (out / "my_link").is_symlink() and hashes(victim) == before
+    for flag in ("force", "resume", "force"):
+        _, events = run(cfg, out, **{flag: True})
+        assert events[-1].stage == "done" and hashes(victim) == before
+        assert all(p.is_symlink() for p in (out / "my_link", out / "scene.0001" / "elsewhere",
+                                               out / "scene.0001" / "render.0001" / "mine"))
+    assert not any("elsewhere" in f or "mine" in f for f in outdir.Manifest.load(out).files)
 
 
 # ------------------------------------------------------------------------------------------------
