@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import config as config_mod
@@ -289,9 +290,29 @@ class _StopOnSignal:
 
 def _prepare_blender() -> None:
     """On the bpy module start from an empty scene; inside Blender with a .blend open, keep it."""
-    import bpy
-    if not bpy.data.filepath:
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+    with _leave_on_interrupt():
+        import bpy
+        if not bpy.data.filepath:
+            bpy.ops.wm.read_factory_settings(use_empty=True)
+
+
+@contextmanager
+def _leave_on_interrupt():
+    """Ctrl-C while the bpy module starts: Blender's add-on registration meets the KeyboardInterrupt
+    half-way, prints pages of tracebacks and crashes (exit -11). Nothing is written before the run
+    takes its lock, so leave at once instead, with one line and exit status 130."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def leave(*_):
+        print("datapipe: interrupted while Blender was starting; nothing was written", file=sys.stderr, flush=True)
+        os._exit(130)
+    saved = signal.signal(signal.SIGINT, leave)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
 
 
 if __name__ == "__main__":

@@ -471,3 +471,16 @@ def test_a_distributed_run_refuses_links_before_its_shards_start(tmp_path):
         refused(ei, out / name)
         (out / name).unlink()
     distributed._check_out_dir(out)
+
+
+def test_ctrl_c_while_blender_starts_is_one_line_and_130():
+    """Blender's add-on registration meets a KeyboardInterrupt half-way (tracebacks, then a crash);
+    the CLI leaves at once instead: nothing is written before the run takes its lock."""
+    import subprocess
+    import sys
+    code = ("import os, signal, time\nfrom datapipe import cli\nwith cli._leave_on_interrupt():\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n    time.sleep(5)\nprint('not reached')")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                       cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert r.returncode == 130 and r.stdout == "" and r.stderr.strip().splitlines() == [
+        "datapipe: interrupted while Blender was starting; nothing was written"]
