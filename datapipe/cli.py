@@ -134,12 +134,10 @@ def _command(args) -> int:
         print(f"{args.preset}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
               f"{cams}, structured light {sl_text})")
         return 0
-    if args.command in ("show", "bop") and args.out is None:      # writing into the run folder
-        from .io.layout import BOP_DIR, SHEETS_DIR
-        from .outdir import refuse_links_under
-        refuse_links_under(Path(args.run_dir), SHEETS_DIR if args.command == "show" else BOP_DIR)
     if args.command == "show":
         from . import show
+        from .io.layout import SHEETS_DIR
+        _refuse_links_in_run_dir(args, SHEETS_DIR)
         argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \
             + (["--max", str(args.max)] if args.max is not None else []) \
             + (["--no-overview"] if args.no_overview else []) \
@@ -148,6 +146,7 @@ def _command(args) -> int:
     if args.command == "bop":
         from .io.bop import export_bop
         from .io.layout import BOP_DIR
+        _refuse_links_in_run_dir(args, BOP_DIR)
         out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
         export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size)
         print(f"BOP dataset written to {out}")
@@ -159,6 +158,13 @@ def _command(args) -> int:
         return _run(cfg, args, preset_path=None)
     cfg = config_mod.load(args.preset)
     return _run(cfg, args, preset_path=args.preset)
+
+
+def _refuse_links_in_run_dir(args, folder: str) -> None:
+    """`show`/`bop` writing into the run folder (no --out): not through a link there."""
+    if args.out is None:
+        from .outdir import refuse_links_under
+        refuse_links_under(Path(args.run_dir), folder)
 
 
 def _sl_plan(cfg) -> list[str]:
