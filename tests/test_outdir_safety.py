@@ -275,7 +275,7 @@ def test_exr_and_png_writers_on_a_full_disk(tmp_path, monkeypatch):
 
     import cv2
 
-    def full_png(path, img):
+    def full_png(path, img, *params):
         open(path, "wb").write(b"\x89PNG partial")
         return False
     monkeypatch.setattr(cv2, "imwrite", full_png)
