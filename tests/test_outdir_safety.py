@@ -8,7 +8,6 @@ The check for "nothing else changed" is a hash tree of the user's files (inside 
 taken before and compared after.
 """
 import errno
-import hashlib
 import json
 import os
 import pickle
@@ -23,24 +22,7 @@ from datapipe.core.pipeline import Pipeline
 from datapipe.errors import DataPipeError
 from datapipe.io import files, layout, legacy
 from test_run_loop import run, small_cfg
-
-
-def hashes(root, skip=()) -> dict:
-    """{relative path: sha256 or '->target' or 'dir'} of everything under `root`, links not followed."""
-    out = {}
-    for dirpath, dirs, names in os.walk(root):
-        for n in dirs + names:
-            p = os.path.join(dirpath, n)
-            rel = os.path.relpath(p, root)
-            if rel in skip:
-                continue
-            if os.path.islink(p):
-                out[rel] = "->" + os.readlink(p)
-            elif os.path.isdir(p):
-                out[rel] = "dir"
-            else:
-                out[rel] = hashlib.sha256(open(p, "rb").read()).hexdigest()
-    return out
+from tree_hash import hashes
 
 
 def tmp_leftovers(root) -> list[str]:

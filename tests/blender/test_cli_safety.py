@@ -210,20 +210,10 @@ def test_10_minor_cases(tmp_path, capsys):
 # Issue #21: the output folder's safety through the real CLI (tiny renders; the rules themselves are
 # checked case by case on the fake world in tests/test_outdir_safety.py)
 
-def hashes(root, skip=("run.json",)):
-    """{relative path: sha256 or '->link target'} of every file under `root`, links not followed."""
-    import hashlib
-    import os
-    out = {}
-    for dirpath, dirs, names in os.walk(root):
-        for n in dirs + names:
-            p = os.path.join(dirpath, n)
-            rel = os.path.relpath(p, root)
-            if os.path.islink(p):
-                out[rel] = "->" + os.readlink(p)
-            elif os.path.isfile(p) and rel not in skip:
-                out[rel] = hashlib.sha256(open(p, "rb").read()).hexdigest()
-    return out
+def files(root, skip=("run.json",)):
+    """The hash tree of `root`'s files (tests/tree_hash.py), `skip` and folders left out."""
+    from tree_hash import hashes
+    return {k: v for k, v in hashes(root, skip).items() if v != "dir"}
 
 
 def tiny_preset(tmp_path):
@@ -243,14 +233,14 @@ def test_21_force_resume_and_links_keep_user_files(tmp_path, capsys):
     p = tiny_preset(tmp_path)
     out = tmp_path / "OUT"
     assert main(capsys, "run", p, "--out", out, "--quiet")[0] == 0
-    ref = hashes(out, skip=("run.json", "manifest.json"))
+    ref = files(out, skip=("run.json", "manifest.json"))
     (out / "scene.0001" / "user_notes.txt").write_text("notes")
     (out / "scene.0001" / "render.0001" / "mine").mkdir()
     (out / "scene.0001" / "render.0001" / "mine" / "a.txt").write_text("mine")
-    user = {k: v for k, v in hashes(out).items() if "notes" in k or "mine" in k}
+    user = {k: v for k, v in files(out).items() if "notes" in k or "mine" in k}
     code, _, err = main(capsys, "run", p, "--out", out, "--force", "--quiet")
     assert code == 0, err
-    after = hashes(out, skip=("run.json", "manifest.json"))
+    after = files(out, skip=("run.json", "manifest.json"))
     assert {k: after[k] for k in user} == user and {k: v for k, v in after.items() if k not in user} == ref
     # a link where the run writes: refused before anything is written, the victim untouched
     victim = tmp_path / "victim_models"
@@ -258,21 +248,21 @@ def test_21_force_resume_and_links_keep_user_files(tmp_path, capsys):
     (victim / "obj_000001.ply").write_text("the victim's model")
     (out / "models").rename(tmp_path / "models_moved")
     (out / "models").symlink_to("../victim_models")
-    before, victim_before = hashes(out, skip=()), hashes(victim)
+    before, victim_before = files(out, skip=()), files(victim)
     for flag in ("--force", "--resume"):
         code, _, err = main(capsys, "run", p, "--out", out, flag, "--quiet")
         assert code == 1 and str(out / "models") in err and "symbolic link" in err and "fix:" in err
-        assert hashes(out, skip=()) == before and hashes(victim) == victim_before
+        assert files(out, skip=()) == before and files(victim) == victim_before
     (out / "models").unlink()
     (tmp_path / "models_moved").rename(out / "models")
     # a scene.json that is not this run's: refused on --resume (and --force), nothing changed
     (out / "scene.0002" / "scene.json").write_text('{"my": "own annotations"}')
     (out / "scene.0002" / "mine.txt").write_text("mine")
-    before = hashes(out, skip=())
+    before = files(out, skip=())
     for flag in ("--resume", "--force"):
         code, _, err = main(capsys, "run", p, "--out", out, flag, "--quiet")
         assert code == 1 and str(out / "scene.0002" / "scene.json") in err and "fix:" in err
-        assert hashes(out, skip=()) == before
+        assert files(out, skip=()) == before
 
 
 def test_21_a_pass_file_blender_cut_short_is_a_file_error_and_resumes(tmp_path, capsys, monkeypatch):
@@ -298,7 +288,7 @@ def test_21_a_pass_file_blender_cut_short_is_a_file_error_and_resumes(tmp_path, 
     assert not [f for f in out.rglob("*") if ".tmp" in f.name or f.name.startswith("_")]
     monkeypatch.undo()
     assert main(capsys, "run", p, "--out", out, "--resume", "--quiet")[0] == 0
-    assert hashes(out) == hashes(ref)
+    assert files(out) == files(ref)
 
 
 def test_21_take_written_exr_refuses_short_and_incomplete_files(tmp_path):
