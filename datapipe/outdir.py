@@ -19,6 +19,7 @@ import fcntl
 import json
 import os
 import re
+import stat
 from pathlib import Path
 from typing import Iterator
 
@@ -57,15 +58,24 @@ def is_run_path(rel: str) -> bool:
     return len(parts) == 3 and parts[1] != layout.SCENE_FILE and bool(_IN_RENDER.match(parts[2]))
 
 
-def walk(out: Path, top: str) -> Iterator[tuple[str, Path]]:
-    """(relative path, path) of `top` and everything under it, without following symbolic links."""
-    p = out / top
-    yield top, p
-    if p.is_dir() and not p.is_symlink():
-        for root, dirs, files in os.walk(p):
-            rel = Path(root).relative_to(out).as_posix()
-            for n in sorted(dirs + files):
-                yield f"{rel}/{n}", Path(root) / n
+def walk(out: Path, top: str) -> Iterator[tuple[str, bool, bool]]:
+    """(relative path, is a symbolic link, is a real folder) of `top` and everything under it, links
+    never followed; from the directory entries (no stat per file), without recursion (a tree of
+    any depth)."""
+    try:
+        mode = os.lstat(out / top).st_mode
+    except FileNotFoundError:
+        return
+    yield top, stat.S_ISLNK(mode), stat.S_ISDIR(mode)
+    todo = [top] if stat.S_ISDIR(mode) else []
+    while todo:
+        rel = todo.pop()
+        with os.scandir(out / rel) as entries:
+            for e in entries:
+                sub, is_dir = f"{rel}/{e.name}", e.is_dir(follow_symlinks=False)
+                yield sub, e.is_symlink(), is_dir
+                if is_dir:
+                    todo.append(sub)
 
 
 def own_tops(out: Path) -> list[str]:
@@ -154,17 +164,17 @@ def refuse_links(out: Path) -> None:
     if (out / LOCK_FILE).is_symlink():
         raise _link_refusal(out, out / LOCK_FILE)
     for top in own_tops(out):
-        for rel, p in walk(out, top):
-            if p.is_symlink() and is_run_path(rel):     # a link of yours beside the run's files stays
-                raise _link_refusal(out, p)
+        for rel, link, _ in walk(out, top):
+            if link and is_run_path(rel):               # a link of yours beside the run's files stays
+                raise _link_refusal(out, out / rel)
 
 
 def refuse_links_under(out: Path, top: str) -> None:
     """OutputStateError for the first symbolic link at `out`/`top` or inside it (a folder written
     whole: `show`'s sheets or the BOP export in a run folder, a distributed run's shards)."""
-    for _, p in walk(out, top):
-        if p.is_symlink():
-            raise _link_refusal(out, p)
+    for rel, link, _ in walk(out, top):
+        if link:
+            raise _link_refusal(out, out / rel)
 
 
 def foreign_scene_record(scene_dir: Path, scene_id: int, seed: int | None) -> str | None:
@@ -244,7 +254,7 @@ class Manifest:
         for name in meaningful_entries(out):
             if name == MANIFEST_FILE:
                 continue
-            for rel, _ in (walk(out, name) if _OWN_TOP.match(name) else [(name, None)]):
+            for rel, *_ in (walk(out, name) if _OWN_TOP.match(name) else [(name,)]):
                 if earlier is not None and earlier.owns(rel):
                     continue
                 if adopt_layout and earlier is None and is_run_path(rel):
@@ -273,7 +283,7 @@ class Manifest:
         """The listed paths and the run's paths in OUT now (a killed call's last files included)."""
         ours = set(self._files)
         for top in own_tops(self.out):
-            ours.update(rel for rel, _ in walk(self.out, top) if self.owns(rel))
+            ours.update(rel for rel, *_ in walk(self.out, top) if self.owns(rel))
         return ours
 
     def update(self) -> None:
@@ -284,8 +294,8 @@ class Manifest:
 
     def collisions(self) -> list[str]:
         """Files of someone else's (foreign) at names the run's layout writes: it would overwrite them."""
-        return [rel for top in own_tops(self.out) for rel, p in walk(self.out, top)
-                if rel in self._foreign and is_run_path(rel) and not p.is_dir()]
+        return sorted(rel for top in own_tops(self.out) for rel, _, is_dir in walk(self.out, top)
+                      if rel in self._foreign and is_run_path(rel) and not is_dir)
 
     def remove_listed(self) -> int:
         """Delete the run's files (deepest first), then its folders that are empty after it. A path
