@@ -25,6 +25,7 @@ from ..quality import render_warnings
 from ..io import layout, native
 from ..io.files import read_json, write_json_atomic
 from ..io.models import write_models
+from ..io.legacy import LegacyPickleWriter
 from ..io.writers import Writers, open_writers
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from .world import BlenderWorld, World
@@ -123,6 +124,8 @@ class Pipeline:
             outdir.refuse_foreign_scenes(self.out, scenes)
             if earlier is not None:
                 outdir.refuse_collisions(earlier)
+            if self.resume and self.cfg.output.legacy_pickle and (self.out / layout.LEGACY_PICKLE).is_file():
+                LegacyPickleWriter(self.out).start()        # refuses a pickle that is not the run's
 
     def cancel(self) -> None:
         """Stop after the render in progress; everything written so far stays."""
