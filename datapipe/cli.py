@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import config as config_mod
@@ -162,6 +163,8 @@ def _command(args) -> int:
         return 0
     if args.command == "show":
         from . import show
+        from .io.layout import SHEETS_DIR
+        _refuse_links_in_run_dir(args, SHEETS_DIR)
         argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \
             + (["--max", str(args.max)] if args.max is not None else []) \
             + (["--no-overview"] if args.no_overview else []) \
@@ -170,6 +173,7 @@ def _command(args) -> int:
     if args.command == "bop":
         from .io.bop import export_bop
         from .io.layout import BOP_DIR
+        _refuse_links_in_run_dir(args, BOP_DIR)
         out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
         export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size,
                    split=args.split, rgb_format=args.rgb_format, jpg_quality=args.jpg_quality)
@@ -182,6 +186,13 @@ def _command(args) -> int:
         return _run(cfg, args, preset_path=None)
     cfg = config_mod.load(args.preset)
     return _run(cfg, args, preset_path=args.preset)
+
+
+def _refuse_links_in_run_dir(args, folder: str) -> None:
+    """`show`/`bop` writing into the run folder (no --out): not through a link there."""
+    if args.out is None:
+        from .outdir import refuse_links_under
+        refuse_links_under(Path(args.run_dir), folder)
 
 
 def _sl_plan(cfg) -> list[str]:
@@ -299,14 +310,14 @@ class _StopOnSignal:
 
     def _stop_now(self) -> None:
         from .io import layout
-        from .io.files import read_json
+        from .io.files import atomic_path, read_json
+        path = self.pipe.out / layout.RUN_FILE
         try:
-            path = self.pipe.out / layout.RUN_FILE
             rec = read_json(path)
             rec["status"] = "cancelled"
-            tmp = path.with_name(f"{path.name}.{os.getpid()}.stop.tmp")   # not the main thread's tmp name
-            tmp.write_text(json.dumps(rec, indent=1) + "\n")
-            os.replace(tmp, path)
+            # not the main thread's temporary name (it may be writing run.json right now)
+            with atomic_path(path, path.with_name(f"{path.name}.{os.getpid()}.stop.tmp")) as tmp:
+                tmp.write_text(json.dumps(rec, indent=1) + "\n")
         except Exception:                   # best effort: a resumable run needs no status
             pass
         print("datapipe: stopped at once; --resume continues", file=sys.stderr, flush=True)
@@ -324,9 +335,29 @@ class _StopOnSignal:
 
 def _prepare_blender() -> None:
     """On the bpy module start from an empty scene; inside Blender with a .blend open, keep it."""
-    import bpy
-    if not bpy.data.filepath:
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+    with _leave_on_interrupt():
+        import bpy
+        if not bpy.data.filepath:
+            bpy.ops.wm.read_factory_settings(use_empty=True)
+
+
+@contextmanager
+def _leave_on_interrupt():
+    """Ctrl-C while the bpy module starts: Blender's add-on registration meets the KeyboardInterrupt
+    half-way, prints pages of tracebacks and crashes (exit -11). Nothing is written before the run
+    takes its lock, so leave at once instead, with one line and exit status 130."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def leave(*_):
+        print("datapipe: interrupted while Blender was starting; nothing was written", file=sys.stderr, flush=True)
+        os._exit(130)
+    saved = signal.signal(signal.SIGINT, leave)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
 
 
 if __name__ == "__main__":

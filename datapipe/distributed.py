@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
-from . import config as config_mod
+from . import config as config_mod, outdir
 from .errors import DataPipeError
 from .io import layout
 from .io.files import copy_atomic, read_json, write_json_atomic
@@ -391,6 +391,8 @@ def _check_out_dir(out: Path) -> None:
     if out.is_dir() and any(p.name.startswith(layout.SCENE_PREFIX) for p in out.iterdir()):
         raise DataPipeError(f"output: {out} already holds scenes (fix: choose an empty folder; a distributed "
                             f"run resumes from {out / SHARDS_DIR} when re-run into the same folder)")
+    outdir.refuse_links(out)                    # the merge writes the run's layout here ...
+    outdir.refuse_links_under(out, SHARDS_DIR)  # ... and the shards run in here
 
 
 def _write_shard_preset(cfg, shards_root: Path) -> Path:

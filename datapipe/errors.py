@@ -8,6 +8,10 @@ class DataPipeError(Exception):
     """A problem the user can fix (bad input, missing file, refused output folder)."""
 
 
+class OutputStateError(DataPipeError):
+    """The output folder's state (a lock, a corrupt or foreign record, a link) stops the run. Exit status 1."""
+
+
 @dataclass(frozen=True)
 class Problem:
     path: str      # dotted field path, e.g. "objects[1].min_instances"

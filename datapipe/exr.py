@@ -3,14 +3,20 @@
 Our own files are single-part, float32, ZIP-compressed, with plain channel names. `read_exr` also
 reads Blender's multilayer files: bpy 4.2 writes one part with every channel ("Image.R",
 "Depth.V", ...), bpy 5.0 one part per pass; both come back as one flat {channel: array} dict.
+
+A file that cannot be read whole (truncated by a full disk, garbled) is an OSError naming it: the
+OpenEXR binding only prints a warning and returns no parts for a truncated file.
 """
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
+
+from .io.files import atomic_path, disk_full_error
 
 
 def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], *, half: bool = False) -> None:
@@ -28,19 +34,36 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], *, half:
         shape = arr.shape
         data[name] = arr
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = path.with_name(path.name + ".tmp.exr")
-    with OpenEXR.File(header, data) as f:
-        f.write(str(tmp))
-    os.replace(tmp, path)
+    with atomic_path(path, path.with_name(path.name + ".tmp.exr")) as tmp:
+        try:
+            with OpenEXR.File(header, data) as f:
+                f.write(str(tmp))
+        except RuntimeError as e:          # the binding's I/O errors carry no errno
+            raise disk_full_error(path, str(e)) from None
+
+
+def unreadable(path: str | os.PathLike, detail: str) -> OSError:
+    return OSError(errno.EIO, f"the EXR file is truncated or corrupt ({detail}; was the disk full?)", str(path))
 
 
 def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """All channels of all parts, as float32 2-D arrays, row 0 = top of the image."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path)
     out: dict[str, np.ndarray] = {}
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        for part in f.parts:
-            for name, ch in part.channels.items():
-                out[name] = np.asarray(ch.pixels, dtype=np.float32)
+    try:
+        with OpenEXR.File(path, header_only=True) as f:
+            declared = {c.name for part in f.parts for c in part.header.get("channels", [])}
+        with OpenEXR.File(path, separate_channels=True) as f:
+            for part in f.parts:
+                for name, ch in part.channels.items():
+                    out[name] = np.asarray(ch.pixels, dtype=np.float32)
+    except RuntimeError as e:
+        raise unreadable(path, str(e)) from None
+    missing = declared - set(out)
+    if missing or not out:
+        raise unreadable(path, f"{len(missing)} of its {len(declared)} channels unreadable")
     return out
 
 

@@ -136,10 +136,11 @@ def decompose(verts: np.ndarray, tris: np.ndarray, cache: Path | None = None) ->
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
     os.close(fd)
-    with open(tmp, "wb") as fh:            # atomic: parallel workers never read half a file
+    from ..io.files import atomic_path
+    # atomic: parallel workers never read half a file; a failed write leaves no temporary
+    with atomic_path(path, tmp) as t, open(t, "wb") as fh:
         np.savez(fh, verts=np.concatenate([p[0] for p in pieces]), tris=np.concatenate([p[1] for p in pieces]),
                  vcount=[len(p[0]) for p in pieces], tcount=[len(p[1]) for p in pieces])
-    os.replace(tmp, path)
     return pieces, False
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from typing import Iterable
 
 import bpy
 
@@ -186,20 +187,31 @@ def written_files(directory: str | os.PathLike, basename: str) -> list[Path]:
     return sorted(out)
 
 
-def take_written_exr(directory: str | os.PathLike, basename: str, what: str = "pass") -> dict:
-    """Read the EXR the File Output node just wrote for `basename`, delete it, return its channels."""
-    from ..errors import DataPipeError
-    from ..exr import read_exr
+def take_written_exr(directory: str | os.PathLike, basename: str, what: str = "pass",
+                     expect: Iterable[str] = ()) -> dict:
+    """Read the EXR the File Output node just wrote for `basename`, delete it, return its channels.
+
+    Blender reports no write error (a full disk leaves no file, a truncated one, or one without
+    some layers), so each of those is an OSError naming the file (exit status 1), never a wrong
+    preset: no file, an unreadable file (exr.read_exr), or one lacking a channel of `expect`."""
+    from ..exr import read_exr, unreadable
+    from ..io.files import disk_full_error
     written = written_files(directory, basename)
     if not written:
-        raise DataPipeError(f"Blender wrote no {what} file {basename}*.exr into {directory} "
-                            "(check free disk space and write permission of the output folder)")
+        raise disk_full_error(Path(directory) / f"{basename}.exr", f"Blender wrote no {what} file")
     newest = max(written, key=lambda p: p.stat().st_mtime)
     try:
-        return read_exr(newest)
+        channels = read_exr(newest)
+        missing = sorted(set(expect) - set(channels))
+        if missing:
+            raise unreadable(newest, f"Blender's {what} file lacks {', '.join(missing[:4])}"
+                                     f"{' ...' if len(missing) > 4 else ''}")
+    except OSError as e:                   # a file cut short: says "disk full" when the disk is (before freeing it)
+        raise disk_full_error(newest, e.strerror or str(e)) from None
     finally:
         for p in written:
             p.unlink(missing_ok=True)
+    return channels
 
 
 # ------------------------------------------------------------------------------------------------

@@ -148,7 +148,8 @@ class FlatLitRender:
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, self.layer_names[:1],
                                   render_dir, FLAT_BASENAME, seed=seed, supersample=supersample,
                                   filter_width=filter_width)
-        ch = compat.take_written_exr(render_dir, FLAT_BASENAME, "flat-lit fringe")
+        ch = compat.take_written_exr(render_dir, FLAT_BASENAME, "flat-lit fringe", expect=[
+            f"{k}.V" for k, (_, _, t) in PASSES.items() if t == "FLOAT"] + [f"position.{c}" for c in "XYZ"])
         g = {k: ch[f"{k}.V"].astype(np.float32) for k, (_, _, t) in PASSES.items() if t == "FLOAT"}
         direct = g["diff_dir"] * g["diff_col"] + g["gloss_dir"] * g["gloss_col"] + g["trans_dir"] * g["trans_col"]
         indirect = np.maximum(g["combined"] - direct, 0.0)
@@ -158,7 +159,8 @@ class FlatLitRender:
             seconds += isolated_render(self.scene, self.renderer.tree, self.bounce_output, self.layer_names[1:],
                                        render_dir, BOUNCE_BASENAME, seed=seed, supersample=1,
                                        filter_width=filter_width)
-            ch = compat.take_written_exr(render_dir, BOUNCE_BASENAME, "bounce fringe")
+            ch = compat.take_written_exr(render_dir, BOUNCE_BASENAME, "bounce fringe",
+                                         expect=[f"{n}.V" for n in self.layer_names[1:]])
             b = [ch[f"{n}.V"].astype(np.float32) for n in self.layer_names[1:]]
             white = b[0]
             for i, K in enumerate(self.gains):          # signed fringes: 2 x (0.5 + 0.5 cos) - 1

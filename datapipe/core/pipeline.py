@@ -10,7 +10,6 @@ built only when there is something to render. Tests pass a fake world (tests/fak
 """
 from __future__ import annotations
 
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +26,7 @@ from ..io import layout, native
 from ..io.files import read_json, write_json_atomic
 from ..io.bop_models import expand_bop_objects, models_symmetries
 from ..io.models import write_models
+from ..io.legacy import LegacyPickleWriter
 from ..io.writers import Writers, open_writers
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from .world import BlenderWorld, World
@@ -90,8 +90,11 @@ class Pipeline:
         self._cancel = False
         self._t_start = self._t_loop = 0.0
         self._made = 0                # renders made in this call (for the ETA)
-        self.stats: dict = {"imports": 0, "frames": {}, "seconds": {k: 0.0 for k in STAGES}, "physics": {}}
+        # this call's work; run.json's stats add the earlier calls' (resume) and every scene's simulation
+        self.stats: dict = {"imports": 0, "seconds": {k: 0.0 for k in STAGES}}
         self.stats["seconds"]["setup"] = 0.0
+        self._earlier_stats: dict = {}
+        self._simulations: dict[str, dict] = {}     # scene name -> its `simulation` record
 
     # -- checks before any Blender work ----------------------------------------------------------
     def check(self) -> None:
@@ -100,21 +103,31 @@ class Pipeline:
         self.cfg = expand_bop_objects(self.cfg)      # one entry per object of a BOP models folder
         if self.out.exists() and not self.out.is_dir():
             raise DataPipeError(f"output: {self.out} exists and is not a folder (fix: choose a folder path)")
+        outdir.refuse_links(self.out)
         if self.out.is_dir() and outdir.meaningful_entries(self.out):
             run_file = self.out / layout.RUN_FILE
             if self.resume:
-                if not run_file.is_file():
+                earlier = outdir.Manifest.load(self.out)
+                if not run_file.is_file() and not (earlier is not None and earlier.only_itself()):
                     raise DataPipeError(f"output: cannot resume {self.out}: it has no {layout.RUN_FILE} "
                                         "(fix: choose the folder of an earlier DataPipe run, or an empty folder)")
-                prev = outdir.read_record(run_file, "run record")
-                if prev.get("config_identity") != _config_identity(self.cfg):
+                prev = outdir.read_record(run_file, "run record") if run_file.is_file() else None
+                if prev is not None and prev.get("config_identity") != _config_identity(self.cfg):
                     raise DataPipeError(f"output: {self.out} holds a run of a different preset or seed "
                                         "(fix: resume with the same preset and --seed, or choose another folder)")
+                base = self.cfg.scene.seed
+                scenes = {layout.scene_name(i): (i, scene_seed(base, i)) for i in self.scene_ids}
             elif self.force:
-                outdir.check_force(self.out)
+                earlier = outdir.check_force(self.out)
+                scenes = {name: (i, None) for name, i in outdir.scene_folders(self.out).items()}
             else:
                 raise DataPipeError(f"output: {self.out} is not empty (fix: pass --resume to continue that run, "
                                     "or choose an empty folder; nothing was written)")
+            outdir.refuse_foreign_scenes(self.out, scenes)
+            if earlier is not None:
+                outdir.refuse_collisions(earlier)
+            if self.resume and self.cfg.output.legacy_pickle and (self.out / layout.LEGACY_PICKLE).is_file():
+                LegacyPickleWriter(self.out).start()        # refuses a pickle that is not the run's
 
     def cancel(self) -> None:
         """Stop after the render in progress; everything written so far stays."""
@@ -127,6 +140,9 @@ class Pipeline:
         if self.force and self.out.is_dir() and not self.resume and outdir.meaningful_entries(self.out):
             outdir.check_force(self.out).remove_listed()      # only the earlier run's own files
         self.out.mkdir(parents=True, exist_ok=True)
+        if self.resume:
+            stats = self._run_record().get("stats")
+            self._earlier_stats = stats if isinstance(stats, dict) else {}
         self.manifest = outdir.Manifest.start(self.out, resume=self.resume)
         self._write_run_file(status="running")
         self.manifest.update()
@@ -138,6 +154,8 @@ class Pipeline:
             scene = layout.read_scene(sdir) if self.resume else None
             if scene is not None and scene.get("complete", False) and _files_present(sdir, scene):
                 done += self.plan[i]
+                if isinstance(scene.get("simulation"), dict):
+                    self._simulations[scene["name"]] = scene["simulation"]
                 # the commit protocol: scene.json is written first; a crash before the other outputs and
                 # run.json's scenes_done leaves them to be repaired here
                 writers.catch_up(sdir, scene)
@@ -165,7 +183,7 @@ class Pipeline:
             world.close()
         yield from self._finished(writers, done, f"finished {self._made} render(s) in "
                                                  f"{_fmt_s(time.perf_counter() - self._t_start)}; "
-                                                 f"{totals_line(self.stats['physics'])}")
+                                                 f"{totals_line(self.run_stats()['physics'])}")
 
     def _build_world(self) -> World:
         t0 = time.perf_counter()
@@ -185,9 +203,9 @@ class Pipeline:
     def _make_scene(self, world: World, writers: Writers, i: int, done: int):
         """Drop, settle, render and write scene i (a generator of Progress; returns the new `done`)."""
         sdir = self.out / layout.scene_name(i)
-        if sdir.exists():                   # a scene killed mid-way is made again from scratch
-            shutil.rmtree(sdir)
-        sdir.mkdir(parents=True)
+        # a scene killed mid-way is made again over its files (same names: each write replaces one);
+        # nothing else in the folder is touched (a file of yours there stays, beside the run's)
+        sdir.mkdir(parents=True, exist_ok=True)
         yield Progress("scene", done, self.total, scene=i, message="dropping parts")
         base = self.cfg.scene.seed
         seed_python(base, i)
@@ -195,8 +213,7 @@ class Pipeline:
         for k, v in start.seconds.items():
             self.stats["seconds"][k] += v
         scene = native.scene_record(i, scene_seed(base, i), start)
-        self.stats["frames"][scene["name"]] = start.simulation["frames"]
-        add_to_totals(self.stats["physics"], start.simulation)
+        self._simulations[scene["name"]] = start.simulation
         for r, pose_index in enumerate(start.pose_indices):
             seed = render_seed(base, i, r)
             rdir = sdir / layout.render_name(r)
@@ -282,17 +299,33 @@ class Pipeline:
             "shard": list(self.shard),
             "scenes": [layout.scene_name(i) for i in self.scene_ids],
             "status": status,
-            "stats": self.stats,
+            "stats": self.run_stats(),
         })
         rec.setdefault("scenes_done", [])
         write_json_atomic(self.out / layout.RUN_FILE, rec)
+
+    def run_stats(self) -> dict:
+        """run.json's stats, for the whole run however many calls (--resume) made it: `frames` and
+        `physics` from the simulation of every scene made so far (a scene made again counts once),
+        `imports` and `seconds` this call's work plus what the earlier calls' run.json recorded."""
+        def number(v) -> float:
+            return v if isinstance(v, (int, float)) and not isinstance(v, bool) else 0
+        earlier = self._earlier_stats
+        earlier_s = earlier.get("seconds") if isinstance(earlier.get("seconds"), dict) else {}
+        physics: dict = {}
+        for name in sorted(self._simulations):
+            add_to_totals(physics, self._simulations[name])
+        return {"imports": int(number(earlier.get("imports"))) + self.stats["imports"],
+                "frames": {n: self._simulations[n].get("frames") for n in sorted(self._simulations)},
+                "seconds": {k: float(number(earlier_s.get(k))) + v for k, v in self.stats["seconds"].items()},
+                "physics": physics}
 
     def _mark_scene_done(self, i: int) -> None:
         rec = self._run_record()
         done = set(rec.get("scenes_done", []))
         done.add(layout.scene_name(i))
         rec["scenes_done"] = sorted(done)
-        rec["stats"] = self.stats
+        rec["stats"] = self.run_stats()
         write_json_atomic(self.out / layout.RUN_FILE, rec)
 
 

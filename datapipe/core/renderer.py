@@ -229,7 +229,8 @@ class Renderer:
         bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0
 
-        channels = compat.take_written_exr(render_dir, TEMP_BASENAME, "pass")
+        channels = compat.take_written_exr(render_dir, TEMP_BASENAME, "pass", expect=[
+            f"{item}.{c}" for item, (_, _, socket_type) in self._items.items() for c in _CHANNELS[socket_type]])
         out = self._convert(channels, T_world_cam)
         out.seconds = seconds
         out.T_world_cam = T_world_cam

@@ -233,7 +233,7 @@ class StructuredLightCamera:
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
                                   filter_width=self.filter_width)
-        ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe")
+        ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe", expect=[f"{n}.V" for n in names])
         stack = np.stack([ch[f"{name}.V"] for name in names]).astype(np.float32)
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
             F, h, w = stack.shape

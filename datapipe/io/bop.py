@@ -206,7 +206,8 @@ class BopWriter:
                                     "start of a run by datapipe.io.models.write_models)")
             if src.resolve() != self.models_dir.resolve():
                 self.models_dir.mkdir(parents=True, exist_ok=True)
-                for p in sorted(src.iterdir()):
+                # models_info.json last: add_scene takes its presence for "the models are copied"
+                for p in sorted(src.iterdir(), key=lambda p: (p.name == layout.MODELS_INFO, p.name)):
                     if p.is_file() and (p.suffix == ".ply" or p.name == layout.MODELS_INFO):
                         copy_atomic(p, self.models_dir / p.name)
         self._models = None
@@ -280,7 +281,9 @@ class BopWriter:
         global image ids added."""
         scene_dir = Path(native_scene_dir)
         scene = _complete_scene(scene_dir) if scene is None else scene
-        if not (self.models_dir / layout.MODELS_INFO).is_file():
+        # models_eval/'s models_info.json is the last file set_models writes: a run stopped (disk
+        # full, kill) anywhere in models/ or models_eval/ makes them again on --resume
+        if not (self.root / MODELS_EVAL_DIR / layout.MODELS_INFO).is_file():
             self.set_models(scene_dir.parent / layout.MODELS_DIR)
         models = self.models()
         entries = [self._convert_render(scene_dir, scene, rd, models) for rd in scene.get("renders", [])]

@@ -1,12 +1,15 @@
 """Atomic writes and JSON readers. Every file is written to a temporary name and renamed, so a crash
-leaves either the old or the new file, never half of one."""
+leaves either the old or the new file, never half of one. A failed write (disk full, permission)
+removes its temporary file and raises an OSError that names the file it was writing."""
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -17,28 +20,68 @@ def _tmp(path: Path) -> Path:
     return path.with_name(path.name + ".tmp")
 
 
-def write_text_atomic(path: str | os.PathLike, text: str, *, fsync: bool = False) -> None:
+def named_os_error(e: OSError, path: str | os.PathLike) -> OSError:
+    """`e` naming `path` (a write() or close() that fails for a full disk carries no file name)."""
+    return OSError(e.errno, e.strerror or str(e), str(path))
+
+
+def disk_full_error(path: str | os.PathLike, detail: str) -> OSError:
+    """An OSError for a writer that reports failure without an errno (OpenCV returns False, OpenEXR
+    raises RuntimeError, Blender writes a short file): ENOSPC when the message says so or less than
+    1 MiB is free on the file's disk, else EIO; either way naming `path` and the free space."""
+    try:
+        free = shutil.disk_usage(Path(path).parent).free
+    except OSError:
+        free = None
+    where = f"{free} bytes free on its disk" if free is not None else "free space unknown"
+    if "No space left" in detail or (free is not None and free < 1 << 20):
+        return OSError(errno.ENOSPC, f"No space left on device ({detail}; {where})", str(path))
+    return OSError(errno.EIO, f"{detail} ({where})", str(path))
+
+
+def _remove(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike, tmp: str | os.PathLike | None = None) -> Iterator[Path]:
+    """Yield the temporary name to write `path` through; renamed onto `path` when the block ends.
+    On any failure the temporary file is removed; an OSError is re-raised naming `path`."""
     path = Path(path)
-    tmp = _tmp(path)
-    with open(tmp, "w") as f:
+    tmp = Path(tmp) if tmp is not None else _tmp(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as e:
+        _remove(tmp)
+        ours = (None, str(tmp))
+        if e.filename not in ours and e.filename2 not in ours[1:]:
+            raise                          # about another file (a copy's unreadable source): its own name
+        raise named_os_error(e, path) from e
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, *, fsync: bool = False) -> None:
+    with atomic_path(path) as tmp, open(tmp, "w") as f:
         f.write(text)
         if fsync:
             f.flush()
             os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
-    path = Path(path)
-    tmp = _tmp(path)
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
 
 
 def copy_atomic(src: str | os.PathLike, dst: str | os.PathLike) -> None:
-    dst = Path(dst)
-    shutil.copyfile(src, _tmp(dst))
-    os.replace(_tmp(dst), dst)
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)
 
 
 def _plain(obj: Any):
@@ -63,10 +106,9 @@ def imwrite_atomic(path: str | os.PathLike, img: np.ndarray, params: list[int] |
     import cv2
 
     path = Path(path)
-    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
-    if not cv2.imwrite(str(tmp), img, params or []):
-        raise DataPipeError(f"could not write {path} (check the output folder)")
-    os.replace(tmp, path)
+    with atomic_path(path, path.with_name(path.stem + ".tmp" + path.suffix)) as tmp:
+        if not cv2.imwrite(str(tmp), img, params or []):
+            raise disk_full_error(path, "OpenCV could not write the image")
     return path
 
 

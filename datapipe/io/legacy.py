@@ -6,11 +6,13 @@
 Re-written atomically after every scene, as the original did."""
 from __future__ import annotations
 
+import io
 import pickle
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import OutputStateError
 from . import layout
 from .files import write_bytes_atomic
 
@@ -30,8 +32,20 @@ def legacy_scene_entry(scene: dict) -> dict:
     return entry
 
 
+def legacy_bytes(data: dict) -> bytes:
+    """The pickle of `data`, scenes in name order, as a function of the values alone: without the memo
+    (`Pickler.fast`) the bytes do not depend on which objects happen to be shared (a scene entry
+    built in memory shares its name strings, one loaded from the file or scene.json does not), so a
+    resumed run writes the same bytes as an uninterrupted one."""
+    buf = io.BytesIO()
+    pickler = pickle.Pickler(buf, protocol=4)
+    pickler.fast = True
+    pickler.dump(dict(sorted(data.items())))
+    return buf.getvalue()
+
+
 def write_legacy_output(path: Path, data: dict) -> None:
-    write_bytes_atomic(path, pickle.dumps(dict(sorted(data.items())), protocol=4))
+    write_bytes_atomic(path, legacy_bytes(data))
 
 
 def update_legacy_pickle(out_dir: Path, scene: dict) -> None:
@@ -70,7 +84,21 @@ class LegacyPickleWriter:
         self._data: dict | None = None
 
     def start(self) -> None:
-        self._data = {} if self.batch or not self.path.is_file() else load_legacy_output(self.path)
+        self._data = {} if self.batch or not self.path.is_file() else self._load_own()
+
+    def _load_own(self) -> dict:
+        """The pickle an earlier call of this run wrote (resume), or a refusal naming it."""
+        try:
+            data = load_legacy_output(self.path)
+        except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError,
+                KeyError, ImportError, RecursionError, MemoryError) as e:
+            data = e
+        if not isinstance(data, dict):
+            why = f"{type(data).__name__}: {data}" if isinstance(data, BaseException) else "not a dict"
+            raise OutputStateError(f"output: {self.path} is not the {layout.LEGACY_PICKLE} a DataPipe run writes "
+                                   f"({why}); it is not loaded (fix: move it out of the folder, then --resume writes it "
+                                   "again from the scenes' scene.json)")
+        return data
 
     def has_scene(self, scene_dir: Path, scene: dict) -> bool:
         if self._data is None:

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import DataPipeError
 from . import layout
-from .files import write_json_lines_atomic
+from .files import atomic_path, write_json_lines_atomic
 
 def write_ply(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray,
               normals: np.ndarray | None = None, *, binary: bool = True) -> None:
@@ -34,8 +34,7 @@ def write_ply(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray,
     header += [f"property float {p}" for p in props]
     header += [f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
     data = verts if normals is None else np.hstack([verts, normals])
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         if binary:
             f.write(np.ascontiguousarray(data, dtype="<f4").tobytes())
@@ -46,7 +45,6 @@ def write_ply(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray,
         else:
             np.savetxt(f, data, fmt="%.6f")
             np.savetxt(f, np.hstack([np.full((len(faces), 1), 3), faces]), fmt="%d")
-    os.replace(tmp, path)
 
 
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",

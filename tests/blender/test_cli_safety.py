@@ -14,6 +14,7 @@ import pytest
 from datapipe import cli, config as C, outdir
 from datapipe.io import layout
 from datapipe.io.files import write_json_atomic
+from datapipe.seeds import scene_seed
 
 
 def main(capsys, *argv):
@@ -40,7 +41,8 @@ def fake_earlier_run(out, cfg):
                                                 "status": "complete", "scenes_done": []})
     (out / "scene.0001" / "render.0001").mkdir(parents=True)
     (out / "scene.0001" / "render.0001" / "rgb.png").write_bytes(b"png")
-    (out / "scene.0001" / "scene.json").write_text("{}")
+    write_json_atomic(out / "scene.0001" / "scene.json", {      # a scene killed before it was complete
+        "scene_id": 0, "name": "scene.0001", "seed": scene_seed(cfg.scene.seed, 0), "renders": [], "complete": False})
     (out / "output_dict.pickle").write_bytes(pickle.dumps({}))
     m.update()
 
@@ -202,3 +204,110 @@ def test_10_minor_cases(tmp_path, capsys):
     cfg.objects[0].filepath = str(tmp_path)
     code, _, err = main(capsys, "validate", save(cfg, tmp_path / "p.json"))
     assert code == 2 and "is a folder" in err
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue #21: the output folder's safety through the real CLI (tiny renders; the rules themselves are
+# checked case by case on the fake world in tests/test_outdir_safety.py)
+
+def files(root, skip=("run.json",)):
+    """The hash tree of `root`'s files (tests/tree_hash.py), `skip` and folders left out."""
+    from tree_hash import hashes
+    return {k: v for k, v in hashes(root, skip).items() if v != "dir"}
+
+
+def tiny_preset(tmp_path):
+    cfg = C.default_config()
+    cfg.scene.num_renders, cfg.scene.min_renders_per_scene, cfg.scene.max_renders_per_scene = 2, 1, 1
+    cfg.camera.resolution = [32, 24]
+    cfg.render.samples, cfg.render.threads = 1, 2
+    cfg.simulation.max_frames = 60
+    cfg.structured_light.enabled = False
+    cfg.output.overview = False
+    for o in cfg.objects:
+        o.min_instances, o.max_instances = 1, 1
+    return save(cfg, tmp_path / "tiny.json")
+
+
+def test_21_force_resume_and_links_keep_user_files(tmp_path, capsys):
+    p = tiny_preset(tmp_path)
+    out = tmp_path / "OUT"
+    assert main(capsys, "run", p, "--out", out, "--quiet")[0] == 0
+    ref = files(out, skip=("run.json", "manifest.json"))
+    (out / "scene.0001" / "user_notes.txt").write_text("notes")
+    (out / "scene.0001" / "render.0001" / "mine").mkdir()
+    (out / "scene.0001" / "render.0001" / "mine" / "a.txt").write_text("mine")
+    user = {k: v for k, v in files(out).items() if "notes" in k or "mine" in k}
+    code, _, err = main(capsys, "run", p, "--out", out, "--force", "--quiet")
+    assert code == 0, err
+    after = files(out, skip=("run.json", "manifest.json"))
+    assert {k: after[k] for k in user} == user and {k: v for k, v in after.items() if k not in user} == ref
+    # a link where the run writes: refused before anything is written, the victim untouched
+    victim = tmp_path / "victim_models"
+    victim.mkdir()
+    (victim / "obj_000001.ply").write_text("the victim's model")
+    (out / "models").rename(tmp_path / "models_moved")
+    (out / "models").symlink_to("../victim_models")
+    before, victim_before = files(out, skip=()), files(victim)
+    for flag in ("--force", "--resume"):
+        code, _, err = main(capsys, "run", p, "--out", out, flag, "--quiet")
+        assert code == 1 and str(out / "models") in err and "symbolic link" in err and "fix:" in err
+        assert files(out, skip=()) == before and files(victim) == victim_before
+    (out / "models").unlink()
+    (tmp_path / "models_moved").rename(out / "models")
+    # a scene.json that is not this run's: refused on --resume (and --force), nothing changed
+    (out / "scene.0002" / "scene.json").write_text('{"my": "own annotations"}')
+    (out / "scene.0002" / "mine.txt").write_text("mine")
+    before = files(out, skip=())
+    for flag in ("--resume", "--force"):
+        code, _, err = main(capsys, "run", p, "--out", out, flag, "--quiet")
+        assert code == 1 and str(out / "scene.0002" / "scene.json") in err and "fix:" in err
+        assert files(out, skip=()) == before
+
+
+def test_21_a_pass_file_blender_cut_short_is_a_file_error_and_resumes(tmp_path, capsys, monkeypatch):
+    """Disk full while Blender writes its pass file: the file's path, exit 1 (not a preset error, not
+    a traceback), no scratch or temporary file left; --resume then makes the same files as a clean run."""
+    from datapipe.core import compat
+    p = tiny_preset(tmp_path)
+    ref, out = tmp_path / "ref", tmp_path / "OUT"
+    assert main(capsys, "run", p, "--out", ref, "--quiet")[0] == 0
+    real = compat.written_files
+    cut = []
+
+    def cut_short(directory, basename):
+        found = real(directory, basename)
+        if found and "scene.0002" in str(directory) and not cut:
+            data = found[0].read_bytes()
+            found[0].write_bytes(data[: len(data) // 3])
+            cut.append(found[0])
+        return found
+    monkeypatch.setattr(compat, "written_files", cut_short)
+    code, _, err = main(capsys, "run", p, "--out", out, "--quiet")
+    assert code == 1 and str(cut[0]) in err and "truncated" in err and err.count("error:") == 1
+    assert not [f for f in out.rglob("*") if ".tmp" in f.name or f.name.startswith("_")]
+    monkeypatch.undo()
+    assert main(capsys, "run", p, "--out", out, "--resume", "--quiet")[0] == 0
+    assert files(out) == files(ref)
+
+
+def test_21_take_written_exr_refuses_short_and_incomplete_files(tmp_path):
+    import errno
+    import numpy as np
+    from datapipe.core import compat
+    from datapipe.exr import write_exr
+    full = tmp_path / "full.exr"
+    write_exr(full, {"Image.R": np.ones((24, 32)), "Depth.V": np.ones((24, 32))})
+    data = full.read_bytes()
+    d = tmp_path / "r"
+    d.mkdir()
+    cases = [(data[: len(data) // 2], ["Image.R"], "truncated"), (data, ["Image.R", "Normal.X"], "lacks Normal.X")]
+    for content, expect, words in cases:
+        (d / "_passes.exr").write_bytes(content)
+        with pytest.raises(OSError) as ei:
+            compat.take_written_exr(d, "_passes", "pass", expect=expect)
+        assert ei.value.filename == str(d / "_passes.exr") and words in str(ei.value)
+        assert ei.value.errno in (errno.EIO, errno.ENOSPC) and list(d.iterdir()) == []
+    with pytest.raises(OSError) as ei:
+        compat.take_written_exr(d, "_passes", "pass")
+    assert ei.value.filename == str(d / "_passes.exr") and "wrote no pass file" in str(ei.value)

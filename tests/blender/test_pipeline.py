@@ -177,8 +177,15 @@ def test_killed_run_resumes_to_the_same_dataset(tmp_path):
     a = [json.loads(p.read_text()) for p in scenes(full)]
     b = [json.loads(p.read_text()) for p in scenes(part)]
     assert a == b
-    assert pickle.loads((full / "output_dict.pickle").read_bytes()).keys() == \
-        pickle.loads((part / "output_dict.pickle").read_bytes()).keys()
+    # byte for byte (issue #21), output_dict.pickle included; the overview's title names its folder,
+    # run.json and logs say when and how long it ran
+    def files(d):
+        return {f.relative_to(d): f.read_bytes() for f in d.rglob("*")
+                if f.is_file() and f.name not in ("run.json", "overview.png") and f.suffix != ".log"}
+    assert files(full) == files(part)
+    stats = [json.loads((d / "run.json").read_text())["stats"] for d in (full, part)]
+    assert stats[0]["frames"] == stats[1]["frames"] and stats[0]["physics"] == stats[1]["physics"]
+    assert stats[1]["imports"] == 2 * stats[0]["imports"]          # two calls read the mesh files
 
 
 def test_shards_make_the_same_scenes(tmp_path):
