@@ -349,6 +349,19 @@ def test_incremental_scenes_survive_a_restart(native_run, tmp_path):
         assert a == b
 
 
+def test_models_eval_cut_short_is_made_again_by_the_next_scene(native_run, tmp_path):
+    """A run stopped while models_eval/ was written (disk full, kill) leaves models/ complete but
+    models_eval/ without its models_info.json (the last file written): the next writer (--resume)
+    makes models_eval/ again instead of finishing a dataset without it."""
+    root = tmp_path / "bop"
+    BopWriter(root, chunk_size=1000).add_scene(native_run / "scene.0001")
+    whole = {p.name: p.read_bytes() for p in (root / "models_eval").iterdir()}
+    (root / "models_eval" / "models_info.json").unlink()
+    next(p for p in (root / "models_eval").glob("obj_*.ply")).unlink()
+    BopWriter(root, chunk_size=1000).add_scene(native_run / "scene.0002")
+    assert {p.name: p.read_bytes() for p in (root / "models_eval").iterdir()} == whole
+
+
 def test_incomplete_scene_and_missing_model_are_clear_errors(native_run, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(native_run, run)
