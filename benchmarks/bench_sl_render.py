@@ -15,7 +15,7 @@ seconds are the steadier measure of work and the ratios use them). Decode second
 model, the decoder and the edge filter with the triangulation coefficients cached (as for repeated
 camera poses). Errors: SL depth against the z-buffer depth of the same render, on pixels valid in
 both; `sigma_meas` is 1.4826 * MAD of that error; `sigma_theo` the median per-pixel noise limit
-(sl-notes: sigma_phi = sqrt(2/N) sigma_I / B per frequency, K^2-weighted, times |dZ/dx|), and
+(docs/STRUCTURED_LIGHT.md: sigma_phi = sqrt(2/N) sigma_I / B per frequency, K^2-weighted, times |dZ/dx|), and
 `ratio` = 1.4826 * MAD(error / per-pixel sigma) (1.0 = at the physical limit).
 
 Writes benchmarks/results/sl_render.md, sl_render.csv, sl_render_pareto.png. Rendered stacks and

@@ -1169,7 +1169,7 @@ _POSE_LIST_KEYS = ("world2cam_pose_list", "wrlld2cam_pose_list", "wrl2cam_pose_l
 
 
 def from_legacy_dict(d: dict) -> Config:
-    """Map the original DataPipe input dict (see design.md) onto a Config.
+    """Map the original DataPipe input dict (layout in docs/CONVENTIONS.md) onto a Config.
 
     Every value is converted through `_Legacy`, so a wrong type anywhere is a ConfigError naming
     the pickle's own key path, never a traceback."""

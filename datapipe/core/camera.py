@@ -1,6 +1,6 @@
 """The render camera: one Blender camera object, its intrinsics K and its poses (OpenCV frame).
 
-Conventions (design.md): metres; `T_world_cam` is the camera pose in the world in the OpenCV frame
+Conventions (docs/CONVENTIONS.md): metres; `T_world_cam` is the camera pose in the world in the OpenCV frame
 (x right, y down, z forward); pixel centres at integers, so an unshifted camera has
 cx = W/2 - 0.5, cy = H/2 - 0.5. The config's poses are Blender camera-object poses (location +
 quaternion w, x, y, z; the camera looks down its local -Z); the Blender <-> OpenCV conversion is

@@ -93,7 +93,7 @@ class Projector:
     """Spot-light projector(s) parented to `camera_obj`; one light + collection per pattern.
 
     >>> proj = Projector(cfg, scene, camera.obj)
-    >>> proj.build(patterns)                      # (P, H, W), row 0 = top, pattern formula of design.md
+    >>> proj.build(patterns)                      # (P, H, W), row 0 = top, pattern formula of docs/CONVENTIONS.md
     >>> proj.make_view_layers()                   # sl_00 .. sl_{P-1}; other layers exclude the projectors
     >>> P = proj.P_proj(T_world_cam)              # == projector_matrix(cfg, T_world_cam)
     >>> proj.teardown()                           # removes lights, images, collections, view layers

@@ -1,5 +1,5 @@
 """Structured light (fringe projection), pure numpy: patterns, phase, unwrapping, triangulation,
-a camera noise model, the decoder and its metrics, and the scanner (sensor -> decode -> filters). No Blender here, ever (design.md)."""
+a camera noise model, the decoder and its metrics, and the scanner (sensor -> decode -> filters). No Blender here, ever (docs/CONVENTIONS.md)."""
 from .decode import (NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason, decode, estimate_noise_sigma,
                      modulation_floor_factor)
 from .filters import edge_speckle_filter, multipath_filter, reflection_filter

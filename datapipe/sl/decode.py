@@ -19,7 +19,7 @@ copied and never converted to float64 as a whole), one named step each:
 Every output pixel is finite and valid, or NaN with a :class:`Reason` code.
 
 Modulation floor. For a pixel that sees no fringe (B = 0) the estimated modulation of N-step
-least squares follows a Rayleigh law with scale ``s = sigma_I * sqrt(2/N)`` (sl-notes), so
+least squares follows a Rayleigh law with scale ``s = sigma_I * sqrt(2/N)`` (docs/STRUCTURED_LIGHT.md), so
 ``B_hat^2 / (2 s^2)`` is exponential with mean 1 and the sum over the F frequencies,
 ``Q = sum_i B_hat_i^2 / (2 s_i^2)``, is Gamma(F, 1). A pixel is NO_LIGHT when ``Q`` is below the
 Gamma quantile that a pure-noise pixel exceeds with probability ``p = false_valid_rate``: all

@@ -3,7 +3,7 @@
 A projector fed the sinusoid ``p = a + b cos(phi + d_n)`` emits ``p ** gamma`` (``gamma = 1`` is
 linear). The camera sees ``albedo * p ** gamma + ambient``: the harmonics of ``p ** gamma`` whose order
 is ``1 +- N`` alias into the fundamental of N-step phase shifting and bend the phase into a ripple
-with N periods per fringe (sl-notes: 0.2 rad at N = 3, 0.0075 rad at N = 4 for gamma 2.2 on a
+with N periods per fringe (docs/STRUCTURED_LIGHT.md: 0.2 rad at N = 3, 0.0075 rad at N = 4 for gamma 2.2 on a
 camera tone curve). Albedo scales every harmonic alike and ambient light only the offset, so the
 phase error is a function of the true phase alone, ``e(phi)``, for given ``gamma``, ``a/b`` and
 shifts: :func:`gamma_phase_lut` tabulates the measured phase against the true phase by running the

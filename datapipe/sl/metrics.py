@@ -1,4 +1,4 @@
-"""Accuracy metrics and the theoretical noise limits of phase-shifting structured light (sl-notes).
+"""Accuracy metrics and the theoretical noise limits of phase-shifting structured light (docs/STRUCTURED_LIGHT.md).
 
 - phase noise of N-step least squares: ``sigma_phi = sqrt(2/N) * sigma_I / B``
   (8-bit rounding adds 1/12 DN^2 to ``sigma_I^2``);
@@ -75,7 +75,7 @@ def depth_error_stats(depth, gt_depth, valid=None, lit=None, shadow=None, outlie
 
 
 def pixel_depth_sigma(res, noise_sigma, proj_width: int, steps: int) -> np.ndarray:
-    """Per-pixel theoretical depth sigma (m) from sl-notes: for each frequency K the phase noise
+    """Per-pixel theoretical depth sigma (m) from docs/STRUCTURED_LIGHT.md: for each frequency K the phase noise
     sigma_phi = sqrt(2/N) * sigma_I / B (B its modulation, sigma_I the sensor noise at the pixel's
     offset; `noise_sigma` a number or a function of the signal such as SensorModel.noise_sigma), combined with the decoder's K^2 weights: sigma_x = W / (2 pi sum K^2) *
     sqrt(sum K^2 sigma_phi^2), times |dZ/dx| of the triangulation. NaN where not decoded."""

@@ -1,6 +1,6 @@
 """Phase-shifted sinusoidal fringe patterns.
 
-Convention (design.md): frequency ``K`` periods across the projector width ``Wp``, step
+Convention (docs/CONVENTIONS.md): frequency ``K`` periods across the projector width ``Wp``, step
 ``n = 0..N-1``::
 
     I(x) = a + b * cos(2*pi*K*x/Wp + 2*pi*n/N)

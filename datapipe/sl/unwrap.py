@@ -9,7 +9,7 @@ Methods
 ``'multi-frequency'`` (hierarchical): the coarsest frequency has ``K <= 1`` (one period or less
     across the projector), so its phase is absolute; each finer frequency is unwrapped from the
     estimate of the previous one: ``k = round((K_i * u_prev - phi_i/2pi))``. Ratios need not be
-    integers. An order error needs ``|r*noise| > 1/2`` with ``r = K_i/K_{i-1}`` (sl-notes).
+    integers. An order error needs ``|r*noise| > 1/2`` with ``r = K_i/K_{i-1}`` (docs/STRUCTURED_LIGHT.md).
 ``'heterodyne'``: two frequencies with ``|K1 - K2| <= 1`` (the original DataPipe's method): the
     beat ``phi_1 - phi_2`` has ``K1 - K2`` periods and is absolute. With 3+ frequencies the beats
     of neighbouring frequencies are beaten again (``(K1-K2) - (K2-K3)`` ...) until one beat of at
@@ -129,7 +129,7 @@ class UnwrapPlan:
         per frequency its noise is ``gain * sigma_phi`` (radians of the rounded phase), gain being
         the norm of the stage's coefficient vector over the original phases (so a beat shared by
         both terms counts once): ``sqrt(r^2 + 1)`` for a hierarchical stage of ratio r,
-        ``sqrt(K1^2 + K2^2)`` for a heterodyne pair with K1 - K2 = 1 (sl-notes: 27.6 for 20/19).
+        ``sqrt(K1^2 + K2^2)`` for a heterodyne pair with K1 - K2 = 1 (docs/STRUCTURED_LIGHT.md: 27.6 for 20/19).
         The order is then wrong with probability ``erfc(pi / (sqrt(2) * gain * sigma_phi))``.
         (For chains the estimate from the level above is taken as its best node: conservative.)
         A number-theoretic plan has one stage of gain ``1/d_min`` (:mod:`.lattice`).

@@ -146,7 +146,7 @@ def _render(sc, tmp_path, layer_names, tag="r"):
 
 
 def _fringes(width, height, periods, steps, axis="x", a=0.5, b=0.5):
-    """design.md: I = a + b*cos(2*pi*K*x/Wp + 2*pi*n/N), frequency-major; axis 'y' uses rows/height."""
+    """docs/CONVENTIONS.md: I = a + b*cos(2*pi*K*x/Wp + 2*pi*n/N), frequency-major; axis 'y' uses rows/height."""
     length = width if axis == "x" else height
     coord = np.arange(length, dtype=np.float64)
     out = []

@@ -120,7 +120,7 @@ def one_render(cfg):
 def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path, mode):
     """Plane at 0.8 m, 320x240, shipped defaults (4 fringe samples per pixel).
 
-    Bound: theoretical sigma_Z from sl-notes at the decoded modulation and the sensor's noise
+    Bound: theoretical sigma_Z from docs/STRUCTURED_LIGHT.md at the decoded modulation and the sensor's noise
     (datapipe.sl.metrics) is ~0.13 mm here; |error| of a Gaussian has median 0.674 sigma ~0.09 mm,
     so the 1 mm bound on the median holds with a >10x margin and is only broken by a systematic
     error (wrong pixel centre, wrong P_proj, sub-pixel sampling bias), not by noise. The noise

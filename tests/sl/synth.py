@@ -1,7 +1,7 @@
 """Analytic ray casting of synthetic structured-light scenes: the tests' ground truth.
 
 Independent of the decoder: everything here is float64 ray/primitive intersection; fringe images
-are the pattern formula of design.md evaluated at the exact (continuous) projector coordinate of
+are the pattern formula of docs/CONVENTIONS.md evaluated at the exact (continuous) projector coordinate of
 each camera pixel's surface point, times an albedo, so no pattern image is sampled. Only
 ``projection_matrix``/``intrinsics`` conventions are shared (pixel centres at integers, OpenCV
 frames) and those are tested on their own.

@@ -65,7 +65,7 @@ def test_noise_matches_theory():
     (a) Normalised by the exact per-pixel |dZ/dx| of the geometry the depth errors have unit std:
         77k pixels give the std to 0.3%; 5% tolerance.
     (b) Against the textbook sigma_Z = Z^2/(f_p b) (T/2 pi) sigma_phi at the mean depth (which
-        ignores the converging projector and the depth spread; 1-6% in sl-notes): the spec's 25%."""
+        ignores the converging projector and the depth spread; 1-6% in docs/STRUCTURED_LIGHT.md): the spec's 25%."""
     cam, proj = synth.make_rig(cam_size=(320, 240))
     r = synth.render(synth.plane_scene(), cam, proj, PERIODS, STEPS)
     sigma = 0.01
@@ -120,7 +120,7 @@ def test_depth_step_through_industrial_sensor(rig, box_render):
 def test_small_baseline_float32():
     """5 mm baseline at 1 m: |dZ/dx| = Z^2/(f_p b) ~ 0.33 m per projector pixel. Noise-free,
     float32 input: only float32 rounding of x (<= 1 ulp after combination) and of the
-    evaluation remain: |error| <= 2 |dZ/dx| ulp(x) + 4 ulp(Z) (sl-notes: <= 5 um)."""
+    evaluation remain: |error| <= 2 |dZ/dx| ulp(x) + 4 ulp(Z) (docs/STRUCTURED_LIGHT.md: <= 5 um)."""
     cam, proj = synth.make_rig(baseline=0.005)
     r = synth.render(synth.plane_scene(), cam, proj, PERIODS, STEPS)
     res = decode(r.images.astype(np.float32), **decode_kw(cam, proj))
@@ -222,7 +222,7 @@ def test_saturation(rig, n, albedo):
     """Fringes 6% / 25% over the saturation level 1.0. N = 4: pixels with one clipped sample are
     solved from the other three (exact: 1 um as noise-free), two or more -> SATURATED. N = 3: any
     clipped sample leaves 2 < 3 -> SATURATED. Without the exclusion the clipped samples bias the
-    phase (~0.04 rad, sl-notes), i.e. the depth by far more than 0.1 mm."""
+    phase (~0.04 rad, docs/STRUCTURED_LIGHT.md), i.e. the depth by far more than 0.1 mm."""
     cam, proj = rig
     r = synth.render(synth.plane_scene(albedo=albedo), cam, proj, PERIODS, n)
     imgs = np.minimum(r.images, 1.0).astype(np.float32)
@@ -240,7 +240,7 @@ def test_saturation(rig, n, albedo):
 
 def test_gamma_at_three_steps(rig):
     """A residual gamma 2.2 tone curve at N = 3 gives ~0.2 rad RMS (0.29 max) phase error
-    (sl-notes, and test_sl_phase). Through a stage of ratio 4 that is up to 0.19 cycles of order
+    (docs/STRUCTURED_LIGHT.md, and test_sl_phase). Through a stage of ratio 4 that is up to 0.19 cycles of order
     deviation while the noise (sigma 1e-3 on B = 0.5) predicts 0.002: below the 0.25 of an order
     at which datapipe.sl.confidence calls a pixel INCONSISTENT, so the orders are right and the
     pixels are kept, as a real scanner keeps them -- every lit pixel valid or, where the bias does
@@ -273,7 +273,7 @@ def test_gamma_at_three_steps(rig):
 def test_projector_edges():
     """A wide camera (f = 120 px) sees both projector edges. With noise sigma = 0.02 the coarse
     phase alone (sigma_x ~ 1.5 px) would wrap for pixels near the edges (13-18% within 5 px in
-    sl-notes); here no lit pixel within 5 px of an edge may get a wrong order, except within
+    docs/STRUCTURED_LIGHT.md); here no lit pixel within 5 px of an edge may get a wrong order, except within
     6 sigma_x of the wrap point itself (x = -0.5 == W - 0.5), see test_sl_unwrap."""
     cam, proj = synth.make_rig(f_cam=120)
     r = synth.render(synth.plane_scene(), cam, proj, PERIODS, STEPS)
@@ -298,7 +298,7 @@ def test_projector_edges():
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_integer_images(rig, plane_render, dtype):
     """Quantised inputs: 8 bit with 1 DN of noise before rounding -> sigma_I^2 = 1 + 1/12 DN^2
-    (sl-notes), B = 0.45 * 255 DN. The depth noise must match theory like float input (10%:
+    (docs/STRUCTURED_LIGHT.md), B = 0.45 * 255 DN. The depth noise must match theory like float input (10%:
     19k pixels, 0.5% standard error; quantisation is not exactly Gaussian). 16 bit: quantisation
     alone (1/sqrt(12) DN on B = 29500 DN) is ~1e-5 rad: depth within 10 um."""
     cam, proj = rig
@@ -418,7 +418,7 @@ def _ramp(rig, per=(20, 19), seed=11):
 
 def test_low_snr_orders_are_refused(rig):
     """Two-frequency 20/19 (the original DataPipe's scheme, stage gain sqrt(20^2 + 19^2) = 27.6,
-    sl-notes) on an albedo ramp 0.1 .. 1 (B = 0.05 .. 0.5) with sigma = 0.01: at B = 0.1 the order
+    docs/STRUCTURED_LIGHT.md) on an albedo ramp 0.1 .. 1 (B = 0.05 .. 0.5) with sigma = 0.01: at B = 0.1 the order
     estimate has sigma_k = 27.6 * sqrt(2/4) * 0.01 / 0.1 = 1.95 rad and is wrong with probability
     erfc(pi / (sqrt(2) sigma_k)) = 11%. Decoding every pixel (max_wrong=1, no neighbours) gets
     hundreds of orders wrong; the default decision keeps none of them, and with the neighbours'

@@ -49,7 +49,7 @@ def test_dtypes_lose_no_precision(dtype, scale):
 
 @pytest.mark.parametrize("n", [3, 4, 7])
 def test_phase_noise_law(n):
-    """sigma_phi = sqrt(2/N) sigma_I / B (sl-notes). 100k samples give the std to 0.3% (1 sigma);
+    """sigma_phi = sqrt(2/N) sigma_I / B (docs/STRUCTURED_LIGHT.md). 100k samples give the std to 0.3% (1 sigma);
     the linearisation error is O(sigma_phi^2) = 1e-3: 3% tolerance is > 5 standard errors."""
     rng = np.random.default_rng(n)
     phases = rng.uniform(0, 2 * np.pi, 100_000)
@@ -61,7 +61,7 @@ def test_phase_noise_law(n):
 
 
 def test_phase_noise_law_8bit():
-    """With 8-bit rounding the intensity variance is sigma^2 + 1/12 DN^2 (sl-notes)."""
+    """With 8-bit rounding the intensity variance is sigma^2 + 1/12 DN^2 (docs/STRUCTURED_LIGHT.md)."""
     rng = np.random.default_rng(8)
     phases = rng.uniform(0, 2 * np.pi, 100_000)
     sigma, b = 0.7, 60.0
@@ -73,7 +73,7 @@ def test_phase_noise_law_8bit():
 
 @pytest.mark.parametrize("n, amp", [(3, 0.53), (4, 0.65)])
 def test_saturation(n, amp):
-    """Samples clipped at 1.0 (6% / 30% overexposure). Unhandled, they bias the phase (sl-notes:
+    """Samples clipped at 1.0 (6% / 30% overexposure). Unhandled, they bias the phase (docs/STRUCTURED_LIGHT.md:
     ~0.04 rad at N = 3; > 0.01 rad asserted so the test sees the effect); excluding them and
     solving least squares on >= 3 remaining samples is exact (noise-free: 1e-12), fewer are
     flagged (at N = 3 every pixel with a clipped sample)."""
@@ -101,7 +101,7 @@ def test_integer_saturation_default_is_type_max():
 @pytest.mark.parametrize("n, lo, hi", [(3, 0.18, 0.23), (4, 0.0, 0.0085), (6, 0.0, 2.5e-4)])
 def test_gamma_tone_curve(n, lo, hi):
     """A gamma 2.2 tone curve adds harmonics; N-step aliasing of harmonic N-1 gives the RMS phase
-    errors of sl-notes: ~0.2 rad at N = 3, 0.0075 at N = 4, <= 0.0002 at N >= 6. Bounds: the
+    errors of docs/STRUCTURED_LIGHT.md: ~0.2 rad at N = 3, 0.0075 at N = 4, <= 0.0002 at N >= 6. Bounds: the
     notes' values with 10-25% margin (and at N = 3 a lower bound, so the test sees the effect)."""
     r = phase_shift(stack(X, phase_shifts(n), f=lambda v: v ** 2.2))
     rms = np.sqrt(np.mean(wrap(r.phase[0] - X) ** 2))

@@ -70,7 +70,7 @@ def test_fraction_without_width():
 
 
 def test_projector_edges():
-    """Noise sigma_phi = 0.05 rad on every frequency. sl-notes: a coarse phase wrapped at its own
+    """Noise sigma_phi = 0.05 rad on every frequency. docs/STRUCTURED_LIGHT.md: a coarse phase wrapped at its own
     0/2pi lost the order for 13-18% of pixels within 5 px of an edge. Here the coarse estimate
     is centred on the projector and the fine phase decides the final wrap, so only pixels within
     the fine coordinate's noise of the wrap point x = -0.5 == W - 0.5 may flip: with
@@ -98,7 +98,7 @@ def test_projector_edges():
 @pytest.mark.parametrize("periods", [(1, 8, 64), (20, 19), (8, 7), (13, 7)])
 def test_order_error_follows_noise_gain(periods):
     """The order estimate's deviation r - round(r) is Gaussian with sigma = gain * sigma_phi/2pi
-    (sl-notes: sqrt(r^2+1) for a hierarchical stage, sqrt(K1^2+K2^2) for a heterodyne pair);
+    (docs/STRUCTURED_LIGHT.md: sqrt(r^2+1) for a hierarchical stage, sqrt(K1^2+K2^2) for a heterodyne pair);
     with sigma_phi = 0.01 rad no order is lost, so mean |r - k| of the worst stage is the
     half-normal mean sigma * sqrt(2/pi) (2e5 samples: 0.2% standard error; 5% tolerance)."""
     x = np.random.default_rng(3).uniform(1, W - 2, 200_000)       # away from the wrap point
