@@ -147,7 +147,7 @@ class FlatLitRender:
             vl.samples = int(self.bounce_samples)
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, self.layer_names[:1],
                                   render_dir, FLAT_BASENAME, seed=seed, supersample=supersample,
-                                  filter_width=filter_width)
+                                  filter_width=filter_width, what="fast mode: flat-lit layer")
         ch = compat.take_written_exr(render_dir, FLAT_BASENAME, "flat-lit fringe")
         g = {k: ch[f"{k}.V"].astype(np.float32) for k, (_, _, t) in PASSES.items() if t == "FLOAT"}
         direct = g["diff_dir"] * g["diff_col"] + g["gloss_dir"] * g["gloss_col"] + g["trans_dir"] * g["trans_col"]
@@ -157,7 +157,8 @@ class FlatLitRender:
         if self.bounce_output is not None:
             seconds += isolated_render(self.scene, self.renderer.tree, self.bounce_output, self.layer_names[1:],
                                        render_dir, BOUNCE_BASENAME, seed=seed, supersample=1,
-                                       filter_width=filter_width)
+                                       filter_width=filter_width,
+                                       what=f"fast mode: {len(self.layer_names) - 1} bounce layers")
             ch = compat.take_written_exr(render_dir, BOUNCE_BASENAME, "bounce fringe")
             b = [ch[f"{n}.V"].astype(np.float32) for n in self.layer_names[1:]]
             white = b[0]

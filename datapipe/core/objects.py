@@ -61,6 +61,7 @@ from mathutils import Matrix, Quaternion, Vector
 
 from ..config import Config
 from ..errors import ConfigError, DataPipeError
+from ..fill import draw_share, fill_counts, hull_volume
 from . import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection
 
@@ -74,6 +75,7 @@ COM_TOLERANCE = 1e-5                  # m; closer than this the model origin is 
 COLLISION_MARGIN = 0.0005  # m, the largest margin; Blender's default 0.04 m is larger than small parts
 MARGIN_FRACTION = 0.04     # margin = this x the part's thinnest width (up to COLLISION_MARGIN)
 DECOMPOSED_SHAPES = ("DECOMPOSED", "MESH")   # simulated as a compound of convex pieces
+STAGE_LAYERS = 2           # spawn layers per drop stage: a deeper column drops in stages (core/simulation.py)
 
 _IMPORTERS = {
     ".obj": "obj",
@@ -95,6 +97,7 @@ class Instance:
     thin: float = 0.0          # thinnest width of its collision shape (m)
     size: float = 0.0          # largest bounding-box extent (m)
     shape: str = "CONVEX_HULL"  # the collision shape simulated (AUTO resolved; DECOMPOSED for MESH)
+    layer: int = 0             # spawn layer (0: lowest); layers >= STAGE_LAYERS drop in later stages
 
 
 @dataclass
@@ -107,6 +110,7 @@ class _Template:
     thin: float = 0.0          # thinnest width of the collision shape (m)
     size: float = 0.0          # largest bounding-box extent (m)
     pieces: tuple = ()         # DECOMPOSED: one mesh per convex piece, in the simulation frame
+    hull_volume: float = 0.0   # m^3, of the convex hull (scene.fill counts parts by it)
 
 
 def _run_importer(kind: str, path: str) -> None:
@@ -158,6 +162,7 @@ class ObjectManager:
         self.collection: bpy.types.Collection | None = None
         self.collision_collection: bpy.types.Collection | None = None
         self.decomposed_from_cache = 0    # decompositions read from the disk cache (rest computed)
+        self.last_fill: dict | None = None  # scene.fill of the last populate: drawn share, share reached
 
     @property
     def scene(self) -> bpy.types.Scene:
@@ -319,7 +324,8 @@ class ObjectManager:
             sim.transform(Matrix.Translation(Vector((-com).tolist())))
             sim.update()
             me[SIM_MESH_PROP] = sim
-        tpl = _Template(obj=obj, center=center, radius=radius, com=com, size=float(np.ptp(pts, axis=0).max()))
+        tpl = _Template(obj=obj, center=center, radius=radius, com=com, size=float(np.ptp(pts, axis=0).max()),
+                        hull_volume=hull_volume(pts))
         self._collision_shape(i, tpl)
         return tpl
 
@@ -384,14 +390,13 @@ class ObjectManager:
                                 "(fix: call load_sources() once per run first)")
         self.clear()
         plan: list[tuple[int, int]] = []            # (entry index, k)
-        for i, entry in enumerate(self.cfg.objects):
-            n = int(rng.integers(entry.min_instances, entry.max_instances + 1))
+        for i, n in enumerate(self._draw_counts(rng)):
             plan += [(i, k) for k in range(n)]
         rotations = [_random_rotation(rng) for _ in plan]
-        centers = self._place([self.templates[i].radius for i, _ in plan], rng)
+        centers, layers = self._place([self.templates[i].radius for i, _ in plan], rng)
 
         instances: list[Instance] = []
-        for idx, ((i, k), R, p) in enumerate(zip(plan, rotations, centers)):
+        for idx, ((i, k), R, p, layer) in enumerate(zip(plan, rotations, centers, layers)):
             entry = self.cfg.objects[i]
             tpl = self.templates[i]
             name = f"{self.cfg.object_name(i)}_{k:03d}"
@@ -408,8 +413,32 @@ class ObjectManager:
             loc = p - R @ tpl.center                # the bounding sphere's centre goes to p
             obj.matrix_world = Matrix.Translation(Vector(loc)) @ Matrix(R.tolist()).to_4x4()
             instances.append(Instance(obj=obj, entry_index=i, name=name,
-                                      filename=os.path.abspath(entry.filepath), mask_index=idx + 1))
+                                      filename=os.path.abspath(entry.filepath), mask_index=idx + 1, layer=layer))
         bpy.context.view_layer.update()
+        self.instances = instances
+        self.activate([inst for inst in instances if inst.layer < STAGE_LAYERS])
+        return list(instances)
+
+    def _draw_counts(self, rng: np.random.Generator) -> list[int]:
+        """Instances per entry: uniform in [min, max] each, or by scene.fill (datapipe/fill.py)."""
+        entries = self.cfg.objects
+        fill = self.cfg.scene.fill
+        self.last_fill = None
+        if fill is None:
+            return [int(rng.integers(e.min_instances, e.max_instances + 1)) for e in entries]
+        bs = self.blend_scene
+        half = bs.drop_zone_half
+        volume = 4.0 * float(half[0] * half[1]) * float(bs.wall_top_z - bs.floor_z)
+        share = draw_share(rng, fill)
+        counts, reached = fill_counts(rng, share, volume, [t.hull_volume for t in self.templates],
+                                      [e.min_instances for e in entries], [e.max_instances for e in entries])
+        self.last_fill = {"share": round(share, 4), "reached": round(reached, 4),
+                          "bin_litres": round(volume * 1e3, 4)}
+        return counts
+
+    def activate(self, instances: list[Instance]) -> None:
+        """Give `instances` their ACTIVE rigid bodies (populate does it for the first stage's layers;
+        core/simulation.py for the later stages, just before they drop)."""
         for inst in instances:
             entry = self.cfg.objects[inst.entry_index]
             rb = add_rigid_body(inst.obj, 'ACTIVE')
@@ -425,8 +454,6 @@ class ObjectManager:
             inst.thin, inst.size, inst.shape = tpl.thin, tpl.size, tpl.shape
             for k, pm in enumerate(tpl.pieces):
                 self._add_piece(inst, k, pm, margin)
-        self.instances = instances
-        return list(instances)
 
     def _add_piece(self, inst: Instance, k: int, mesh: bpy.types.Mesh, margin: float) -> None:
         """One convex piece of a DECOMPOSED part: a hidden child whose local transform is the
@@ -444,12 +471,13 @@ class ObjectManager:
         rb.use_margin = True
         rb.collision_margin = margin
 
-    def _place(self, radii: list[float], rng: np.random.Generator) -> list[np.ndarray]:
-        """Sphere centres: a grid over the zone's footprint (minus the radius), layer upon layer from
-        the zone's centre upward, jittered inside each cell; spheres of these radii never overlap."""
+    def _place(self, radii: list[float], rng: np.random.Generator) -> tuple[list[np.ndarray], list[int]]:
+        """Sphere centres and their layers: a grid over the zone's footprint (minus the radius), layer
+        upon layer from the zone's centre upward, jittered inside each cell; spheres of these radii
+        never overlap."""
         n = len(radii)
         if n == 0:
-            return []
+            return [], []
         c, h = self.blend_scene.drop_zone_center, self.blend_scene.drop_zone_half
         gap = float(self.cfg.simulation.layer_gap)
         r_max = max(radii)
@@ -462,16 +490,17 @@ class ObjectManager:
         per_layer = nx * ny
         layers = -(-n // per_layer)
         slots = np.concatenate([rng.permutation(per_layer) + L * per_layer for L in range(layers)])[:n]
-        out = []
+        out, out_layers = [], []
         for r, slot in zip(radii, slots):
             L, rem = divmod(int(slot), per_layer)
+            out_layers.append(L)
             ix, iy = divmod(rem, ny)
             base = np.array([c[0] + (ix - (nx - 1) / 2) * cell,
                              c[1] + (iy - (ny - 1) / 2) * cell,
                              c[2] + r_max + L * cell])
             jitter = max((cell - gap) / 2 - r, 0.0)
             out.append(base + rng.uniform(-jitter, jitter, size=3))
-        return out
+        return out, out_layers
 
     def clear(self) -> None:
         """Delete this scene's instances (their rigid bodies go with them; the mesh data stays)."""

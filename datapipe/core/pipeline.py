@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -21,12 +20,15 @@ import numpy as np
 from .. import __version__, outdir
 from ..config import Config
 from ..errors import DataPipeError
+from .. import progress
 from ..physics_check import add_to_totals, physics_line, totals_line
+from ..progress import Progress, Tracker, fmt_s
 from ..quality import render_warnings
 from ..io import layout, native
 from ..io.files import read_json, write_json_atomic
 from ..io.models import write_models
 from ..io.writers import Writers, open_writers
+from ..visibility import VisibStats, visible_fractions
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from .world import BlenderWorld, World
 
@@ -37,33 +39,7 @@ class QualityError(DataPipeError):
 STAGES = ("placement", "simulation", "render", "structured_light", "write")
 
 
-@dataclass
-class Progress:
-    stage: str                 # setup | scene | render | scene_done | skip | done | cancelled
-    done: int                  # renders finished in this run (skipped-complete scenes included)
-    total: int                 # renders this run (this shard) makes
-    scene: int | None = None
-    render: int | None = None
-    elapsed: float = 0.0
-    eta: float | None = None
-    seconds: dict = field(default_factory=dict)    # per-stage seconds of the last render / scene
-    message: str = ""
-
-    def line(self) -> str:
-        eta = f", ETA {_fmt_s(self.eta)}" if self.eta is not None else ""
-        stages = ", ".join(f"{k} {v:.2f}s" for k, v in self.seconds.items() if v > 0)
-        stages = f" ({stages})" if stages else ""
-        where = ""
-        if self.scene is not None:
-            where = f" {layout.scene_name(self.scene)}"
-            if self.render is not None:
-                where += f"/{layout.render_name(self.render)}"
-        return f"[{self.done}/{self.total}]{where} {self.message}{stages}{eta}".rstrip()
-
-
-def _fmt_s(s: float) -> str:
-    s = int(round(s))
-    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else (f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s")
+_fmt_s = fmt_s
 
 
 def _config_identity(cfg: Config) -> dict:
@@ -73,8 +49,13 @@ def _config_identity(cfg: Config) -> dict:
 class Pipeline:
     def __init__(self, cfg: Config, out_dir: str | Path | None = None, *, resume: bool = False,
                  force: bool = False, shard: tuple[int, int] = (0, 1), seed: int | None = None,
-                 strict: bool = False, world: Callable[[Config, Path], World] = BlenderWorld):
+                 strict: bool = False, world: Callable[[Config, Path], World] = BlenderWorld,
+                 on_step: Callable[[Progress], None] | None = None, heartbeat_s: float = progress.HEARTBEAT_S):
+        """`on_step`: receives the lines inside a scene (datapipe/progress.py), at least every
+        `heartbeat_s` seconds while a step lasts, possibly from the heartbeat thread."""
         self.cfg = cfg.copy()
+        self.on_step, self.heartbeat_s = on_step, heartbeat_s
+        self.tracker: Tracker | None = None
         self.make_world = world
         if seed is not None:
             self.cfg.scene.seed = seed
@@ -91,6 +72,8 @@ class Pipeline:
         self._made = 0                # renders made in this call (for the ETA)
         self.stats: dict = {"imports": 0, "frames": {}, "seconds": {k: 0.0 for k in STAGES}, "physics": {}}
         self.stats["seconds"]["setup"] = 0.0
+        self.visib = VisibStats()     # visible fraction per instance over the renders of this call
+        self._models: dict = {}
 
     # -- checks before any Blender work ----------------------------------------------------------
     def check(self) -> None:
@@ -148,6 +131,9 @@ class Pipeline:
             return
         yield Progress("setup", done, self.total, message="setting up Blender scene")
         world = self._build_world()
+        if self.on_step is not None:
+            self.tracker = Tracker(self.on_step, self.heartbeat_s).start()
+        progress.activate(self.tracker)
         try:
             for note in world.setup_notes:
                 yield Progress("setup", done, self.total, message=note)
@@ -160,6 +146,9 @@ class Pipeline:
                     yield from self._cancelled(done, i)
                     return
         finally:
+            progress.activate(None)
+            if self.tracker is not None:
+                self.tracker.stop()
             world.close()
         yield from self._finished(writers, done, f"finished {self._made} render(s) in "
                                                  f"{_fmt_s(time.perf_counter() - self._t_start)}; "
@@ -170,7 +159,9 @@ class Pipeline:
         world = self.make_world(self.cfg, self.out)
         try:
             world.setup()
-            write_models(self.out / layout.MODELS_DIR, world.model_meshes())
+            meshes = world.model_meshes()
+            write_models(self.out / layout.MODELS_DIR, meshes)
+            self._models = {k: (np.asarray(m[0], dtype=np.float64) * 1000.0, m[1]) for k, m in meshes.items()}
         except BaseException:
             world.close()
             raise
@@ -188,6 +179,7 @@ class Pipeline:
         yield Progress("scene", done, self.total, scene=i, message="dropping parts")
         base = self.cfg.scene.seed
         seed_python(base, i)
+        self._track(done, i, None)
         start = world.start_scene(i, base, scene_rng(base, i), self.plan[i])
         for k, v in start.seconds.items():
             self.stats["seconds"][k] += v
@@ -198,9 +190,15 @@ class Pipeline:
             seed = render_seed(base, i, r)
             rdir = sdir / layout.render_name(r)
             rdir.mkdir(parents=True, exist_ok=True)
+            self._track(done, i, r)
             view = world.render(rdir, pose_index, seed, scene_id=i, render_id=r, base_seed=base)
+            if self.tracker is not None:
+                self.tracker.render_done()
             scene["renders"].append(native.render_record(r, int(self.first_image_id[i] + r), pose_index, seed,
                                                          view, start.parts, sdir))
+            self.visib.add(visible_fractions(scene["renders"][-1]["objects"], view.mask, view.K, self._models,
+                                             *view.resolution))
+            self.stats["visib_fract"] = self.visib.summary()
             for k, v in view.seconds.items():
                 self.stats["seconds"][k] += v
             done += 1
@@ -227,6 +225,13 @@ class Pipeline:
             yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - self._t_start,
                            message=physics_line({"parts": len(scene["objects"]), **scene["simulation"]}))
         return done
+
+    def _track(self, done: int, scene: int, render: int | None) -> None:
+        """Tell the step tracker where the run is (the render `done` + 1 is in progress)."""
+        if self.tracker is not None:
+            per_render = (time.perf_counter() - self._t_loop) / self._made if self._made else None
+            self.tracker.at(done=done, total=self.total, scene=scene, render=render, per_render=per_render,
+                            renders_after=self.total - done - 1)
 
     def _finished(self, writers: Writers, done: int, message: str) -> Iterator[Progress]:
         writers.finish()

@@ -33,6 +33,7 @@ import numpy as np
 import bpy
 
 from . import compat
+from .. import progress
 from ..config import Config
 from ..errors import DataPipeError
 from ..io.native import write_render_maps
@@ -193,8 +194,12 @@ class Renderer:
         T_world_cam = self.camera.T_world_cam()
 
         t0 = time.perf_counter()
-        bpy.ops.render.render(write_still=False, scene=self.scene.name)
+        res = self.scene.render
+        with progress.cycles("render", f"{', '.join(self.cfg.render.outputs)} at {res.resolution_x} x "
+                                       f"{res.resolution_y}, {self.scene.cycles.samples} samples"):
+            bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0
+        progress.begin("write", "native files")
 
         channels = compat.take_written_exr(render_dir, TEMP_BASENAME, "pass")
         out = self._convert(channels, T_world_cam)
