@@ -136,6 +136,7 @@ class Tracker:
         self.what = ""
         self.count: tuple | None = None
         self.cycles_status = ""
+        self._frac: float | None = None             # a Cycles call's fraction done over its tiles
         self._t_step = self._t_emit = 0.0
         self._t0 = clock()
         self._sums: dict[str, list[float]] = {}     # step -> its seconds in each render that had it
@@ -164,7 +165,7 @@ class Tracker:
     def begin(self, step: str, what: str = "") -> None:
         with self._lock:
             self._close_step()
-            self.step, self.what, self.count, self.cycles_status = step, what, None, ""
+            self.step, self.what, self.count, self.cycles_status, self._frac = step, what, None, "", None
             self._t_step = self.clock()
             self._emit()
 
@@ -184,6 +185,8 @@ class Tracker:
         self.step, self.count = None, None
 
     def fraction(self) -> float | None:
+        if self._frac is not None:
+            return self._frac
         c = self.count
         if c is None or not c[1] or c[2] == "frame":     # a drop stops when it settles, not at max_frames
             return None
@@ -233,12 +236,11 @@ class Tracker:
             t = _TILES.search(text)
             if s is not None:
                 n, of = int(s.group(1)), int(s.group(2))
-                if t is not None and int(t.group(2)) > 1:
+                self.count, self.cycles_status, self._frac = (n, of, "sample"), "", None
+                if t is not None and int(t.group(2)) > 1 and of > 0:     # samples count per tile
                     tiles, ntiles = int(t.group(1)), int(t.group(2))
-                    self.count = (tiles * of + n, ntiles * of, f"sample (tile {min(tiles + 1, ntiles)}/{ntiles})")
-                else:
-                    self.count = (n, of, "sample")
-                self.cycles_status = ""
+                    self.cycles_status = f"tile {min(tiles + 1, ntiles)}/{ntiles}"
+                    self._frac = min(1.0, (tiles + n / of) / ntiles)
             else:
                 self.cycles_status = text.rsplit("|", 1)[-1].strip()[:80]
 

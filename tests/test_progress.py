@@ -59,8 +59,11 @@ def test_tracker_heartbeat_on_a_fake_clock():
     assert p.count == (4, 16, "sample")
     assert p.eta == pytest.approx(25 * 12 / 4) and not p.eta_lower
     assert "sample 4/16" in p.line() and "ETA 1m15s" in p.line()
-    t.cycles_stats("Mem: 2M | Rendered 1/4 Tiles, Sample 8/16")
-    assert t.progress().count == (1 * 16 + 8, 4 * 16, "sample (tile 2/4)")
+    t.cycles_stats("Mem: 2M | Rendered 1/4 Tiles, Sample 8/16")         # samples count per tile
+    p = t.progress()
+    assert p.count == (8, 16, "sample") and t.fraction() == pytest.approx(1.5 / 4)
+    assert "sample 8/16, 25s in - tile 2/4" in p.line()
+    assert p.eta == pytest.approx(25 * 2.5 / 1.5)
 
 
 class SteppingWorld(BoxWorld):
