@@ -48,6 +48,8 @@ class VisibStats:
         np.add.at(self.counts, idx, 1)
 
     def quantile(self, q: float) -> float | None:
+        """The smallest fraction with at least q of the instances at or below it (the inverted CDF:
+        with an even count the median is the lower middle value), to the bin's centre (+-0.0005)."""
         n = int(self.counts.sum())
         if n == 0:
             return None

@@ -23,11 +23,13 @@ Templates
     (the renderer's fringe layers) do not show them either.
 
 Instances
-    `populate(rng)` makes, per entry, a random number in [min_instances, max_instances] of linked
+    `populate(rng)` makes, per entry, a random number in [min_instances, max_instances] (or, with
+    `scene.fill`, the counts datapipe/fill.py draws from the parts' hull volumes) of linked
     copies (`obj.copy()`: same mesh data, no re-import), named f"{entry_name}_{k:03d}" (k from 0
     within the scene), with unique pass_index 1..n, a uniformly random orientation, placed on a
     grid of bounding spheres inside the drop zone's footprint in layers from the zone's centre
-    upward (spheres never overlap), and an ACTIVE rigid body (the entry's mass, friction,
+    upward (spheres never overlap; `staged=True`: only the lowest STAGE_LAYERS layers at once, see
+    simulation.drop_in_stages), and an ACTIVE rigid body (the entry's mass, friction,
     restitution and collision shape; an explicit collision margin of 4% of the part's thinnest
     width, at most 0.5 mm: Blender's default 0.04 m is larger than small parts, and a fixed 0.5 mm
     left a visible gap around a 2.4 mm peg). They live in "datapipe_objects". `populate()` first
@@ -383,8 +385,10 @@ class ObjectManager:
         return self.templates[entry_index].radius
 
     # -- instances --------------------------------------------------------------------------------
-    def populate(self, rng: np.random.Generator) -> list[Instance]:
-        """Make this scene's instances (clears any left from an earlier populate)."""
+    def populate(self, rng: np.random.Generator, *, staged: bool = False) -> list[Instance]:
+        """Make this scene's instances (clears any left from an earlier populate). `staged`: only
+        the first STAGE_LAYERS spawn layers get rigid bodies (core/simulation.drop_in_stages
+        activates the others stage by stage); else every instance has one."""
         if not self.templates and self.cfg.objects:
             raise DataPipeError("ObjectManager.populate() before load_sources() "
                                 "(fix: call load_sources() once per run first)")
@@ -416,7 +420,7 @@ class ObjectManager:
                                       filename=os.path.abspath(entry.filepath), mask_index=idx + 1, layer=layer))
         bpy.context.view_layer.update()
         self.instances = instances
-        self.activate([inst for inst in instances if inst.layer < STAGE_LAYERS])
+        self.activate([inst for inst in instances if not staged or inst.layer < STAGE_LAYERS])
         return list(instances)
 
     def _draw_counts(self, rng: np.random.Generator) -> list[int]:

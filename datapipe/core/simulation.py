@@ -127,7 +127,7 @@ def drop_scene(objects: ObjectManager, simulation: "Simulation", rng: np.random.
     while True:
         t0 = time.perf_counter()
         progress.begin("placement", "" if attempt == 0 else f"(redraw {attempt})")
-        insts = objects.populate(rng)
+        insts = objects.populate(rng, staged=True)
         placing += time.perf_counter() - t0
         progress.begin("simulation", f"{len(insts)} parts" + (f" (scene.fill {objects.last_fill['share']:.2f} of "
                                                              "the bin)" if objects.last_fill else ""))

@@ -70,7 +70,8 @@ def test_fill_drops_a_dense_pile_in_stages_and_reports_visible_fractions(tmp_pat
     gt_info = json.loads(next((out / "bop").rglob("scene_gt_info.json")).read_text())
     bop = np.array([a["visib_fract"] for infos in gt_info.values() for a in infos])
     assert vf["instances"] == len(bop) == len(names)
-    assert vf["median"] == pytest.approx(float(np.median(bop)), abs=0.01)
+    # run.json's quantiles are the inverted CDF (a value that occurs) to the histogram's 0.001 bins
+    assert vf["median"] == pytest.approx(float(np.quantile(bop, 0.5, method="inverted_cdf")), abs=0.0015)
     assert vf["median"] < 0.8                                           # a pile, not parts lying apart
 
 
