@@ -63,9 +63,9 @@ from mathutils import Matrix, Quaternion, Vector
 
 from ..config import Config
 from ..errors import ConfigError, DataPipeError
-from ..fill import draw_share, fill_counts, hull_volume
 from . import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection
+from ..fill import draw_share, fill_counts, hull_volume
 
 TEMPLATES_COLLECTION = "datapipe_templates"
 OBJECTS_COLLECTION = "datapipe_objects"

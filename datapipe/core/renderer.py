@@ -33,9 +33,9 @@ import numpy as np
 import bpy
 
 from . import compat
-from .. import progress
 from ..config import Config
 from ..errors import DataPipeError
+from .. import progress
 from ..io.native import write_render_maps
 
 NATIVE_LAYER = "datapipe"
