@@ -65,12 +65,18 @@ class Run:
 
     def on_step(self, p) -> None:
         """A line inside a scene: shown at once from Blender's main thread (a step starting, the
-        simulation's frames); the heartbeat thread's lines (during a Cycles call, when Blender cannot
-        redraw anyway) are kept and shown with the next one, never touching bpy off the main thread."""
+        simulation's frames), the window redrawn although the pipeline step has not returned yet;
+        the heartbeat thread's lines (during a Cycles call, when Blender cannot redraw anyway) are
+        only kept (`last_step`), never touching bpy off the main thread."""
         self.last_step = p
         if threading.current_thread() is threading.main_thread():
             text = p.line() + ("  (cancelling after this render)" if self.cancel_requested else "")
             self.set_status(text, p.done / p.total if p.total else 1.0)
+            if not bpy.app.background:
+                try:      # the usual way to show a change while an operator still runs
+                    bpy.ops.wm.redraw_timer(type="DRAW_WIN_SWAP", iterations=1)
+                except RuntimeError:
+                    pass
 
     # -- stepping ---------------------------------------------------------------------------------
     def step(self) -> bool:
