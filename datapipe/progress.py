@@ -223,10 +223,11 @@ class Tracker:
             self._thread = None
 
     def _beat(self) -> None:
-        tick = max(0.05, min(1.0, self.heartbeat_s / 5))
+        # wakes every `tick` and speaks one tick early, so no gap exceeds heartbeat_s
+        tick = max(0.05, min(0.5, self.heartbeat_s / 5))
         while not self._stop.wait(tick):
             with self._lock:
-                if self.step is not None and self.clock() - self._t_emit >= self.heartbeat_s:
+                if self.step is not None and self.clock() - self._t_emit >= self.heartbeat_s - tick:
                     self._emit()
 
     def cycles_stats(self, text: str) -> None:
