@@ -242,7 +242,7 @@ def _run(cfg, args, preset_path) -> int:
         return 0
     from .core.pipeline import Pipeline
     pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
-                    strict=args.strict)
+                    strict=args.strict, on_step=None if args.quiet else _print_step)
     pipe.check()                    # the output folder: refusals before anything is written
     blender_log = BlenderLog(verbose=args.verbose)  # Blender's own output: OUT/blender.log (kept in
     with blender_log:                               # memory until the run folder may be written)
@@ -266,6 +266,11 @@ def _run(cfg, args, preset_path) -> int:
         return 130
     print(f"dataset: {_printable(pipe.out)} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
     return 0
+
+
+def _print_step(p) -> None:
+    """A line inside a scene (datapipe/progress.py); may come from the heartbeat thread."""
+    print(p.line(), file=sys.stderr, flush=True)
 
 
 class _StopOnSignal:

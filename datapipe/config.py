@@ -78,6 +78,9 @@ class SceneConfig:
     bin_size_scale: list[float] = _vec(1.0, 1.0)   # per scene: zone x and y half extents times a
                                                    # factor from [min, max] (datapipe.bin_shape)
     bin_wall_scale: list[float] = _vec(1.0, 1.0)   # per scene: wall height (the zone's) times [min, max]
+    fill: list[float] | None = None    # [min, max] share of the bin's inner volume the parts' convex hulls
+                                       # fill, drawn per scene (datapipe/fill.py); each entry's instance
+                                       # count stays within [min_instances, max_instances]
     blend_file: str | None = None      # open this .blend first; its object "drop_zone" wins over the above
     other_objects: str = "auto"        # objects of the open scene DataPipe did not make (Blender's startup
                                        # cube and light...): "hide" them from the renders for the run,
@@ -1051,6 +1054,9 @@ def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:
     s = cfg.scene
     ck.problems += _range_problems("scene.bin_size_scale", s.bin_size_scale, lo_bound=0.05, hi_bound=20.0)
     ck.problems += _range_problems("scene.bin_wall_scale", s.bin_wall_scale, lo_bound=0.05, hi_bound=20.0)
+    if s.fill is not None:
+        from .fill import MAX_FILL
+        ck.problems += _range_problems("scene.fill", s.fill, lo_bound=0.0, hi_bound=MAX_FILL)
     ck.problems += _sampler_problems(cfg)
     ck.problems += _lighting_problems(cfg.lighting)
 

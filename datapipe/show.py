@@ -34,7 +34,7 @@ from .errors import DataPipeError
 from .io import layout
 from .io.files import imwrite_atomic, read_json
 from .io.models import load_models
-from .io.silhouette import rasterize_silhouette
+from .visibility import visible_fractions
 from .outdir import OutputStateError
 
 PANELS = ("rgb", "depth", "sl_depth", "diff", "mask", "poses")
@@ -406,14 +406,8 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
         for o in objs:
             visib = int(np.count_nonzero(m == int(o["mask_index"]))) if m is not None else int(o.get("px_count_visib") or 0)
             nv += visib > 0
-            mdl = models.get(int(o["obj_id"]))
-            if mdl is not None:
-                T = np.asarray(o["T_cam_obj"], dtype=np.float64)
-                sil, count, _ = rasterize_silhouette(mdl.verts_mm, mdl.faces, K, T[:3, :3], T[:3, 3] * 1000.0,
-                                                     data["W"], data["H"])
-                if m is not None:
-                    count += int(np.count_nonzero((m == int(o["mask_index"])) & ~sil))
-                fracs.append(visib / count if count else 0.0)
+        fracs += visible_fractions(objs, m, K, {k: (mdl.verts_mm, mdl.faces) for k, mdl in models.items()},
+                                   data["W"], data["H"])
         n_vis.append(nv)
     err = np.concatenate(errs) if errs else np.zeros(0)
     panels = []
@@ -432,6 +426,8 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
         f = np.asarray(fracs)
         panels.append(_hist_panel(f, np.linspace(0, 1, 11), "visible fraction per instance",
                                   f"visib_fract ({len(f)} instances, {np.mean(f < 0.1) * 100:.0f}% < 0.1)",
+                                  note=f"median {np.median(f):.2f}, p10 {np.percentile(f, 10):.2f}, "
+                                       f"p90 {np.percentile(f, 90):.2f}",
                                   color=(120, 210, 120), fmt="{:.2f}"))
     else:
         panels.append(_hist_panel([], np.linspace(0, 1, 11), "visible fraction per instance", "visib_fract",

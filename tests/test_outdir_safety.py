@@ -319,12 +319,13 @@ def test_resume_after_a_crash_gives_the_same_bytes_and_whole_run_stats(finished,
     assert hashes(out, skip={"run.json"}) == hashes(ref, skip={"run.json"})      # pickle, manifest, BOP too
     stats = json.loads((out / layout.RUN_FILE).read_text())["stats"]
     assert stats["frames"] == ref_stats["frames"] and stats["physics"] == ref_stats["physics"]
+    assert stats["visib_fract"] == ref_stats["visib_fract"] and stats["visib_fract"]["instances"] > 0
     assert stats["imports"] == 2 * ref_stats["imports"]          # each call read the mesh files once
     _, events = run(cfg, out, resume=True)                       # resuming a finished run changes nothing
     assert "nothing to do" in events[-1].message
     again = json.loads((out / layout.RUN_FILE).read_text())["stats"]
-    assert {k: again[k] for k in ("frames", "physics", "imports")} == \
-        {k: stats[k] for k in ("frames", "physics", "imports")}
+    assert {k: again[k] for k in ("frames", "physics", "imports", "visib_fract")} == \
+        {k: stats[k] for k in ("frames", "physics", "imports", "visib_fract")}
     assert all(again["seconds"][k] >= stats["seconds"][k] for k in stats["seconds"])
 
 
@@ -341,6 +342,7 @@ def test_cancel_then_resume_counts_the_cancelled_scene_once(finished, tmp_path):
     assert hashes(out, skip={"run.json"}) == hashes(ref, skip={"run.json"})
     stats = json.loads((out / layout.RUN_FILE).read_text())["stats"]
     assert stats["frames"] == ref_stats["frames"] and stats["physics"] == ref_stats["physics"]
+    assert stats["visib_fract"] == ref_stats["visib_fract"]
 
 
 def test_the_pickle_bytes_depend_on_the_data_only():

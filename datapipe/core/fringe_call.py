@@ -13,12 +13,14 @@ from ..sl.fringe_synth import INDIRECT_BLUR_PX, indirect_gain  # noqa: F401  (th
 
 
 def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *, seed: int,
-                    supersample: int, filter_width: float) -> float:
+                    supersample: int, filter_width: float, what: str = "") -> float:
     """Render only the view layers `layer_names` of scene `sc` in their own Cycles call, written by
     `file_output` (muted otherwise) to `render_dir`/`basename`, at `supersample` x the resolution
     with pixel filter `filter_width` and Cycles seed `seed`; every other layer and File Output
-    node is switched off for the call and everything is restored afterwards. Returns wall seconds."""
+    node is switched off for the call and everything is restored afterwards. `what`: the progress
+    line's words for what it renders. Returns wall seconds."""
     import bpy
+    from .. import progress
     from . import compat
 
     render_dir = Path(render_dir)
@@ -44,7 +46,9 @@ def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *,
         sc.cycles.seed = int(seed) & 0x7FFFFFFF
         sc.render.resolution_percentage = 100 * int(supersample)
         t0 = time.perf_counter()
-        bpy.ops.render.render(write_still=False, scene=sc.name)
+        w, h = (int(v * supersample) for v in (sc.render.resolution_x, sc.render.resolution_y))
+        with progress.cycles("fringes", f"{what or f'{len(layer_names)} view layers'} at {w} x {h}"):
+            bpy.ops.render.render(write_still=False, scene=sc.name)
         return time.perf_counter() - t0
     finally:
         file_output.mute = True

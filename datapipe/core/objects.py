@@ -23,11 +23,13 @@ Templates
     (the renderer's fringe layers) do not show them either.
 
 Instances
-    `populate(rng)` makes, per entry, a random number in [min_instances, max_instances] of linked
+    `populate(rng)` makes, per entry, a random number in [min_instances, max_instances] (or, with
+    `scene.fill`, the counts datapipe/fill.py draws from the parts' hull volumes) of linked
     copies (`obj.copy()`: same mesh data, no re-import), named f"{entry_name}_{k:03d}" (k from 0
     within the scene), with unique pass_index 1..n, a uniformly random orientation, placed on a
     grid of bounding spheres inside the drop zone's footprint in layers from the zone's centre
-    upward (spheres never overlap), and an ACTIVE rigid body (the entry's mass, friction,
+    upward (spheres never overlap; `staged=True`: only the lowest STAGE_LAYERS layers at once, see
+    simulation.drop_in_stages), and an ACTIVE rigid body (the entry's mass, friction,
     restitution and collision shape; an explicit collision margin of 4% of the part's thinnest
     width, at most 0.5 mm: Blender's default 0.04 m is larger than small parts, and a fixed 0.5 mm
     left a visible gap around a 2.4 mm peg). They live in "datapipe_objects". `populate()` first
@@ -64,6 +66,7 @@ from ..errors import ConfigError, DataPipeError
 from ..io.bop_models import entry_field
 from . import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection
+from ..fill import draw_share, fill_counts, hull_volume
 
 TEMPLATES_COLLECTION = "datapipe_templates"
 OBJECTS_COLLECTION = "datapipe_objects"
@@ -75,6 +78,7 @@ COM_TOLERANCE = 1e-5                  # m; closer than this the model origin is 
 COLLISION_MARGIN = 0.0005  # m, the largest margin; Blender's default 0.04 m is larger than small parts
 MARGIN_FRACTION = 0.04     # margin = this x the part's thinnest width (up to COLLISION_MARGIN)
 DECOMPOSED_SHAPES = ("DECOMPOSED", "MESH")   # simulated as a compound of convex pieces
+STAGE_LAYERS = 2           # spawn layers per drop stage: a deeper column drops in stages (core/simulation.py)
 
 _IMPORTERS = {
     ".obj": "obj",
@@ -96,6 +100,7 @@ class Instance:
     thin: float = 0.0          # thinnest width of its collision shape (m)
     size: float = 0.0          # largest bounding-box extent (m)
     shape: str = "CONVEX_HULL"  # the collision shape simulated (AUTO resolved; DECOMPOSED for MESH)
+    layer: int = 0             # spawn layer (0: lowest); layers >= STAGE_LAYERS drop in later stages
 
 
 @dataclass
@@ -108,6 +113,7 @@ class _Template:
     thin: float = 0.0          # thinnest width of the collision shape (m)
     size: float = 0.0          # largest bounding-box extent (m)
     pieces: tuple = ()         # DECOMPOSED: one mesh per convex piece, in the simulation frame
+    hull_volume: float = 0.0   # m^3, of the convex hull (scene.fill counts parts by it)
 
 
 def _run_importer(kind: str, path: str) -> None:
@@ -159,6 +165,7 @@ class ObjectManager:
         self.collection: bpy.types.Collection | None = None
         self.collision_collection: bpy.types.Collection | None = None
         self.decomposed_from_cache = 0    # decompositions read from the disk cache (rest computed)
+        self.last_fill: dict | None = None  # scene.fill of the last populate: drawn share, share reached
 
     @property
     def scene(self) -> bpy.types.Scene:
@@ -320,7 +327,8 @@ class ObjectManager:
             sim.transform(Matrix.Translation(Vector((-com).tolist())))
             sim.update()
             me[SIM_MESH_PROP] = sim
-        tpl = _Template(obj=obj, center=center, radius=radius, com=com, size=float(np.ptp(pts, axis=0).max()))
+        tpl = _Template(obj=obj, center=center, radius=radius, com=com, size=float(np.ptp(pts, axis=0).max()),
+                        hull_volume=hull_volume(pts))
         self._collision_shape(i, tpl)
         return tpl
 
@@ -378,21 +386,22 @@ class ObjectManager:
         return self.templates[entry_index].radius
 
     # -- instances --------------------------------------------------------------------------------
-    def populate(self, rng: np.random.Generator) -> list[Instance]:
-        """Make this scene's instances (clears any left from an earlier populate)."""
+    def populate(self, rng: np.random.Generator, *, staged: bool = False) -> list[Instance]:
+        """Make this scene's instances (clears any left from an earlier populate). `staged`: only
+        the first STAGE_LAYERS spawn layers get rigid bodies (core/simulation.drop_in_stages
+        activates the others stage by stage); else every instance has one."""
         if not self.templates and self.cfg.objects:
             raise DataPipeError("ObjectManager.populate() before load_sources() "
                                 "(fix: call load_sources() once per run first)")
         self.clear()
         plan: list[tuple[int, int]] = []            # (entry index, k)
-        for i, entry in enumerate(self.cfg.objects):
-            n = int(rng.integers(entry.min_instances, entry.max_instances + 1))
+        for i, n in enumerate(self._draw_counts(rng)):
             plan += [(i, k) for k in range(n)]
         rotations = [_random_rotation(rng) for _ in plan]
-        centers = self._place([self.templates[i].radius for i, _ in plan], rng)
+        centers, layers = self._place([self.templates[i].radius for i, _ in plan], rng)
 
         instances: list[Instance] = []
-        for idx, ((i, k), R, p) in enumerate(zip(plan, rotations, centers)):
+        for idx, ((i, k), R, p, layer) in enumerate(zip(plan, rotations, centers, layers)):
             entry = self.cfg.objects[i]
             tpl = self.templates[i]
             name = f"{self.cfg.object_name(i)}_{k:03d}"
@@ -409,8 +418,32 @@ class ObjectManager:
             loc = p - R @ tpl.center                # the bounding sphere's centre goes to p
             obj.matrix_world = Matrix.Translation(Vector(loc)) @ Matrix(R.tolist()).to_4x4()
             instances.append(Instance(obj=obj, entry_index=i, name=name,
-                                      filename=os.path.abspath(entry.filepath), mask_index=idx + 1))
+                                      filename=os.path.abspath(entry.filepath), mask_index=idx + 1, layer=layer))
         bpy.context.view_layer.update()
+        self.instances = instances
+        self.activate([inst for inst in instances if not staged or inst.layer < STAGE_LAYERS])
+        return list(instances)
+
+    def _draw_counts(self, rng: np.random.Generator) -> list[int]:
+        """Instances per entry: uniform in [min, max] each, or by scene.fill (datapipe/fill.py)."""
+        entries = self.cfg.objects
+        fill = self.cfg.scene.fill
+        self.last_fill = None
+        if fill is None:
+            return [int(rng.integers(e.min_instances, e.max_instances + 1)) for e in entries]
+        bs = self.blend_scene
+        half = bs.drop_zone_half
+        volume = 4.0 * float(half[0] * half[1]) * float(bs.wall_top_z - bs.floor_z)
+        share = draw_share(rng, fill)
+        counts, reached = fill_counts(rng, share, volume, [t.hull_volume for t in self.templates],
+                                      [e.min_instances for e in entries], [e.max_instances for e in entries])
+        self.last_fill = {"share": round(share, 4), "reached": round(reached, 4),
+                          "bin_litres": round(volume * 1e3, 4)}
+        return counts
+
+    def activate(self, instances: list[Instance]) -> None:
+        """Give `instances` their ACTIVE rigid bodies (populate does it for the first stage's layers;
+        core/simulation.py for the later stages, just before they drop)."""
         for inst in instances:
             entry = self.cfg.objects[inst.entry_index]
             rb = add_rigid_body(inst.obj, 'ACTIVE')
@@ -426,8 +459,6 @@ class ObjectManager:
             inst.thin, inst.size, inst.shape = tpl.thin, tpl.size, tpl.shape
             for k, pm in enumerate(tpl.pieces):
                 self._add_piece(inst, k, pm, margin)
-        self.instances = instances
-        return list(instances)
 
     def _add_piece(self, inst: Instance, k: int, mesh: bpy.types.Mesh, margin: float) -> None:
         """One convex piece of a DECOMPOSED part: a hidden child whose local transform is the
@@ -445,12 +476,13 @@ class ObjectManager:
         rb.use_margin = True
         rb.collision_margin = margin
 
-    def _place(self, radii: list[float], rng: np.random.Generator) -> list[np.ndarray]:
-        """Sphere centres: a grid over the zone's footprint (minus the radius), layer upon layer from
-        the zone's centre upward, jittered inside each cell; spheres of these radii never overlap."""
+    def _place(self, radii: list[float], rng: np.random.Generator) -> tuple[list[np.ndarray], list[int]]:
+        """Sphere centres and their layers: a grid over the zone's footprint (minus the radius), layer
+        upon layer from the zone's centre upward, jittered inside each cell; spheres of these radii
+        never overlap."""
         n = len(radii)
         if n == 0:
-            return []
+            return [], []
         c, h = self.blend_scene.drop_zone_center, self.blend_scene.drop_zone_half
         gap = float(self.cfg.simulation.layer_gap)
         r_max = max(radii)
@@ -463,16 +495,17 @@ class ObjectManager:
         per_layer = nx * ny
         layers = -(-n // per_layer)
         slots = np.concatenate([rng.permutation(per_layer) + L * per_layer for L in range(layers)])[:n]
-        out = []
+        out, out_layers = [], []
         for r, slot in zip(radii, slots):
             L, rem = divmod(int(slot), per_layer)
+            out_layers.append(L)
             ix, iy = divmod(rem, ny)
             base = np.array([c[0] + (ix - (nx - 1) / 2) * cell,
                              c[1] + (iy - (ny - 1) / 2) * cell,
                              c[2] + r_max + L * cell])
             jitter = max((cell - gap) / 2 - r, 0.0)
             out.append(base + rng.uniform(-jitter, jitter, size=3))
-        return out
+        return out, out_layers
 
     def clear(self) -> None:
         """Delete this scene's instances (their rigid bodies go with them; the mesh data stays)."""

@@ -11,7 +11,6 @@ built only when there is something to render. Tests pass a fake world (tests/fak
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -20,7 +19,9 @@ import numpy as np
 from .. import __version__, outdir
 from ..config import Config
 from ..errors import DataPipeError
+from .. import progress
 from ..physics_check import add_to_totals, physics_line, totals_line
+from ..progress import Progress, Tracker, fmt_s
 from ..quality import render_warnings
 from ..io import layout, native
 from ..io.files import read_json, write_json_atomic
@@ -28,6 +29,7 @@ from ..io.bop_models import expand_bop_objects, models_symmetries
 from ..io.models import write_models
 from ..io.legacy import LegacyPickleWriter
 from ..io.writers import Writers, open_writers
+from ..visibility import VisibStats, visible_fractions
 from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from .world import BlenderWorld, World
 
@@ -38,33 +40,7 @@ class QualityError(DataPipeError):
 STAGES = ("placement", "simulation", "render", "structured_light", "write")
 
 
-@dataclass
-class Progress:
-    stage: str                 # setup | scene | render | scene_done | skip | done | cancelled
-    done: int                  # renders finished in this run (skipped-complete scenes included)
-    total: int                 # renders this run (this shard) makes
-    scene: int | None = None
-    render: int | None = None
-    elapsed: float = 0.0
-    eta: float | None = None
-    seconds: dict = field(default_factory=dict)    # per-stage seconds of the last render / scene
-    message: str = ""
-
-    def line(self) -> str:
-        eta = f", ETA {_fmt_s(self.eta)}" if self.eta is not None else ""
-        stages = ", ".join(f"{k} {v:.2f}s" for k, v in self.seconds.items() if v > 0)
-        stages = f" ({stages})" if stages else ""
-        where = ""
-        if self.scene is not None:
-            where = f" {layout.scene_name(self.scene)}"
-            if self.render is not None:
-                where += f"/{layout.render_name(self.render)}"
-        return f"[{self.done}/{self.total}]{where} {self.message}{stages}{eta}".rstrip()
-
-
-def _fmt_s(s: float) -> str:
-    s = int(round(s))
-    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else (f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s")
+_fmt_s = fmt_s
 
 
 def _config_identity(cfg: Config) -> dict:
@@ -74,8 +50,13 @@ def _config_identity(cfg: Config) -> dict:
 class Pipeline:
     def __init__(self, cfg: Config, out_dir: str | Path | None = None, *, resume: bool = False,
                  force: bool = False, shard: tuple[int, int] = (0, 1), seed: int | None = None,
-                 strict: bool = False, world: Callable[[Config, Path], World] = BlenderWorld):
+                 strict: bool = False, world: Callable[[Config, Path], World] = BlenderWorld,
+                 on_step: Callable[[Progress], None] | None = None, heartbeat_s: float = progress.HEARTBEAT_S):
+        """`on_step`: receives the lines inside a scene (datapipe/progress.py), at least every
+        `heartbeat_s` seconds while a step lasts, possibly from the heartbeat thread."""
         self.cfg = cfg.copy()
+        self.on_step, self.heartbeat_s = on_step, heartbeat_s
+        self.tracker: Tracker | None = None
         self.make_world = world
         if seed is not None:
             self.cfg.scene.seed = seed
@@ -95,6 +76,8 @@ class Pipeline:
         self.stats["seconds"]["setup"] = 0.0
         self._earlier_stats: dict = {}
         self._simulations: dict[str, dict] = {}     # scene name -> its `simulation` record
+        self._scenes_visib: dict[str, dict] = {}    # scene name -> its record (renders' visib_fract)
+        self._models: dict = {}
 
     # -- checks before any Blender work ----------------------------------------------------------
     def check(self) -> None:
@@ -156,6 +139,7 @@ class Pipeline:
                 done += self.plan[i]
                 if isinstance(scene.get("simulation"), dict):
                     self._simulations[scene["name"]] = scene["simulation"]
+                self._scenes_visib[scene["name"]] = scene
                 # the commit protocol: scene.json is written first; a crash before the other outputs and
                 # run.json's scenes_done leaves them to be repaired here
                 writers.catch_up(sdir, scene)
@@ -168,6 +152,9 @@ class Pipeline:
             return
         yield Progress("setup", done, self.total, message="setting up Blender scene")
         world = self._build_world()
+        if self.on_step is not None:
+            self.tracker = Tracker(self.on_step, self.heartbeat_s).start()
+        progress.activate(self.tracker)
         try:
             for note in world.setup_notes:
                 yield Progress("setup", done, self.total, message=note)
@@ -180,6 +167,9 @@ class Pipeline:
                     yield from self._cancelled(done, i)
                     return
         finally:
+            progress.activate(None)
+            if self.tracker is not None:
+                self.tracker.stop()
             world.close()
         yield from self._finished(writers, done, f"finished {self._made} render(s) in "
                                                  f"{_fmt_s(time.perf_counter() - self._t_start)}; "
@@ -197,6 +187,9 @@ class Pipeline:
             raise
         self.stats["seconds"]["setup"] = time.perf_counter() - t0
         self.stats["imports"] = world.import_count
+        # the models in mm, for the visible fractions (datapipe/visibility.py)
+        self._models = {k: (np.asarray(m[0], dtype=np.float64) * 1000.0, m[1])
+                        for k, m in world.model_meshes().items()}
         self._t_loop = time.perf_counter()
         return world
 
@@ -209,18 +202,24 @@ class Pipeline:
         yield Progress("scene", done, self.total, scene=i, message="dropping parts")
         base = self.cfg.scene.seed
         seed_python(base, i)
+        self._track(done, i, None)
         start = world.start_scene(i, base, scene_rng(base, i), self.plan[i])
         for k, v in start.seconds.items():
             self.stats["seconds"][k] += v
         scene = native.scene_record(i, scene_seed(base, i), start)
         self._simulations[scene["name"]] = start.simulation
+        self._scenes_visib[scene["name"]] = scene      # filled below; a scene made again replaces its record
         for r, pose_index in enumerate(start.pose_indices):
             seed = render_seed(base, i, r)
             rdir = sdir / layout.render_name(r)
             rdir.mkdir(parents=True, exist_ok=True)
+            self._track(done, i, r)
             view = world.render(rdir, pose_index, seed, scene_id=i, render_id=r, base_seed=base)
+            if self.tracker is not None:
+                self.tracker.render_done()
             scene["renders"].append(native.render_record(r, int(self.first_image_id[i] + r), pose_index, seed,
                                                          view, start.parts, sdir))
+            visible_fractions(scene["renders"][-1]["objects"], view.mask, view.K, self._models, *view.resolution)
             for k, v in view.seconds.items():
                 self.stats["seconds"][k] += v
             done += 1
@@ -247,6 +246,13 @@ class Pipeline:
             yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - self._t_start,
                            message=physics_line({"parts": len(scene["objects"]), **scene["simulation"]}))
         return done
+
+    def _track(self, done: int, scene: int, render: int | None) -> None:
+        """Tell the step tracker where the run is (the render `done` + 1 is in progress)."""
+        if self.tracker is not None:
+            per_render = (time.perf_counter() - self._t_loop) / self._made if self._made else None
+            self.tracker.at(done=done, total=self.total, scene=scene, render=render, per_render=per_render,
+                            renders_after=self.total - done - 1)
 
     def _finished(self, writers: Writers, done: int, message: str) -> Iterator[Progress]:
         writers.finish()
@@ -318,7 +324,8 @@ class Pipeline:
         return {"imports": int(number(earlier.get("imports"))) + self.stats["imports"],
                 "frames": {n: self._simulations[n].get("frames") for n in sorted(self._simulations)},
                 "seconds": {k: float(number(earlier_s.get(k))) + v for k, v in self.stats["seconds"].items()},
-                "physics": physics}
+                "physics": physics,
+                "visib_fract": VisibStats.of_scenes(self._scenes_visib[n] for n in sorted(self._scenes_visib)).summary()}
 
     def _mark_scene_done(self, i: int) -> None:
         rec = self._run_record()

@@ -37,6 +37,7 @@ import bpy
 from . import compat, object_coords
 from ..config import Config
 from ..errors import DataPipeError
+from .. import progress
 from ..io.native import write_render_maps
 from .objects import OBJECTS_COLLECTION
 
@@ -226,8 +227,12 @@ class Renderer:
             object_coords.prepare_parts(coll.all_objects if coll is not None else [])
 
         t0 = time.perf_counter()
-        bpy.ops.render.render(write_still=False, scene=self.scene.name)
+        res = self.scene.render
+        with progress.cycles("render", f"{', '.join(self.cfg.render.outputs)} at {res.resolution_x} x "
+                                       f"{res.resolution_y}, {self.scene.cycles.samples} samples"):
+            bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0
+        progress.begin("write", "native files")
 
         channels = compat.take_written_exr(render_dir, TEMP_BASENAME, "pass", expect=[
             f"{item}.{c}" for item, (_, _, socket_type) in self._items.items() for c in _CHANNELS[socket_type]])

@@ -41,7 +41,8 @@ from mathutils import Matrix
 
 from ..config import Config
 from ..physics_check import Part, SceneCheck, check_scene, physics_line
-from .objects import COM_PROP, SIM_MESH_PROP, Instance, ObjectManager
+from .. import progress
+from .objects import COM_PROP, SIM_MESH_PROP, STAGE_LAYERS, Instance, ObjectManager
 from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_body
 
 FRAME_START = 1
@@ -76,6 +77,8 @@ class SimResult:
     seconds: float = 0.0                          # wall time of the simulation (without the check)
     attempts: int = 1                             # drops made (> 1: redrawn, see drop_scene)
     placement_seconds: float = 0.0                # drop_scene: time spent populating (all attempts)
+    stages: int = 1                               # drop stages (a deep spawn column drops in stages)
+    fill: dict | None = None                      # scene.fill: the share drawn and the share reached
 
     def summary(self) -> dict:
         """What scene.json and the progress line report about the drop (lengths in mm). No timings:
@@ -90,6 +93,10 @@ class SimResult:
             "unsettled": [{"name": n, "speed": round(v, 5)} for n, v in self.unsettled],
             "attempts": self.attempts,
         }
+        if self.stages > 1:
+            out["stages"] = self.stages
+        if self.fill is not None:
+            out["fill"] = dict(self.fill)
         if c is not None:
             out.update({
                 "max_interpenetration_mm": round(c.max_depth * 1000, 3),
@@ -119,16 +126,71 @@ def drop_scene(objects: ObjectManager, simulation: "Simulation", rng: np.random.
     attempt, placing = 0, 0.0
     while True:
         t0 = time.perf_counter()
-        insts = objects.populate(rng)
+        progress.begin("placement", "" if attempt == 0 else f"(redraw {attempt})")
+        insts = objects.populate(rng, staged=True)
         placing += time.perf_counter() - t0
-        res = simulation.run(insts, rng)
-        res.attempts, res.placement_seconds = attempt + 1, placing
+        progress.begin("simulation", f"{len(insts)} parts" + (f" (scene.fill {objects.last_fill['share']:.2f} of "
+                                                             "the bin)" if objects.last_fill else ""))
+        res = drop_in_stages(objects, simulation, insts)
+        res.attempts, res.placement_seconds, res.fill = attempt + 1, placing, objects.last_fill
         lost = len(res.removed) / max(1, len(insts))
         if lost <= cfg.redraw_lost_share or attempt >= cfg.redraw_attempts:
             return res, rng
         attempt += 1
         objects.clear()
         rng = redraw_rng(scene_seed, attempt)
+
+
+def drop_in_stages(objects: ObjectManager, simulation: "Simulation", instances: list[Instance]) -> SimResult:
+    """Simulate the spawn column in stages of STAGE_LAYERS layers: stage k's parts get their rigid
+    bodies only once stages < k have settled, lowered to just above the pile (the highest point of
+    the parts kept so far + layer_gap), so hundreds of parts never fall from a column many times the
+    bin's height (impact speed, substeps, parts thrown over the walls). Each stage is one
+    `Simulation.run` with its own substep plan and settle criteria over every part in the bin; the
+    parts settled before start at rest where they lay. A column of <= STAGE_LAYERS layers is one
+    plain run."""
+    waves = sorted({inst.layer // STAGE_LAYERS for inst in instances})
+    if len(waves) <= 1:
+        return simulation.run(instances)
+    active = [inst for inst in instances if inst.layer // STAGE_LAYERS == waves[0]]
+    removed: list[tuple[Instance, str]] = []
+    frames, seconds, plan = 0, 0.0, None
+    for w in waves:
+        if w != waves[0]:
+            wave = [inst for inst in instances if inst.layer // STAGE_LAYERS == w]
+            _lower_onto(wave, active, float(simulation.cfg.simulation.layer_gap))
+            objects.activate(wave)
+            active = active + wave
+        res = simulation.run(active, final=w == waves[-1])
+        frames, seconds = frames + res.frames, seconds + res.seconds
+        removed += res.removed
+        if plan is None or (res.plan and res.plan.substeps > plan.substeps):
+            plan = res.plan
+        active = res.kept
+        state = "settled" if res.settled else f"{len(res.unsettled)} still moving after {res.frames} frames"
+        progress.note(f"drop stage {waves.index(w) + 1}/{len(waves)}: {state}, {len(res.kept)} parts in the bin, "
+                      f"{len(removed)} lost")
+    res.kept.sort(key=lambda inst: inst.mask_index)
+    res.frames, res.seconds, res.removed, res.plan, res.stages = frames, seconds, removed, plan, len(waves)
+    return res
+
+
+def _world_corners(obj) -> np.ndarray:
+    M = np.array(obj.matrix_world, dtype=np.float64)
+    return np.array([tuple(v) for v in obj.bound_box], dtype=np.float64) @ M[:3, :3].T + M[:3, 3]
+
+
+def _lower_onto(wave: list[Instance], pile: list[Instance], gap: float) -> None:
+    """Move the wave (spheres that do not overlap each other) straight down until its lowest point
+    is `gap` above the pile's highest one; never up."""
+    top = max((_world_corners(inst.obj)[:, 2].max() for inst in pile), default=-math.inf)
+    bottom = min(_world_corners(inst.obj)[:, 2].min() for inst in wave)
+    dz = min(0.0, top + gap - bottom)
+    for inst in wave:
+        M = inst.obj.matrix_world.copy()
+        M[2][3] += dz
+        inst.obj.matrix_world = M
+    bpy.context.view_layer.update()
 
 
 def plan_substeps(cfg: Config, bs: BlendScene, instances: list[Instance], frame_time: float) -> SubstepPlan:
@@ -173,7 +235,10 @@ class Simulation:
         rbw.point_cache.frame_end = FRAME_START + int(sim.max_frames)
         return rbw
 
-    def run(self, instances: list[Instance], rng: np.random.Generator | None = None) -> SimResult:
+    def run(self, instances: list[Instance], rng: np.random.Generator | None = None, *,
+            final: bool = True) -> SimResult:
+        """Simulate `instances` to rest. `final=False` (a drop stage, see drop_in_stages): the parts
+        kept stay rigid bodies, set at rest where they lay, for the next stage; no check."""
         t0 = time.perf_counter()
         scene = self.blend_scene.scene
         dt = scene.render.fps_base / scene.render.fps
@@ -202,12 +267,29 @@ class Simulation:
         unsettled = [(n, v) for n, v in unsettled if n not in gone]
         for inst, _ in removed:
             _delete_with_pieces(inst.obj)
+        if not final:
+            self._rest_here(kept, poses, rbw)
+            return SimResult(frames=frames, settled=settled and not unsettled, kept=kept, removed=removed,
+                             poses=poses, unsettled=unsettled, plan=plan, seconds=time.perf_counter() - t0)
         self._freeze(kept, poses, rbw)
         seconds = time.perf_counter() - t0
         res = SimResult(frames=frames, settled=settled and not unsettled, kept=kept, removed=removed,
                         poses=poses, unsettled=unsettled, plan=plan, seconds=seconds)
         res.check = self.check(kept, poses)
         return res
+
+    def _rest_here(self, kept: list[Instance], poses: dict[str, np.ndarray], rbw) -> None:
+        """Between drop stages: the kept parts' initial poses become where they came to rest (model
+        mesh back, rigid body kept), the cache is freed so the next run starts from them."""
+        rbw.point_cache.frame_end = rbw.point_cache.frame_end
+        self.blend_scene.scene.frame_set(FRAME_START)
+        for inst in kept:
+            model_mesh = inst.obj.get("datapipe_model_mesh")
+            if model_mesh is not None:
+                inst.obj.data = model_mesh
+                del inst.obj["datapipe_model_mesh"]
+            inst.obj.matrix_world = Matrix(poses[inst.name].tolist())
+        bpy.context.view_layer.update()
 
 
     def _step(self, instances: list[Instance], offsets: list[np.ndarray], corners: list[np.ndarray], dt: float):
@@ -237,6 +319,7 @@ class Simulation:
         for k in range(1, int(sim.max_frames) + 1):
             scene.frame_set(FRAME_START + k)
             frames = k
+            progress.advance(k, int(sim.max_frames))
             prev_mats = mats
             mats, new = state()
             done = True

@@ -74,6 +74,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import sl
+from .. import progress
 from ..config import builds_row_code
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
 from ..io.native import write_render_maps
@@ -230,9 +231,12 @@ class StructuredLightCamera:
             raise ValueError("render_fringes(rows=True) without a row code (structured_light.reflection_filter "
                              "'auto' or 'global' in render mode builds one)")
         names = self.layer_names if rows else self.layer_names[:len(self.periods) * self.steps]
+        what = f"{len(self.periods) * self.steps} fringe layers ({len(self.periods)} periods x {self.steps} steps)"
+        if rows:
+            what += f" + {len(names) - len(self.periods) * self.steps} row-code layers"
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
-                                  filter_width=self.filter_width)
+                                  filter_width=self.filter_width, what=what)
         ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe", expect=[f"{n}.V" for n in names])
         stack = np.stack([ch[f"{name}.V"] for name in names]).astype(np.float32)
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
@@ -247,8 +251,10 @@ class StructuredLightCamera:
         rdir = Path(rdir)
         self.set_sharp_glossy(has_shiny_surface(self.scene))
         radiance, render_s = self.render_fringes(rdir, seed, T_world_cam)
+        progress.begin("decode", f"{radiance.shape[0]} images, exposure {s.exposure}, HDR {s.hdr or 'off'}")
         scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam)
         self.last_seconds = {"render": render_s, "decode": scan.seconds}
+        progress.begin("maps")
         files = write_render_maps(rdir, scan.maps(debug=s.debug))
         summary = scan.summary()
         return files, {

@@ -100,6 +100,9 @@ def _ordered(options):
 _SPECIAL = {
     ("scene", "blend_file"): (lambda grp, name: _abspath(grp.blend_file) or None,
                               lambda value: [("blend_file", value or "")]),
+    ("scene", "fill"): (lambda grp, name: [f32(v) for v in grp.fill] if grp.use_fill else None,
+                        lambda value: [("use_fill", False)] if value is None
+                        else [("use_fill", True), ("fill", tuple(value))]),
     ("projector", "rotation"): (lambda grp, name: _rot_get(grp), _rot_set),
     ("structured_light", "periods"): (lambda grp, name: parse_periods(grp.periods),
                                       lambda value: [("periods", format_periods(value))]),

@@ -118,6 +118,11 @@ class DATAPIPE_PT_scene(_DataPipePanel, Panel):
         sub.prop(s, "bin_wall_thickness")
         _draw_ranges(sub, s, (("bin_size_scale", "Size Scale"), ("bin_wall_scale", "Wall Scale")))
         col.prop(s, "bin_material")
+        col = layout.column()
+        col.prop(s, "use_fill")
+        sub = col.column()
+        sub.active = s.use_fill
+        _draw_ranges(sub, s, (("fill", "Fill"),))
         layout.prop(s, "blend_file")
         layout.prop(s, "other_objects")
 

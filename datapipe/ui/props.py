@@ -133,6 +133,14 @@ class DATAPIPE_PG_scene(PropertyGroup):
                            "extents are each multiplied by a factor drawn from this range", _S, lo=0.05, hi=20.0)
     bin_wall_scale: _range("bin_wall_scale", "Wall Height Scale", "Per scene, the wall height (the drop "
                            "zone's height) is multiplied by a factor drawn from this range", _S, lo=0.05, hi=20.0)
+    use_fill: BoolProperty(
+        name="Fill by Volume", description="Per scene, draw the part counts so that the parts' convex hulls "
+        "fill a share of the bin's volume (within each object's Min/Max instances); off: each count is "
+        "drawn from its Min..Max", default=False)
+    fill: FloatVectorProperty(
+        name="Fill", description="Share of the bin's inner volume the parts' convex hulls fill, drawn per "
+        "scene (min, max; at most 0.5: more heaps over the walls)", size=2, min=0.0, max=0.5,
+        default=(0.1, 0.2), precision=3, update=_keep_range("fill"))
     blend_file: StringProperty(
         name="Blend File", description="Open this .blend as the base scene (empty: a fresh scene); its "
         "object 'drop_zone', when present, overrides the drop zone above",

@@ -9,6 +9,7 @@ system console; lines Blender marks as errors are shown there as well.
 """
 from __future__ import annotations
 
+import threading
 import time
 import traceback
 
@@ -33,6 +34,9 @@ class Run:
         self.finished = False
         self.in_step = False                 # the pipeline itself may open a .blend (scene.blend_file)
         self.blender_log = BlenderLog()
+        self.last_step = None                # last line inside a scene (datapipe/progress.py)
+        if getattr(pipeline, "on_step", False) is None:
+            pipeline.on_step = self.on_step
 
     # -- status -----------------------------------------------------------------------------------
     def _props(self):
@@ -58,6 +62,21 @@ class Run:
         wm = _wm()
         if wm is not None:
             wm.progress_update(p.done)
+
+    def on_step(self, p) -> None:
+        """A line inside a scene: shown at once from Blender's main thread (a step starting, the
+        simulation's frames), the window redrawn although the pipeline step has not returned yet;
+        the heartbeat thread's lines (during a Cycles call, when Blender cannot redraw anyway) are
+        only kept (`last_step`), never touching bpy off the main thread."""
+        self.last_step = p
+        if threading.current_thread() is threading.main_thread():
+            text = p.line() + ("  (cancelling after this render)" if self.cancel_requested else "")
+            self.set_status(text, p.done / p.total if p.total else 1.0)
+            if not bpy.app.background:
+                try:      # the usual way to show a change while an operator still runs
+                    bpy.ops.wm.redraw_timer(type="DRAW_WIN_SWAP", iterations=1)
+                except RuntimeError:
+                    pass
 
     # -- stepping ---------------------------------------------------------------------------------
     def step(self) -> bool:

@@ -1,0 +1,130 @@
+"""Lines inside a scene (datapipe/progress.py) without Blender: the ETA arithmetic, the heartbeat on a
+fake clock, and the step events of a run on the fake world (tests/fake_world.py), whose renders
+report their steps as the Blender world does."""
+import json
+
+import numpy as np
+import pytest
+
+import fixtures_native as fx
+from fake_world import BoxWorld
+from datapipe import progress
+from datapipe.core.pipeline import Pipeline
+from datapipe.progress import STEP, Tracker, estimate_eta
+from datapipe.visibility import VisibStats
+
+
+def test_eta_adds_current_step_later_steps_and_later_renders():
+    # a structured-light Cycles call 30 s in and 25% done: 90 s left in it; decode 10 s and maps 5 s
+    # follow (their means so far); 3 renders after this one at 200 s each
+    eta, lower = estimate_eta("fringes", 30.0, 0.25, {"render": 100.0, "decode": 10.0, "maps": 5.0},
+                              per_render=200.0, renders_after=3)
+    assert eta == pytest.approx(90 + 15 + 600) and not lower
+
+
+def test_eta_without_a_fraction_uses_the_steps_mean_and_never_goes_negative():
+    eta, lower = estimate_eta("decode", 4.0, None, {"decode": 10.0, "maps": 5.0}, 100.0, 0)
+    assert eta == pytest.approx(6 + 5) and not lower
+    eta, _ = estimate_eta("decode", 40.0, None, {"decode": 10.0, "maps": 5.0}, 100.0, 0)
+    assert eta == pytest.approx(5)
+
+
+def test_eta_before_the_first_render_is_a_lower_bound_or_unknown():
+    # the first render's native Cycles call, half done after 60 s: at least the other 60 s
+    eta, lower = estimate_eta("render", 60.0, 0.5, {}, None, renders_after=4)
+    assert eta == pytest.approx(60) and lower
+    assert estimate_eta("simulation", 5.0, None, {}, None, renders_after=4) == (None, True)
+
+
+def test_tracker_heartbeat_on_a_fake_clock():
+    now = [0.0]
+    lines = []
+    t = Tracker(lines.append, heartbeat_s=30.0, clock=lambda: now[0])
+    t.at(done=0, total=2, scene=0, render=None, per_render=None, renders_after=1)
+    t.begin("simulation", "80 parts")                       # a step start is always a line
+    for k in range(1, 601):                                 # 600 frames at 0.1 s each: 60 s
+        now[0] += 0.1
+        t.advance(k, 600)
+    assert [p.count[0] for p in lines[1:]] == [300, 600]    # one line per 30 s, not per frame
+    assert all(p.stage == STEP and p.step == "simulation" for p in lines)
+    # a render finishes: its steps' seconds become the history the next render's ETA uses
+    t.begin("render", "rgb")
+    now[0] += 100.0
+    t.render_done()
+    t.at(done=1, total=2, scene=0, render=1, per_render=170.0, renders_after=0)
+    t.begin("render", "rgb")
+    now[0] += 25.0
+    t.cycles_stats("Remaining: 00:10.00 | Mem: 2M | Sample 4/16")
+    p = t.progress()
+    assert p.count == (4, 16, "sample")
+    assert p.eta == pytest.approx(25 * 12 / 4) and not p.eta_lower
+    assert "sample 4/16" in p.line() and "ETA 1m15s" in p.line()
+    t.cycles_stats("Mem: 2M | Rendered 1/4 Tiles, Sample 8/16")         # samples count per tile
+    p = t.progress()
+    assert p.count == (8, 16, "sample") and t.fraction() == pytest.approx(1.5 / 4)
+    assert "sample 8/16, 25s in - tile 2/4" in p.line()
+    assert p.eta == pytest.approx(25 * 2.5 / 1.5)
+
+
+class SteppingWorld(BoxWorld):
+    """The fake world reporting its steps as core/simulation.py, renderer.py and structured_light.py do."""
+
+    def start_scene(self, *a, **kw):
+        progress.begin("placement")
+        progress.begin("simulation", "3 parts")
+        for k in range(1, 4):
+            progress.advance(k, 200)
+        return super().start_scene(*a, **kw)
+
+    def render(self, *a, **kw):
+        progress.begin("render", "rgb, depth")
+        progress.advance(16, 16, "sample")
+        progress.begin("write", "native files")
+        view = super().render(*a, **kw)
+        progress.begin("decode", "12 images")
+        return view
+
+
+def test_step_events_of_a_run_on_the_fake_world(tmp_path):
+    cfg = fx.default_config(num_renders=3, min_per_scene=1, max_per_scene=2, resolution=(64, 48),
+                            formats=("native",), mesh_dir=tmp_path / "meshes")
+    cfg.output.overview = False
+    steps = []
+    pipe = Pipeline(cfg, tmp_path / "out", world=SteppingWorld.factory(), on_step=steps.append,
+                    heartbeat_s=1e6)     # no heartbeat lines: the step starts only
+    events = list(pipe.run())
+    assert events[-1].stage == "done"
+    assert {p.stage for p in steps} == {STEP}
+    # each render: its scene's steps first (first render of a scene), then render, write, decode
+    kinds = [p.step for p in steps]
+    first = kinds.index("render")
+    assert kinds[:first] == ["placement", "simulation"]
+    assert kinds[first:first + 3] == ["render", "write", "decode"]
+    assert all(p.scene is not None for p in steps)
+    renders = [p for p in steps if p.step == "render" and p.count is None]
+    assert [p.done for p in renders] == [0, 1, 2]
+    # the first render's ETA knows nothing of later renders: a lower bound or none; the last one's
+    # counts only what is left of it (nothing after it) and is not a bound
+    assert renders[0].eta is None or renders[0].eta_lower
+    last = [p for p in steps if p.done == 2 and p.step == "decode"][-1]
+    assert last.eta is not None and not last.eta_lower
+    assert progress._active is None                     # the run's tracker is gone with the run
+    rec = json.loads((tmp_path / "out" / "run.json").read_text())
+    vf = rec["stats"]["visib_fract"]
+    parts = sum(len(r["objects"]) for sj in sorted((tmp_path / "out").glob("scene.*/scene.json"))
+                for r in json.loads(sj.read_text())["renders"])
+    assert vf["instances"] == parts and sum(vf["deciles"]) == parts
+    assert 0.0 <= vf["p10"] <= vf["median"] <= vf["p90"] <= 1.0
+
+
+def test_visib_stats_median_within_a_bin():
+    rng = np.random.default_rng(0)
+    f = rng.uniform(0, 1, 5001) ** 2
+    s = VisibStats()
+    s.add(f[:2000])
+    s.add(f[2000:])
+    out = s.summary()
+    assert out["instances"] == 5001
+    assert out["median"] == pytest.approx(np.quantile(f, 0.5, method="inverted_cdf"), abs=1e-3)
+    assert out["p90"] == pytest.approx(np.quantile(f, 0.9, method="inverted_cdf"), abs=1e-3)
+    assert out["below_0.1"] == pytest.approx(np.mean(f < 0.1), abs=1e-4)      # rounded to 4 digits
