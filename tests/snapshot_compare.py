@@ -53,7 +53,9 @@ OTHER_FLOAT = Tol(rel=1e-6, what="relative 1e-6")
 ROUNDED = {"impact_speed": Tol(abs=1e-4 + 1e-6, what="1e-4 m/s (rounded)"),
            "speed": Tol(abs=1e-5 + 1e-6, what="1e-5 m/s (rounded)"),
            "max_interpenetration_mm": Tol(abs=2e-3, what="2e-3 mm (rounded)"),
-           "depth_mm": Tol(abs=2e-3, what="2e-3 mm (rounded)")}
+           "depth_mm": Tol(abs=2e-3, what="2e-3 mm (rounded)"),
+           # visible / silhouette pixels, both exact counts, written to 1e-4
+           "visib_fract": Tol(abs=1e-4 + 1e-9, what="1e-4 (rounded)")}
 SL_STATS = {"exposure": Tol(rel=1e-3, what="relative 1e-3"),
             "median_sigma_z": Tol(rel=5e-3, what="relative 5e-3")}
 POSES = {"T_cam_obj", "cam2obj_pose", "T_world_cam", "T_world_blcam", "T_cam_proj"}   # 4x4, metres
