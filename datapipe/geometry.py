@@ -90,16 +90,27 @@ def sensor_fit_is_horizontal(sensor_fit: str, width: int, height: int) -> bool:
     return width >= height          # AUTO: the sensor size applies to the larger dimension
 
 
-def intrinsics_from_blender(focal_mm: float, sensor_mm: float, width: int, height: int,
-                            sensor_fit: str = "AUTO") -> np.ndarray:
-    """Pinhole K of an unshifted Blender camera with square pixels; pixel centres at integers.
+def intrinsics_from_sensor(focal_mm: float, sensor_mm: float, width: int, height: int,
+                           sensor_fit: str = "AUTO") -> np.ndarray:
+    """Pinhole K of an unshifted camera given DataPipe's one sensor size; square pixels, pixel
+    centres at integers.
 
     DataPipe's configs carry one sensor size: it is the sensor width, or with sensor_fit VERTICAL
-    the sensor height (BlendCamera sets Blender's sensor_height from it then). The general form
-    (separate sensor height, lens shift) is `intrinsics_from_blender_camera`.
+    the sensor height (BlendCamera sets Blender's sensor_height from it then), so the one size
+    applies to whichever dimension the fit selects. A real Blender camera with its own sensor
+    height and lens shift is `intrinsics_from_blender_camera`.
     """
     return intrinsics_from_blender_camera(focal_mm, sensor_mm, int(width), int(height), sensor_fit,
                                           sensor_height_mm=sensor_mm)
+
+
+def intrinsics_from_blender(focal_mm: float, sensor_mm: float, width: int, height: int,
+                            sensor_fit: str = "AUTO") -> np.ndarray:
+    """Deprecated: the former name of `intrinsics_from_sensor`, identical behaviour (one sensor
+    size for whichever dimension the fit selects). Kept only while datapipe/config.py still calls
+    it; use `intrinsics_from_sensor` (DataPipe configs) or `intrinsics_from_blender_camera` (a
+    real Blender camera) in new code."""
+    return intrinsics_from_sensor(focal_mm, sensor_mm, width, height, sensor_fit)
 
 
 def project_points(K, T_cam_X, pts) -> np.ndarray:
@@ -199,7 +210,7 @@ def projector_intrinsics(cfg) -> np.ndarray:
     sensor width applies to the larger image dimension) - the same rule as the camera."""
     pr = projector_cfg(cfg)
     w, h = projector_resolution(pr)
-    return intrinsics_from_blender(pr.focal_length, pr.sensor_width, w, h, "AUTO")
+    return intrinsics_from_sensor(pr.focal_length, pr.sensor_width, w, h, "AUTO")
 
 
 def projector_pose_blender(cfg) -> np.ndarray:

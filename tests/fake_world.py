@@ -12,7 +12,7 @@ import numpy as np
 
 import fixtures_native as fx
 from datapipe.core.world import Part, SceneStart, View
-from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_blender
+from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_sensor
 from datapipe.io.native import write_render_maps
 
 
@@ -41,7 +41,7 @@ class BoxWorld:
         self.import_count = len(self.cfg.objects)
         W, H = self.cfg.camera.resolution
         c = self.cfg.camera
-        self.K = intrinsics_from_blender(c.focal_length, c.sensor_width, W, H)
+        self.K = intrinsics_from_sensor(c.focal_length, c.sensor_width, W, H)
 
     def model_meshes(self) -> dict:
         return fx.box_meshes(1)

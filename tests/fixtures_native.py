@@ -33,7 +33,7 @@ import numpy as np
 from datapipe.config import Config, ObjectEntry, CameraPose
 from datapipe.io import legacy as legacy_pickle
 from datapipe.exr import write_exr
-from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_blender
+from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_sensor
 from datapipe.seeds import plan_scenes, render_seed, scene_seed, shard_scenes, parse_shard
 
 # half extents (m) of the box models, obj_id = index + 1
@@ -233,7 +233,7 @@ def default_config(*, num_renders=4, min_per_scene=2, max_per_scene=2, seed=0, r
 def write_scene(out: Path, cfg: Config, seed: int, scene: int, plan: list[int], *, min_boxes=2, max_boxes=3,
                 spread=0.09, truncate=False, sl_noise_mm=0.3, sl_hole_fraction=0.03):
     W, H = cfg.camera.resolution
-    K = intrinsics_from_blender(cfg.camera.focal_length, cfg.camera.sensor_width, W, H)
+    K = intrinsics_from_sensor(cfg.camera.focal_length, cfg.camera.sensor_width, W, H)
     objs = scene_objects(seed, scene, min_boxes=min_boxes, max_boxes=max_boxes, spread=spread, truncate=truncate)
     name = f"scene.{scene + 1:04d}"
     sdir = out / name

@@ -8,7 +8,7 @@ import pytest
 from datapipe import geometry
 from datapipe.config import Config
 from datapipe.errors import DataPipeError
-from datapipe.geometry import camera_pose_from_config, euler_xyz_to_matrix, intrinsics_from_blender, matrix_to_quat
+from datapipe.geometry import camera_pose_from_config, euler_xyz_to_matrix, intrinsics_from_sensor, matrix_to_quat
 
 
 def _cfg(**proj):
@@ -28,7 +28,7 @@ def test_projector_math():
     cfg = _cfg()
     W, H = cfg.projector.resolution
     K = geometry.projector_intrinsics(cfg)
-    assert np.allclose(K, intrinsics_from_blender(16.0, 11.3, W, H))
+    assert np.allclose(K, intrinsics_from_sensor(16.0, 11.3, W, H))
     assert K[0, 2] == W / 2 - 0.5 and K[1, 2] == H / 2 - 0.5
     T = geometry.T_cam_proj(cfg)
     # projector 15 cm to the camera's left (OpenCV -x), same height, optical axes converge ~1 m ahead

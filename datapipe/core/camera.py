@@ -28,7 +28,7 @@ def apply_intrinsics(cam_data, scene, camera_cfg) -> None:
     cam_data.lens = c.focal_length
     cam_data.sensor_fit = c.sensor_fit
     # With VERTICAL fit Blender uses sensor_height; the config's sensor_width is the size of the
-    # fitted sensor dimension in every case (what intrinsics_from_blender takes).
+    # fitted sensor dimension in every case (what intrinsics_from_sensor takes).
     cam_data.sensor_width = c.sensor_width
     if c.sensor_fit == "VERTICAL":
         cam_data.sensor_height = c.sensor_width
@@ -88,7 +88,7 @@ class BlendCamera:
     def K(self) -> np.ndarray:
         c = self.cfg.camera
         w, h = self.resolution
-        return geometry.intrinsics_from_blender(c.focal_length, c.sensor_width, w, h, c.sensor_fit)
+        return geometry.intrinsics_from_sensor(c.focal_length, c.sensor_width, w, h, c.sensor_fit)
 
     # -- poses ------------------------------------------------------------------------------------
     def set_pose(self, pose_index: int) -> np.ndarray:

@@ -17,7 +17,7 @@ from ..config import Config, camera_distances
 from ..errors import ConfigError, Problem
 from ..io.bop_models import entry_field, expand_bop_objects
 from ..part_fit import fill_problems
-from ..sl.triangulate import intrinsics_from_blender
+from ..geometry import intrinsics_from_sensor
 from . import collision
 from .objects import _IMPORTERS, DECOMPOSED_SHAPES, _run_importer, remove_import_leftovers
 
@@ -71,8 +71,8 @@ def check_meshes(cfg: Config) -> list[Problem]:
     volumes: dict[int, float] = {}          # entry -> one part's hull volume, m^3
     zone = np.asarray(cfg.scene.drop_zone_scale, dtype=np.float64) * 2        # full extents, m
     c = cfg.camera
-    fx = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
-                                       c.sensor_fit, sensor_height_mm=c.sensor_width)[0, 0])
+    fx = float(intrinsics_from_sensor(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
+                                      c.sensor_fit)[0, 0])
     far = max(camera_distances(cfg))
     for i, o in enumerate(cfg.objects):
         field = f"{entry_field(o, i)}.filepath"

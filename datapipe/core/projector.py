@@ -15,7 +15,7 @@ the camera object's local (Blender) axes. Like a Blender camera, the spot light 
     T_cam_proj = B @ T_blcam_bllight @ B          (B = geometry.BLENDER_TO_OPENCV)
     P_proj     = K_p @ inv(T_world_cam @ T_cam_proj)[:3]
 
-with `K_p = intrinsics_from_blender(focal, sensor_width, W, H)` (pixel centres at integers,
+with `K_p = intrinsics_from_sensor(focal, sensor_width, W, H)` (pixel centres at integers,
 cx = W/2 - 0.5, cy = H/2 - 0.5). Projector column x / row y (OpenCV, rows down) is what P_proj
 returns; pattern array element `[y, x]` is what that point receives.
 

@@ -11,14 +11,16 @@ from .patterns import fringe_patterns, phase_shifts
 from .phase import PhaseResult, phase_shift
 from .scanner import Scan, Scanner
 from .sensor import PRESETS, SensorModel
-from .triangulate import Triangulator, TriangulationResult, intrinsics_from_blender, projection_matrix
+from .triangulate import (Triangulator, TriangulationResult, intrinsics_from_blender, intrinsics_from_blender_camera,
+                          projection_matrix)
 from .unwrap import UnwrapResult, plan_unwrap, unwrap_phase
 
 __all__ = [
     "fringe_patterns", "phase_shifts",
     "phase_shift", "PhaseResult",
     "unwrap_phase", "plan_unwrap", "UnwrapResult",
-    "Triangulator", "TriangulationResult", "intrinsics_from_blender", "projection_matrix",
+    "Triangulator", "TriangulationResult", "intrinsics_from_blender_camera", "intrinsics_from_blender",
+    "projection_matrix",
     "SensorModel", "PRESETS",
     "decode", "DecodeResult", "Reason", "VALID_REASONS", "NEIGHBOUR_RISK", "estimate_noise_sigma",
     "modulation_floor_factor",

@@ -1,5 +1,5 @@
 """Camera-projector triangulation in closed form (the camera-model helpers it re-exports,
-`intrinsics_from_blender` and `projection_matrix`, live in datapipe.geometry).
+`intrinsics_from_blender_camera` and `projection_matrix`, live in datapipe.geometry).
 
 Geometry. ``P_cam = K [R|t]`` and ``P_proj`` are 3x4 world -> pixel matrices (OpenCV convention,
 pixel centres at integers). ``P_cam`` is normalised (sign and scale) so that for a world point X,
@@ -30,11 +30,22 @@ import numpy as np
 import scipy.linalg
 
 from ..geometry import finite_matrix as _finite_matrix
-from ..geometry import intrinsics_from_blender_camera as intrinsics_from_blender
-from ..geometry import projection_matrix
+from ..geometry import intrinsics_from_blender_camera, projection_matrix
 from ._errors import bad_type, bad_value
 
-__all__ = ["Triangulator", "TriangulationResult", "intrinsics_from_blender", "projection_matrix"]
+__all__ = ["Triangulator", "TriangulationResult", "intrinsics_from_blender_camera", "intrinsics_from_blender",
+           "projection_matrix"]
+
+
+def intrinsics_from_blender(focal_mm: float, sensor_width_mm: float, width: int, height: int,
+                            sensor_fit: str = "AUTO", *, sensor_height_mm: float = 24.0,
+                            shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
+    """Deprecated alias of `intrinsics_from_blender_camera`, kept because ``datapipe.sl`` exported
+    it: same arguments, same defaults (a VERTICAL fit uses ``sensor_height_mm``, 24 mm unless
+    given, as a real Blender camera does), same result. For DataPipe configs' one-sensor-size
+    convention use `datapipe.geometry.intrinsics_from_sensor`."""
+    return intrinsics_from_blender_camera(focal_mm, sensor_width_mm, width, height, sensor_fit,
+                                          sensor_height_mm=sensor_height_mm, shift_x=shift_x, shift_y=shift_y)
 
 
 def _size(s, name):

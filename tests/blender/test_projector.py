@@ -17,7 +17,7 @@ from datapipe.core import projector as pj  # noqa: E402
 from datapipe.errors import DataPipeError  # noqa: E402
 from datapipe.exr import read_exr  # noqa: E402
 from datapipe.geometry import (blender_camera_to_opencv,  # noqa: E402
-                               euler_xyz_to_matrix, intrinsics_from_blender, matrix_to_quat)
+                               euler_xyz_to_matrix, intrinsics_from_sensor, matrix_to_quat)
 
 CAM_W, CAM_H = 128, 96
 CAM_F, CAM_SENSOR = 16.0, 11.3
@@ -288,7 +288,7 @@ def test_decoded_columns_match_projection_matrix(tmp_path, case):
     y_dec, _ = _decode(stack[nx:], py, N, H)
 
     # ground truth: camera ray through the pixel centre -> plane -> P_proj
-    K = intrinsics_from_blender(CAM_F, CAM_SENSOR, CAM_W, CAM_H)
+    K = intrinsics_from_sensor(CAM_F, CAM_SENSOR, CAM_W, CAM_H)
     C, d = _camera_rays(K, Twc)
     n, p0 = T_plane[:3, 2], T_plane[:3, 3]
     t = ((p0 - C) @ n) / (d @ n)
@@ -364,7 +364,7 @@ def test_view_layer_isolation_and_teardown(tmp_path):
     # zero pattern: black everywhere (no key light, world or other projector)
     assert np.abs(out["sl_01"]).max() == 0.0
     # top-half pattern: bright above the projected image's middle row, dark below (not flipped)
-    K = intrinsics_from_blender(CAM_F, CAM_SENSOR, CAM_W, CAM_H)
+    K = intrinsics_from_sensor(CAM_F, CAM_SENSOR, CAM_W, CAM_H)
     C, d = _camera_rays(K, blender_camera_to_opencv(np.array(cam.matrix_world)))
     X = C + ((-0.9 - C[2]) / d[:, 2])[:, None] * d
     gx, gy = (g.reshape(CAM_H, CAM_W) for g in _project(proj.P_proj(), X))
@@ -424,7 +424,7 @@ def test_box_casts_shadow(tmp_path):
     layers = [vl.name for vl in proj.make_view_layers()]
     img = _render(sc, tmp_path, layers, tag="shadow")["sl_00"]
 
-    K = intrinsics_from_blender(CAM_F, CAM_SENSOR, CAM_W, CAM_H)
+    K = intrinsics_from_sensor(CAM_F, CAM_SENSOR, CAM_W, CAM_H)
     Twc = blender_camera_to_opencv(np.array(cam.matrix_world))
     C, d = _camera_rays(K, Twc)
     t_plane = (z_plane - C[2]) / d[:, 2]

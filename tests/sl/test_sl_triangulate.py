@@ -4,25 +4,38 @@ import pytest
 
 import synth
 from datapipe.errors import DataPipeError
-from datapipe.sl import Triangulator, intrinsics_from_blender, projection_matrix
+from datapipe.geometry import intrinsics_from_sensor
+from datapipe.sl import Triangulator, intrinsics_from_blender, intrinsics_from_blender_camera, projection_matrix
 
 
 @pytest.mark.parametrize("w, h, fit, f", [
     (640, 480, "AUTO", 50 * 640 / 36), (480, 640, "AUTO", 50 * 640 / 36),
     (480, 640, "HORIZONTAL", 50 * 480 / 36), (640, 480, "VERTICAL", 50 * 480 / 24),
 ])
-def test_intrinsics_from_blender(w, h, fit, f):
-    K = intrinsics_from_blender(50, 36, w, h, fit)
+def test_intrinsics_from_blender_camera(w, h, fit, f):
+    K = intrinsics_from_blender_camera(50, 36, w, h, fit)
     np.testing.assert_allclose(K, [[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1]])
+    # the deprecated sl name is the same function in behaviour, defaults included
+    np.testing.assert_array_equal(intrinsics_from_blender(50, 36, w, h, fit), K)
+
+
+@pytest.mark.parametrize("w, h, fit, f", [
+    (640, 480, "AUTO", 50 * 640 / 36), (480, 640, "HORIZONTAL", 50 * 480 / 36),
+    (640, 480, "VERTICAL", 50 * 480 / 36),     # one sensor size: 36 mm is the height here
+])
+def test_intrinsics_from_sensor_one_size(w, h, fit, f):
+    K = intrinsics_from_sensor(50, 36, w, h, fit)
+    np.testing.assert_allclose(K, [[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1]])
+    np.testing.assert_array_equal(K, intrinsics_from_blender_camera(50, 36, w, h, fit, sensor_height_mm=36))
 
 
 def test_intrinsics_lens_shift_and_errors():
-    K = intrinsics_from_blender(50, 36, 640, 480, shift_x=0.1, shift_y=-0.05)
+    K = intrinsics_from_blender_camera(50, 36, 640, 480, shift_x=0.1, shift_y=-0.05)
     assert K[0, 2] == pytest.approx(319.5 - 64) and K[1, 2] == pytest.approx(239.5 - 32)
     with pytest.raises(ValueError, match="sensor_fit"):
-        intrinsics_from_blender(50, 36, 640, 480, "DIAGONAL")
+        intrinsics_from_blender_camera(50, 36, 640, 480, "DIAGONAL")
     with pytest.raises(ValueError, match="focal_mm"):
-        intrinsics_from_blender(0, 36, 640, 480)
+        intrinsics_from_sensor(0, 36, 640, 480)
 
 
 def test_projection_matrix_matches_pose():
