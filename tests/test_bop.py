@@ -5,7 +5,6 @@ Nothing here imports the writer's helpers for reading: PLY, PNG and JSON are par
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -19,63 +18,9 @@ from datapipe.errors import DataPipeError
 from datapipe.exr import read_exr, write_exr
 
 import fixtures_native as fx
+from bop_reference import iter_gt, ref_load_json, ref_png, ref_read_ply
 
 TESTS = Path(__file__).resolve().parent
-
-
-# ------------------------------------------------------------------------------------------------
-# the independent reader
-
-def ref_read_ply(path):
-    """Vertices (V,3) of an ascii or binary_little_endian PLY; faces (F,3) for triangle meshes."""
-    raw = Path(path).read_bytes()
-    end = raw.index(b"end_header")
-    body = raw.index(b"\n", end) + 1
-    header = raw[:end].decode().splitlines()
-    assert header[0] == "ply"
-    fmt = next(l.split()[1] for l in header if l.startswith("format"))
-    elems, cur = [], None
-    for l in header:
-        t = l.split()
-        if t and t[0] == "element":
-            cur = [t[1], int(t[2]), []]
-            elems.append(cur)
-        elif t and t[0] == "property":
-            cur[2].append(t[1:])
-    vert = elems[0]
-    assert vert[0] == "vertex"
-    names = [p[-1] for p in vert[2]]
-    assert names[:6] == ["x", "y", "z", "nx", "ny", "nz"], names
-    nv = vert[1]
-    face = next(e for e in elems if e[0] == "face")
-    if fmt == "ascii":
-        lines = raw[body:].decode().split("\n")
-        V = np.array([[float(x) for x in lines[i].split()] for i in range(nv)])
-        F = np.array([[int(x) for x in lines[nv + i].split()] for i in range(face[1])])
-        assert (F[:, 0] == 3).all()
-        return V, F[:, 1:]
-    assert fmt == "binary_little_endian"
-    tmap = {"float": "<f4", "double": "<f8", "uchar": "u1", "int": "<i4", "uint": "<u4"}
-    vdt = np.dtype([(p[-1], tmap[p[0]]) for p in vert[2]])
-    V = np.frombuffer(raw, vdt, nv, body)
-    pos = body + vdt.itemsize * nv
-    lst = face[2][0]
-    fdt = np.dtype([("n", tmap[lst[1]]), ("i", tmap[lst[2]], (3,))])
-    F = np.frombuffer(raw, fdt, face[1], pos)
-    assert (F["n"] == 3).all()
-    return np.stack([V[n] for n in names], 1).astype(np.float64), F["i"].astype(np.int64)
-
-
-def ref_load_json(path):
-    with open(path) as f:
-        data = json.load(f)
-    return {int(k) if k.isdigit() else k: v for k, v in data.items()}
-
-
-def ref_png(path, flags=cv2.IMREAD_UNCHANGED):
-    im = cv2.imread(str(path), flags)
-    assert im is not None, path
-    return im
 
 
 # ------------------------------------------------------------------------------------------------
@@ -92,17 +37,6 @@ def bop(native_run, tmp_path_factory):
     summary = export_bop(native_run, root)
     assert summary["images"] == 4 and summary["scenes"] == 2
     return root
-
-
-def iter_gt(bop_root, chunk_size=1000):
-    """(image_id, chunk_dir, im_id, camera, [gt], [gt_info]) for every image of the export."""
-    for cdir in sorted((bop_root / "train_pbr").iterdir()):
-        cams = ref_load_json(cdir / "scene_camera.json")
-        gts = ref_load_json(cdir / "scene_gt.json")
-        infos = ref_load_json(cdir / "scene_gt_info.json")
-        assert set(cams) == set(gts) == set(infos)
-        for im_id in sorted(cams):
-            yield int(cdir.name) * chunk_size + im_id, cdir, im_id, cams[im_id], gts[im_id], infos[im_id]
 
 
 def analytic_truth(native_run, image_id):
@@ -411,78 +345,6 @@ def test_write_models_ascii_binary_and_exact_diameter(tmp_path):
         assert info["size_z"] == pytest.approx(np.ptp(mm[:, 2]))
     with pytest.raises(DataPipeError, match="start at 1"):
         write_models(tmp_path / "bad", {0: (pts, faces, normals)})
-
-
-def _real_pipeline_available():
-    try:
-        import bpy  # noqa: F401
-        import datapipe.core.pipeline  # noqa: F401
-        import datapipe.cli  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
-@pytest.mark.blender
-@pytest.mark.slow
-@pytest.mark.skipif(not _real_pipeline_available(), reason="needs bpy and datapipe.core.pipeline")
-def test_real_tiny_run_exports_to_bop(tmp_path):
-    """End to end on a tiny real run: `python -m datapipe demo`, then BOP export read back."""
-    import subprocess
-    import sys
-    out = tmp_path / "demo"
-    r = subprocess.run([sys.executable, "-m", "datapipe", "demo", "--out", str(out), "--force"],
-                       capture_output=True, text=True, timeout=1800)
-    assert r.returncode == 0, r.stderr[-3000:]
-    root = tmp_path / "bop"
-    summary = export_bop(out, root)
-    assert summary["images"] >= 1
-    checked = 0
-    rng = np.random.default_rng(0)
-    bary = np.vstack([[1 / 3, 1 / 3, 1 / 3], rng.dirichlet([2, 2, 2], size=12)])
-    for image_id, cdir, im_id, cam_e, gts, infos in iter_gt(root):
-        K = np.array(cam_e["cam_K"]).reshape(3, 3)
-        depth_mm = ref_png(cdir / "depth" / f"{im_id:06d}.png").astype(np.float64) * cam_e["depth_scale"]
-        H, W = depth_mm.shape
-        for gt_id, (g, inf) in enumerate(zip(gts, infos)):
-            mv = ref_png(cdir / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png") > 0
-            mfull = ref_png(cdir / "mask" / f"{im_id:06d}_{gt_id:06d}.png") > 0
-            assert inf["px_count_visib"] == mv.sum()
-            assert 0.0 <= inf["visib_fract"] <= 1.0
-            assert not (mv & ~mfull).any()
-            V, F = ref_read_ply(root / "models" / f"obj_{g['obj_id']:06d}.ply")
-            R = np.array(g["cam_R_m2c"]).reshape(3, 3)
-            pc = V[:, :3] @ R.T + np.array(g["cam_t_m2c"])
-            uv = pc @ K.T
-            uv = uv[:, :2] / uv[:, 2:]
-            # an independent silhouette: cv2.fillConvexPoly per triangle (1/16 px precision)
-            sil = np.zeros((H, W), np.uint8)
-            for tri in F:
-                cv2.fillConvexPoly(sil, np.rint((uv[tri] - 0.0) * 16).astype(np.int32), 1, lineType=cv2.LINE_8,
-                                   shift=4)
-            sil = sil > 0
-            # fillConvexPoly also fills pixels an edge only touches: compare with a 1-px tolerance
-            if inf["px_count_visib"] > 100:
-                assert (mv & sil).sum() / mv.sum() > 0.97, (image_id, gt_id)   # visible part inside the posed model
-            core = cv2.erode(sil.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-            if core.sum() > 100:
-                assert (core & ~mfull).sum() / core.sum() < 0.03, (image_id, gt_id)
-            # points on the model's faces that the depth image sees (3x3 window within 2 mm) land on mask_visib
-            tri = V[:, :3][F]                                             # (F,3,3)
-            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) @ R.T
-            pts = np.einsum("sk,fkd->fsd", bary, tri).reshape(-1, 3) @ R.T + np.array(g["cam_t_m2c"])
-            n = np.repeat(n, len(bary), axis=0)
-            grazing = np.abs((n * pts).sum(1)) < 0.3 * np.linalg.norm(n, axis=1) * np.linalg.norm(pts, axis=1)
-            uvp = pts @ K.T
-            px = np.rint(uvp[:, :2] / uvp[:, 2:]).astype(int)
-            ok = ~grazing & (px[:, 0] >= 1) & (px[:, 0] < W - 1) & (px[:, 1] >= 1) & (px[:, 1] < H - 1)
-            px, z = px[ok], pts[ok, 2]
-            win = np.stack([depth_mm[px[:, 1] + dy, px[:, 0] + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
-            vis = np.abs(win - z).max(0) < 2.0
-            if vis.sum() >= 10:
-                checked += 1
-                assert mv[px[vis, 1], px[vis, 0]].mean() > 0.9, (image_id, gt_id)
-    assert checked >= 1
 
 
 def psnr(a, b):

@@ -2,8 +2,8 @@
 
 Merging is tested on synthetic shard folders (tests/fixtures_native.py makes the very scenes the
 pipeline's `--shard i/n` would). The Ray tests run the fan-out with the fixture's stand-in runner
-(same command line as `python -m datapipe run`), and, when bpy and the pipeline are there, with the
-real runner on a tiny preset."""
+(same command line as `python -m datapipe run`); the Ray test with the real Blender runner is in
+tests/blender/test_distributed_real.py."""
 from __future__ import annotations
 
 import hashlib
@@ -12,25 +12,18 @@ import shutil
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from datapipe import config as config_mod
-from datapipe.io import legacy as legacy_pickle
 from datapipe.distributed import merge_shards, run_distributed
 from datapipe.errors import DataPipeError
 from datapipe.exr import read_exr
 
 import fixtures_native as fx
+from distributed_helpers import killing, legacy, local_ray  # noqa: F401  (local_ray: a fixture)
 
 TESTS = Path(__file__).resolve().parent
 FAKE_RUNNER = [sys.executable, str(TESTS / "fixtures_native.py"), "run"]
-REAL_RUNNER = [sys.executable, "-m", "datapipe", "run"]
-
-
-def killing(runner, shard, scenes=1):
-    """`runner`, except that shard `shard`'s first attempt is killed once `scenes` scenes are done."""
-    return [sys.executable, str(TESTS / "kill_runner.py"), str(shard), str(scenes), "--", *runner]
 
 
 def small_cfg(**kw):
@@ -53,14 +46,6 @@ def annotations(run: Path) -> dict:
             rd["_rgb"] = hashlib.md5((rdir / "rgb.png").read_bytes()).hexdigest()
         out[sj.parent.name] = doc
     return out
-
-
-def legacy(run: Path) -> dict:
-    data = legacy_pickle.load_legacy_output(run / "output_dict.pickle")
-    return {s: {r: {"wrld2cam_pose": np.asarray(v["wrld2cam_pose"]).round(9).tolist(),
-                    "objects": [(o["name"], o["mask_index"], np.asarray(o["T_cam_obj"]).round(9).tolist())
-                                for o in v["objects_in_scene"]]}
-                for r, v in sc.items()} for s, sc in data.items()}
 
 
 def make_shards(root: Path, cfg, n: int, **kw) -> list[Path]:
@@ -131,15 +116,6 @@ def test_merge_refuses_shards_of_different_runs(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # Ray (local instance, stand-in runner)
 
-@pytest.fixture(scope="module")
-def local_ray():
-    ray = pytest.importorskip("ray")
-    if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield ray
-    ray.shutdown()
-
-
 def write_preset(path: Path, cfg) -> Path:
     cfg.objects = fx.default_config(mesh_dir=path.parent / "meshes").objects    # real files: the preset validates
     config_mod.save(cfg, path)
@@ -190,64 +166,6 @@ def test_ray_failing_shard_is_reported_and_a_rerun_resumes(tmp_path, local_ray):
     assert summary["scenes"] == 4
     with pytest.raises(DataPipeError, match="already holds scenes"):
         run_distributed(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER)
-
-
-# ------------------------------------------------------------------------------------------------
-# Ray with the real runner (bpy + pipeline)
-
-def _real_pipeline_available():
-    try:
-        import bpy  # noqa: F401
-        import datapipe.core.pipeline  # noqa: F401
-        import datapipe.cli  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
-def tiny_real_preset(path: Path) -> Path:
-    cfg = config_mod.default_config()
-    cfg.scene.num_renders = 4
-    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1     # 4 scenes
-    cfg.camera.resolution = [96, 72]
-    cfg.structured_light.periods = [1, 4, 16]      # finest fringe 6 camera px (>= 3, or validate refuses)
-    cfg.render.samples = 2
-    cfg.simulation.max_frames = 60
-    for o in cfg.objects:
-        o.min_instances, o.max_instances = 1, 2
-    config_mod.save(cfg, path)
-    return path
-
-
-def real_annotations(run: Path) -> dict:
-    out = {}
-    for sj in sorted(run.glob("scene.*/scene.json")):
-        doc = json.loads(sj.read_text())
-        out[sj.parent.name] = [
-            (rd["image_id"], rd["pose_index"], [(o["name"], o["obj_id"], o["mask_index"],
-                                                 np.round(np.asarray(o["T_cam_obj"]), 6).tolist(), o["px_count_visib"])
-                                                for o in rd["objects"]]) for rd in doc["renders"]]
-    return out
-
-
-@pytest.mark.blender
-@pytest.mark.slow
-@pytest.mark.skipif(not _real_pipeline_available(), reason="needs bpy and datapipe.core.pipeline")
-def test_ray_real_pipeline_two_shards_with_a_kill_match_one_process(tmp_path, local_ray, monkeypatch):
-    import subprocess
-    preset = tiny_real_preset(tmp_path / "preset.json")
-    r = subprocess.run([sys.executable, "-m", "datapipe", "run", str(preset), "--out", str(tmp_path / "single"),
-                        "--quiet"], capture_output=True, text=True, timeout=1200)
-    assert r.returncode == 0, r.stderr[-3000:]
-    summary = run_distributed(preset, tmp_path / "out", num_shards=2, retries=2, extra_args=["--quiet"],
-                              runner=killing(REAL_RUNNER, 1))     # shard 1 is killed after its first scene
-    assert summary["scenes"] == 4 and summary["attempts"][1] == 2
-    assert real_annotations(tmp_path / "out") == real_annotations(tmp_path / "single")
-    assert legacy(tmp_path / "out") == legacy(tmp_path / "single")
-    logs = tmp_path / "out" / "logs"           # Blender's own output: in each shard's blender.log, kept
-    for i in range(2):                         # with the runner's log, which has none of it
-        assert "render           | Saved: '" in (logs / f"shard_000{i}_of_0002.blender.log").read_text()
-        assert "Saved: '" not in (logs / f"shard_000{i}_of_0002.log").read_text()
 
 
 def test_a_left_behind_runner_is_stopped_but_nothing_else(tmp_path):
