@@ -65,7 +65,7 @@ from ..config import Config
 from ..errors import ConfigError, DataPipeError
 from ..io.bop_models import entry_field
 from . import collision
-from .scene import BlendScene, add_rigid_body, find_layer_collection
+from .scene import BlendScene, add_rigid_body, find_layer_collection, remove_unused_data
 from ..fill import draw_share, fill_counts, hull_volume
 
 TEMPLATES_COLLECTION = "datapipe_templates"
@@ -134,22 +134,12 @@ def remove_import_leftovers(before_objs, before_meshes, before_colls) -> None:
     for o in [o for o in bpy.data.objects if o not in before_objs]:
         data = o.data
         bpy.data.objects.remove(o, do_unlink=True)
-        if data is not None and data.users == 0:
-            _remove_id(data)
+        remove_unused_data(data)
     for m in set(bpy.data.meshes) - before_meshes:
         if m.users == 0:
             bpy.data.meshes.remove(m)
     for c in set(bpy.data.collections) - before_colls:
         bpy.data.collections.remove(c)
-
-
-def _remove_id(idblock) -> None:
-    kinds = {bpy.types.Mesh: bpy.data.meshes, bpy.types.Camera: bpy.data.cameras,
-             bpy.types.Light: bpy.data.lights, bpy.types.Curve: bpy.data.curves}
-    for t, pool in kinds.items():
-        if isinstance(idblock, t):
-            pool.remove(idblock)
-            return
 
 
 class ObjectManager:
@@ -201,8 +191,7 @@ class ObjectManager:
         for obj in by_file.values():
             raw = obj.data
             bpy.data.objects.remove(obj, do_unlink=True)
-            if raw.users == 0:
-                bpy.data.meshes.remove(raw)
+            remove_unused_data(raw)
         for vl in scene.view_layers:
             lc = find_layer_collection(vl.layer_collection, self.templates_collection.name)
             if lc is not None:
@@ -268,8 +257,7 @@ class ObjectManager:
             if o not in meshes:
                 data = o.data
                 bpy.data.objects.remove(o, do_unlink=True)
-                if data is not None and data.users == 0:
-                    _remove_id(data)
+                remove_unused_data(data)
         for o in meshes:
             for c in list(o.users_collection):
                 c.objects.unlink(o)

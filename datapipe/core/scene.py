@@ -58,18 +58,23 @@ def _remove_collection(name: str) -> None:
     for obj in list(coll.all_objects):
         data = obj.data
         bpy.data.objects.remove(obj, do_unlink=True)
-        if data is not None and data.users == 0:
-            _remove_orphan(data)
+        remove_unused_data(data)
     for child in list(coll.children):
         _remove_collection(child.name)
     bpy.data.collections.remove(coll)
 
 
-def _remove_orphan(data) -> None:
-    if isinstance(data, bpy.types.Mesh):
-        bpy.data.meshes.remove(data)
-    elif isinstance(data, bpy.types.Light):
-        bpy.data.lights.remove(data)
+def remove_unused_data(data) -> bool:
+    """Remove an object's data block (mesh, camera, light or curve) once nothing uses it - call it
+    after removing the object that held it, so no orphan stays in the .blend. True if removed."""
+    if data is None or data.users > 0:
+        return False
+    for kind, pool in ((bpy.types.Mesh, bpy.data.meshes), (bpy.types.Camera, bpy.data.cameras),
+                       (bpy.types.Light, bpy.data.lights), (bpy.types.Curve, bpy.data.curves)):
+        if isinstance(data, kind):
+            pool.remove(data)
+            return True
+    return False
 
 
 def _new_collection(scene: bpy.types.Scene, name: str) -> bpy.types.Collection:
@@ -368,8 +373,7 @@ class BlendScene:
             if obj is not None:
                 mesh = obj.data
                 bpy.data.objects.remove(obj, do_unlink=True)
-                if mesh is not None and mesh.users == 0:
-                    bpy.data.meshes.remove(mesh)
+                remove_unused_data(mesh)
         self.drop_zone_half = np.asarray(draw["half_size"], dtype=np.float64).copy()
         self.wall_height = float(draw["wall_height"])
         self._build_bin(self.scene)

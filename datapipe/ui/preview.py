@@ -20,6 +20,7 @@ import bpy
 from mathutils import Matrix, Quaternion, Vector
 
 from ..config import CameraPose, MESH_SUFFIXES
+from ..core.scene import remove_unused_data
 from ..errors import DataPipeError
 
 COLLECTION = "datapipe_preview"
@@ -58,14 +59,7 @@ def _remove_data(data) -> None:
     if data is None or data.users > 0:
         return
     materials = list(getattr(data, "materials", []) or [])
-    if isinstance(data, bpy.types.Mesh):
-        bpy.data.meshes.remove(data)
-    elif isinstance(data, bpy.types.Camera):
-        bpy.data.cameras.remove(data)
-    elif isinstance(data, bpy.types.Light):
-        bpy.data.lights.remove(data)
-    elif isinstance(data, bpy.types.Curve):
-        bpy.data.curves.remove(data)
+    remove_unused_data(data)
     for mat in materials:
         if mat is not None and mat.users == 0:
             images = []
