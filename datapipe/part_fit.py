@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import Problem
+from .errors import DataPipeError, Problem
+from .io.models import read_ply
 
 RANDOM_PACKING_MAX = 0.74   # densest random packing of convex parts (see the module doc), of hull volume
 
@@ -39,49 +40,16 @@ def mesh_extent(path: str | Path) -> np.ndarray | None:
             pts = [line.split()[1:4] for line in p.read_text(errors="replace").splitlines() if line.startswith("v ")]
             v = np.array(pts, dtype=np.float64)
         elif ext == ".ply":
-            v = _ply_vertices(p.read_bytes())
+            v = read_ply(p)[0]
         elif ext == ".stl":
             v = _stl_vertices(p.read_bytes())
         else:
             return None
-    except (OSError, ValueError, struct.error):
+    except (OSError, ValueError, KeyError, IndexError, struct.error, DataPipeError):
         return None
     if v is None or len(v) == 0:
         return None
     return np.ptp(v.reshape(-1, 3), axis=0)
-
-
-def _ply_vertices(data: bytes) -> np.ndarray | None:
-    end = data.find(b"end_header")
-    if end < 0:
-        return None
-    header = data[:end].decode("ascii", "replace").splitlines()
-    fmt = next((h.split()[1] for h in header if h.startswith("format")), "ascii")
-    n, props, in_vertex = 0, [], False
-    for h in header:
-        w = h.split()
-        if w[:2] == ["element", "vertex"]:
-            n, in_vertex = int(w[2]), True
-        elif w and w[0] == "element":
-            in_vertex = False
-        elif in_vertex and w and w[0] == "property":
-            props.append((w[1], w[-1]))
-    names = [nm for _, nm in props]
-    if not {"x", "y", "z"} <= set(names):
-        return None
-    body = data[end + len(b"end_header"):].lstrip(b"\r\n")
-    if fmt == "ascii":
-        rows = body.decode("ascii", "replace").splitlines()[:n]
-        arr = np.array([r.split()[:len(props)] for r in rows], dtype=np.float64)
-    else:
-        sizes = {"char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1", "short": "i2", "ushort": "u2",
-                 "int16": "i2", "uint16": "u2", "int": "i4", "uint": "u4", "int32": "i4", "uint32": "u4",
-                 "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
-        order = "<" if "little" in fmt else ">"
-        dt = np.dtype([(nm, order + sizes[t]) for t, nm in props])
-        rec = np.frombuffer(body, dtype=dt, count=n)
-        arr = np.stack([rec[k].astype(np.float64) for k in names], axis=1)
-    return arr[:, [names.index("x"), names.index("y"), names.index("z")]]
 
 
 def _stl_vertices(data: bytes) -> np.ndarray:

@@ -92,6 +92,31 @@ def test_part_fit_warns_for_a_part_larger_than_the_drop_zone(tmp_path):
     assert len(w) == 1 and w[0].startswith("objects[1]:") and "drop_zone_scale" in w[0]
 
 
+def test_part_fit_reads_ply_with_the_model_reader_in_every_encoding(tmp_path):
+    """part_fit's extent of a PLY comes from io.models.read_ply (one PLY reader): ascii, binary
+    little endian (write_ply) and a hand-written binary big endian file give the box's size."""
+    from datapipe.io.models import read_ply, write_ply
+    from datapipe.part_fit import mesh_extent
+    v, f = box((0.02, 0.01, 0.005))
+    for binary in (True, False):
+        p = tmp_path / f"box_{binary}.ply"
+        write_ply(p, v, f, binary=binary)
+        assert mesh_extent(p) == pytest.approx([0.04, 0.02, 0.01], abs=1e-7)    # float32 in the file
+    big = tmp_path / "box_be.ply"
+    head = (f"ply\nformat binary_big_endian 1.0\nelement vertex {len(v)}\nproperty double x\n"
+            f"property double y\nproperty double z\nelement face {len(f)}\n"
+            "property list uchar int vertex_indices\nend_header\n")
+    rec = np.zeros(len(f), dtype=[("n", "u1"), ("i", ">i4", (3,))])
+    rec["n"], rec["i"] = 3, f
+    big.write_bytes(head.encode() + np.asarray(v, dtype=">f8").tobytes() + rec.tobytes())
+    V, F = read_ply(big)
+    np.testing.assert_array_equal(V, v)
+    np.testing.assert_array_equal(F, f)
+    assert mesh_extent(big) == pytest.approx([0.04, 0.02, 0.01])
+    (tmp_path / "bad.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nend_header\n")
+    assert mesh_extent(tmp_path / "bad.ply") is None        # unread: the check is skipped, no traceback
+
+
 def test_physics_line_and_totals_say_what_went_wrong():
     from datapipe.physics_check import add_to_totals, physics_line, totals_line
     sim = {"parts": 9, "frames": 200, "settled": False, "substeps": 13, "attempts": 2,

@@ -53,7 +53,7 @@ _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short":
 
 
 def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V,3) float64 and triangle faces (F,3) of a PLY (ascii or binary little endian).
+    """Vertices (V,3) float64 and triangle faces (F,3) of a PLY (ascii or binary, either byte order).
 
     Polygons with more than 3 corners are fanned into triangles."""
     raw = Path(path).read_bytes()
@@ -77,8 +77,9 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
                 elements[-1]["props"].append((tok[4], "list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]]))
             else:
                 elements[-1]["props"].append((tok[2], _PLY_TYPES[tok[1]]))
-    if fmt not in ("ascii", "binary_little_endian"):
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise DataPipeError(f"{path}: PLY format {fmt!r} not supported (use ascii or binary_little_endian)")
+    order = ">" if fmt == "binary_big_endian" else "<"
     verts = np.zeros((0, 3))
     polys: list[list[int]] = []
     tri = np.zeros((0, 3), dtype=np.int64)
@@ -106,7 +107,7 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         pos = body_start
         for el in elements:
             if all(len(p) == 2 for p in el["props"]):
-                dt = np.dtype([(p[0], "<" + p[1]) for p in el["props"]])
+                dt = np.dtype([(p[0], order + p[1]) for p in el["props"]])
                 arr = np.frombuffer(raw, dtype=dt, count=el["count"], offset=pos)
                 pos += dt.itemsize * el["count"]
                 if el["name"] == "vertex":
@@ -115,7 +116,7 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             # fast path: faces that are all triangles with one list property
             if (el["name"] == "face" and len(el["props"]) == 1 and len(el["props"][0]) == 4):
                 _, _, ct, it = el["props"][0]
-                dt = np.dtype([("n", "<" + ct), ("i", "<" + it, (3,))])
+                dt = np.dtype([("n", order + ct), ("i", order + it, (3,))])
                 if pos + dt.itemsize * el["count"] <= len(raw):
                     arr = np.frombuffer(raw, dtype=dt, count=el["count"], offset=pos)
                     if np.all(arr["n"] == 3):
@@ -125,7 +126,7 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             for _ in range(el["count"]):
                 for p in el["props"]:
                     if len(p) == 4:
-                        cdt, idt = np.dtype("<" + p[2]), np.dtype("<" + p[3])
+                        cdt, idt = np.dtype(order + p[2]), np.dtype(order + p[3])
                         cnt = int(np.frombuffer(raw, cdt, 1, pos)[0]); pos += cdt.itemsize
                         vals = np.frombuffer(raw, idt, cnt, pos).tolist(); pos += idt.itemsize * cnt
                         if el["name"] == "face" and p[0] in ("vertex_indices", "vertex_index"):
