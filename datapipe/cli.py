@@ -165,11 +165,7 @@ def _command(args) -> int:
         from . import show
         from .io.layout import SHEETS_DIR
         _refuse_links_in_run_dir(args, SHEETS_DIR)
-        argv2 = [args.run_dir] + (["--out", args.out] if args.out else []) \
-            + (["--max", str(args.max)] if args.max is not None else []) \
-            + (["--no-overview"] if args.no_overview else []) \
-            + (["--grid", str(args.grid), "--grid-seed", str(args.grid_seed)] if args.grid is not None else [])
-        return show.main(argv2)
+        return show.run_command(args)
     if args.command == "bop":
         from .io.bop import export_bop
         from .io.layout import BOP_DIR

@@ -1,6 +1,6 @@
 """Quick-look contact sheets of a native run (no bpy; cv2 only).
 
-`python -m datapipe show RUN_DIR [--out SHEETS_DIR] [--max N]` writes, per render, one PNG
+`python -m datapipe show RUN_DIR [--out SHEETS_DIR] [--max N]` (arguments in datapipe/cli.py) writes, per render, one PNG
 
     +------------------+------------------+------------------+
     | RGB              | depth (z-buffer) | depth (struct.   |
@@ -21,7 +21,6 @@ Panel rectangles are public (`panel_rects`) so tests and tools can crop a panel.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -566,16 +565,9 @@ def make_grid(run_dir: str | Path, n: int, out_path: str | Path | None = None, *
     return _imwrite(out_path, grid_image(run_dir, n, seed=seed))
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m datapipe show", description="contact sheets for a run folder")
-    ap.add_argument("run_dir")
-    ap.add_argument("--out", help="sheet folder (default: RUN_DIR/sheets)")
-    ap.add_argument("--max", type=int, default=None, help="at most this many per-render sheets")
-    ap.add_argument("--no-overview", action="store_true", help="skip overview.png")
-    ap.add_argument("--grid", type=int, default=None, metavar="N",
-                    help="instead of per-render sheets: one grid.png of N random renders")
-    ap.add_argument("--grid-seed", type=int, default=0, help="which renders --grid draws (default 0)")
-    a = ap.parse_args(argv)
+def run_command(a) -> int:
+    """The `show` command on its parsed arguments (run_dir, out, max, no_overview, grid, grid_seed),
+    which are defined once, in datapipe/cli.py."""
     try:
         if a.grid is not None:
             out = Path(a.out) / layout.GRID_FILE if a.out else None
@@ -588,6 +580,3 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(paths)} sheet(s) written to {paths[0].parent if paths else a.out}")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

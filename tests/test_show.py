@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from datapipe import show
+from datapipe import cli, show
 from datapipe.errors import DataPipeError
 from datapipe.exr import read_exr
 
@@ -81,13 +81,13 @@ def test_large_renders_are_scaled_and_sl_off_is_said(runs, tmp_path):
 
 def test_overview_and_cli(runs, tmp_path, capsys):
     run, plain = runs
-    assert show.main([str(run), "--out", str(tmp_path / "o")]) == 0
+    assert cli.main(["show", str(run), "--out", str(tmp_path / "o")]) == 0
     ov = cv2.imread(str(tmp_path / "o" / "overview.png"))
     assert ov is not None and ov.shape[1] > 1000
     assert "5 sheet(s)" in capsys.readouterr().out
     p = show.make_overview(plain)
     assert p == plain / "sheets" / "overview.png" and p.is_file()
-    assert show.main([str(tmp_path / "nothing")]) == 2
+    assert cli.main(["show", str(tmp_path / "nothing")]) == 2
     assert "no such run folder" in capsys.readouterr().err
 
 
@@ -127,7 +127,7 @@ def test_grid_tiles_are_the_drawn_renders(runs, tmp_path, capsys):
     assert len(set(found)) == 3 and found == sorted(found)               # distinct, in scene/render order
     assert np.array_equal(img, show.grid_image(run, 3, seed=1))          # the seed fixes the draw
     assert show.grid_image(run, 50).shape == show.grid_image(run, 4).shape   # fewer renders: all of them
-    assert show.main([str(run), "--grid", "2", "--out", str(tmp_path / "g")]) == 0
+    assert cli.main(["show", str(run), "--grid", "2", "--out", str(tmp_path / "g")]) == 0
     assert (tmp_path / "g" / "grid.png").is_file() and "grid written" in capsys.readouterr().out
     assert not (tmp_path / "g" / "overview.png").exists()
     with pytest.raises(DataPipeError, match="at least one"):
