@@ -1,7 +1,8 @@
 """BOP export read back by an independent reader written to the BOP format document
 (bop_toolkit docs/bop_datasets_format.md), checked against the fixture's analytic ground truth.
 
-Nothing here imports the writer's helpers for reading: PLY, PNG and JSON are parsed here."""
+Nothing here imports the writer's helpers for reading: PLY, PNG and JSON are parsed by
+tests/bop_reference.py. The same checks on a real Blender run: tests/blender/test_bop_real_run.py."""
 from __future__ import annotations
 
 import json
