@@ -6,7 +6,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from datapipe.config import default_config  # noqa: E402
-from datapipe.core.scene import BlendScene, world_bounds  # noqa: E402
+from datapipe.core.scene import BlendScene, remove_unused_data, world_bounds  # noqa: E402
 
 TOL = 1e-6
 
@@ -201,3 +201,23 @@ def test_apply_bin_rebuilds_to_the_drawn_size():
         assert np.allclose(hi, [0.3 + hx + t, -0.2 + hy + t, floor_z + draw["wall_height"]], atol=TOL)
         assert len(_static()) == 6 and len(bpy.data.meshes) == n_meshes
         assert bs.inside_footprint([0.3 + hx - 1e-3, -0.2, 0.5]) and not bs.inside_footprint([0.3 + hx + 2e-3, -0.2, 0.5])
+
+
+def test_remove_unused_data_leaves_no_orphan_and_keeps_shared_data():
+    """The one orphan cleanup: a mesh, camera, light and curve whose object is gone are removed;
+    data another object still uses is kept; None and other kinds are a no-op."""
+    made = {"mesh": bpy.data.meshes.new("m"), "camera": bpy.data.cameras.new("c"),
+            "light": bpy.data.lights.new("l", "POINT"), "curve": bpy.data.curves.new("cu", "CURVE")}
+    for name, data in made.items():
+        obj = bpy.data.objects.new(name, data)
+        bpy.context.scene.collection.objects.link(obj)
+        bpy.data.objects.remove(obj, do_unlink=True)
+        assert remove_unused_data(data)
+    assert not (bpy.data.meshes or bpy.data.cameras or bpy.data.lights or bpy.data.curves)
+    shared = bpy.data.meshes.new("shared")
+    a, b = bpy.data.objects.new("a", shared), bpy.data.objects.new("b", shared)
+    bpy.data.objects.remove(a, do_unlink=True)
+    assert not remove_unused_data(shared) and shared.name in bpy.data.meshes    # b still uses it
+    bpy.data.objects.remove(b, do_unlink=True)
+    assert remove_unused_data(shared) and len(bpy.data.meshes) == 0
+    assert not remove_unused_data(None)
