@@ -14,7 +14,7 @@ A preset names a device at the top level and may bin the camera:
 Config is built; every field the preset itself gives wins over the device's (a saved Config spells
 every field out, so save -> load gives the same Config).
 
-This module is data only (config.py and sl/sensor.py build on it); what a device means physically
+This module is data only (config/ and sl/sensor.py build on it); what a device means physically
 (field of view, predicted precision, calibration, validate's warnings, `python -m datapipe sensors`)
 is `datapipe.device_checks`.
 """

@@ -107,7 +107,7 @@ def intrinsics_from_sensor(focal_mm: float, sensor_mm: float, width: int, height
 def intrinsics_from_blender(focal_mm: float, sensor_mm: float, width: int, height: int,
                             sensor_fit: str = "AUTO") -> np.ndarray:
     """Deprecated: the former name of `intrinsics_from_sensor`, identical behaviour (one sensor
-    size for whichever dimension the fit selects). Kept only while datapipe/config.py still calls
+    size for whichever dimension the fit selects). Kept only while datapipe/config/ (validate.py, plan.py) still calls
     it; use `intrinsics_from_sensor` (DataPipe configs) or `intrinsics_from_blender_camera` (a
     real Blender camera) in new code."""
     return intrinsics_from_sensor(focal_mm, sensor_mm, width, height, sensor_fit)

@@ -3,6 +3,7 @@
 - every module outside core/ and ui/ (found by walking the package), the run loop (core.pipeline,
   core.world: bpy only inside BlenderWorld's methods) and core.collision import with bpy absent (a subprocess
   whose import system refuses `bpy` and `mathutils`, so an installed bpy wheel cannot hide a slip);
+- no module outside core/ and ui/ imports from core/ (except the command line, which drives it);
 - no core module imports `show` (the run engine does not depend on the reporting module);
 - the native layout's file names are spelled in datapipe/io/layout.py only;
 - no function is longer than MAX_FUNCTION_LINES, except the ones listed (owned and being split
@@ -42,6 +43,8 @@ def _bpy_free_modules() -> list[str]:
 
 
 BPY_FREE = _bpy_free_modules()
+# Modules outside BPY_SIDE that may import core/: the command line drives the pipeline.
+CORE_IMPORTERS = {"datapipe.cli"}
 
 _BLOCKER = """
 import importlib.abc, json, sys
@@ -88,11 +91,16 @@ def _sources(sub: str = ""):
 
 
 def _imported_modules(path: Path) -> set[str]:
-    """Absolute names of every module a file imports (relative imports resolved), lazy ones included."""
+    """Absolute names of every module a file imports (relative imports resolved), lazy ones included;
+    not those under `if TYPE_CHECKING:` (annotations only: they never run)."""
     tree = ast.parse(path.read_text())
     pkg = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
     names = set()
+    typing_only = {id(n) for i in ast.walk(tree) if isinstance(i, ast.If) and isinstance(i.test, ast.Name)
+                   and i.test.id == "TYPE_CHECKING" for b in i.body for n in ast.walk(b)}
     for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
         if isinstance(node, ast.Import):
             names.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -162,6 +170,29 @@ def test_no_import_cycles():
     assert [c for c in cycles if c not in KNOWN_CYCLES] == []
     assert [c for c in KNOWN_CYCLES if c not in cycles] == []      # a broken known cycle leaves the list
     assert "datapipe.ui.props" in graph["datapipe.ui"]          # the graph is real: a known edge is there
+
+
+def test_bpy_free_list_is_real():
+    """The list found on disk holds the pure modules (the config package among them), not just a few."""
+    assert {"datapipe.config", "datapipe.config.schema", "datapipe.config.validate", "datapipe.config.files",
+            "datapipe.materials_spec", "datapipe.sl.decode", "datapipe.io.native"} <= set(BPY_FREE)
+    assert not [m for m in BPY_FREE if m.startswith("datapipe.ui")]
+
+
+def test_no_import_runs_up_the_house():
+    """Nothing outside core/ and ui/ imports from core/ (lazily or not), except the command line: the
+    rules a config or a check needs live below the Blender side (e.g. datapipe/materials_spec.py)."""
+    offenders = {}
+    for p in _sources():
+        rel = p.relative_to(PKG).parts
+        if rel[0] in BPY_SIDE:
+            continue
+        name = ".".join(("datapipe",) + p.relative_to(PKG).with_suffix("").parts)
+        up = sorted(m for m in _imported_modules(p) if m == "datapipe.core" or m.startswith("datapipe.core."))
+        if up and name not in CORE_IMPORTERS:
+            offenders[name] = up
+    assert offenders == {}
+    assert any(m.startswith("datapipe.core.") for m in _imported_modules(PKG / "cli.py"))   # the check sees imports
 
 
 def test_core_does_not_import_show():

@@ -1,7 +1,7 @@
 """Material specs without Blender: validation, per-instance draws, the add-on's text form."""
 import pytest
 
-from datapipe.core import materials as M
+from datapipe import materials_spec as M
 
 
 def test_every_preset_is_valid_and_physical():

@@ -13,7 +13,8 @@ import os
 import bpy
 import numpy as np
 
-from ..config import Config, camera_distances
+from ..config import Config
+from ..config.plan import camera_distances
 from ..errors import ConfigError, Problem
 from ..io.bop_models import entry_field, expand_bop_objects
 from ..part_fit import fill_problems

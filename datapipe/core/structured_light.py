@@ -75,7 +75,7 @@ import numpy as np
 
 from .. import sl
 from .. import progress
-from ..config import builds_row_code
+from ..config.plan import FRINGE_SUPERSAMPLE, builds_row_code   # FRINGE_SUPERSAMPLE: the memory check counts it
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
 from ..io.native import write_render_maps
 from . import projector as _pj
@@ -83,7 +83,6 @@ from .fringe_call import INDIRECT_BLUR_PX, indirect_gain, isolated_render
 from .projector import LIGHTS_COLLECTION, Projector
 
 FRINGE_FILTER_WIDTH = 0.01      # px, Blackman-Harris pixel filter of the fringe render (point samples)
-FRINGE_SUPERSAMPLE = 2           # fringe render at this factor x the camera resolution, block-averaged
 FRINGE_BASENAME = "_sl_fringes"  # the fringe call's multilayer EXR in the render folder (deleted)
 OUTPUT_NODE = "datapipe_sl_file_output"
 INDIRECT_NODE = "datapipe_sl_indirect_blur"

@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import bin_shape
+from .. import bin_shape, materials_spec
 from ..camera_sampler import draw_bin_view
 from ..config import Config
 from ..lighting import draw_lighting
 from ..seeds import bin_rng, camera_rng, lighting_rng, scene_seed
-from . import materials
 
 
 class SceneVariety:
@@ -36,9 +35,9 @@ class SceneVariety:
         none is)."""
         rec = {}
         if isinstance(self.cfg.scene.bin_material, list):        # before a rebuild, which uses it
-            spec = materials.draw_bin(self.cfg.scene.bin_material, scene_seed(base, scene))
+            spec = materials_spec.draw_bin(self.cfg.scene.bin_material, scene_seed(base, scene))
             self.blend.set_bin_material(spec)
-            rec["bin_material"] = materials.label(spec)
+            rec["bin_material"] = materials_spec.label(spec)
         if bin_shape.varies(self.cfg.scene):
             rec["bin"] = bin_shape.draw_bin(self.cfg.scene, self.blend.base_half, bin_rng(base, scene))
             self.blend.apply_bin(rec["bin"])

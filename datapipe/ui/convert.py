@@ -150,7 +150,7 @@ def _json_or_text(text: str):
 def _material_get(grp, name):
     """A material field's text -> name / list / dict (malformed JSON is kept as text so that
     Config.validate() names the field)."""
-    from ..core.materials import parse_text
+    from ..materials_spec import parse_text
     try:
         return parse_text(getattr(grp, name))
     except ValueError:
@@ -158,7 +158,7 @@ def _material_get(grp, name):
 
 
 def _material_set(value) -> str:
-    from ..core.materials import format_text
+    from ..materials_spec import format_text
     return format_text(value)
 
 

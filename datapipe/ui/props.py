@@ -80,7 +80,7 @@ def _range(name: str, label: str, description: str, dc, *, unit="NONE", lo=None,
 
 def _material_search(edit_text):
     """Preset names for the material fields (unknown text is reported by Config.validate())."""
-    from ..core.materials import NAMES
+    from ..materials_spec import NAMES
     return [n for n in NAMES if edit_text.lower() in n.lower()]
 
 

@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from snapshot_compare import compare_texts  # noqa: E402
 
 SNAPSHOTS = Path(__file__).resolve().parents[1] / "snapshots" / "demo_small"
-PACKAGE = Path(C.__file__).resolve().parent
+PACKAGE = Path(C.__file__).resolve().parents[1]      # datapipe/ (C is the datapipe.config package)
 UPDATE = os.environ.get("DATAPIPE_UPDATE_SNAPSHOTS") == "1"
 
 

@@ -67,7 +67,7 @@ def test_zip_contents_and_validator(extension_zip):
     with zipfile.ZipFile(extension_zip) as z:
         names = z.namelist()
         manifest = z.read("blender_manifest.toml").decode()
-    assert "__init__.py" in names and "ui/__init__.py" in names and "config.py" in names
+    assert "__init__.py" in names and "ui/__init__.py" in names and "config/__init__.py" in names
     assert "presets/default.json" in names and "presets/thesis_sensor.json" in names
     assert "presets/devices/zivid2plus_m60.json" in names          # the real-device presets (datapipe.devices)
     assert "assets/peg.obj" in names

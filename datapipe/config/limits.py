@@ -1,0 +1,34 @@
+"""What a Config field may hold: the choices of the string fields and the upper limits beyond
+which a preset is a typo, not a dataset. Read by the schema (defaults), the parser and the rules."""
+
+SCHEMA_VERSION = 1
+
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
+OUTPUT_KINDS = ("rgb", "depth", "normals", "mask", "object_coords")   # object_coords: only when listed
+FORMATS = ("native", "bop")
+ENGINES = ("CYCLES",)
+DEVICES = ("CPU", "GPU")
+# AUTO: DECOMPOSED for clearly concave meshes, else CONVEX_HULL. DECOMPOSED and MESH: a compound of
+# convex pieces (Blender's moving triangle meshes threw concave parts out; see core/collision.py)
+COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "CONE")
+SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
+UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap
+SAMPLER_KINDS = ("pool", "bin_view")
+FRINGE_MODES = ("auto", "fast", "render")   # structured_light.fringe_mode (core/fringe_fast.py);
+                                            # auto: render when a configured material is shiny, else fast
+REFLECTION_FILTERS = ("auto", "local", "global", "off")
+OTHER_OBJECTS = ("auto", "hide", "keep")   # scene.other_objects (core/scene.py)   # structured_light.reflection_filter (sl/filters.py)
+MAX_RESOLUTION = 8192
+# Upper limits: beyond them a preset is a typo, not a dataset (validate() says so before any work).
+MAX_RENDERS = 1_000_000            # ~12 days of Cycles at 1 s per render (= seeds.MAX_PLAN_RENDERS)
+MAX_SAMPLES = 4096                 # Cycles paths per pixel of the RGB layer
+MAX_SL_SAMPLES = 1024              # fringe paths per camera pixel
+MAX_STEPS = 32                     # phase steps: noise falls as 1/sqrt(steps); 32 is 2.8x better than 4
+MAX_PERIODS = 8                    # fringe frequencies
+MAX_INSTANCES = 500                # instances of one object per scene
+MAX_FRINGE_BYTES = 16 * 2**30      # one render's fringe patterns + stack (see fringe_memory_bytes)
+MAX_FREE_NESTING = 8              # lists/dicts inside a free-form field (a material list of dicts of lists: 3)
+MAX_PICKLE_NESTING = 1000          # containers in an input pickle (the original's: 5); hashing a key nested
+                                   # ~120,000 deep overflowed CPython's 8 MB C stack (datapipe/pickle_depth.py)
+MAX_FIELD_OF_VIEW_DEG = 150.0      # camera/projector full angle across the sensor width
+MIN_FRINGE_CAMERA_PX = 3.0         # finest fringe period on the camera sensor (sampling limit, > 2)

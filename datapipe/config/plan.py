@@ -1,0 +1,69 @@
+"""What a config will do at run time, derived from its fields: the camera distances, the fringe
+images and their memory, the finest fringe on the camera sensor. Read by the validation rules and
+by the run (core/structured_light.py, core/preflight.py, cli). No bpy here."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:                 # annotations only: Config's methods call the rules, not the other way
+    from .schema import Config, StructuredLightConfig
+
+FRINGE_SUPERSAMPLE = 2             # fringe render at this factor x the camera resolution, block-averaged
+                                   # (core/structured_light.py renders at it; fringe_memory_bytes counts it)
+
+
+def builds_row_code(sl: "StructuredLightConfig", fringe_mode: str) -> bool:
+    """Whether the structured-light camera builds the global reflection filter's row code: the
+    patterns are path-traced (`fringe_mode`, resolved) and reflection_filter is "auto" (rendered on
+    shiny renders) or "global" (every render)."""
+    return fringe_mode == "render" and sl.reflection_filter in ("auto", "global")
+
+
+def _fringe_frames(cfg: Config) -> int:
+    """Fringe images per render: F*N, plus the row code (N) where the global reflection filter may
+    run (an upper bound: fringe_mode "auto" may resolve to render)."""
+    s = cfg.structured_light
+    rows = s.steps if builds_row_code(s, "fast" if s.fringe_mode == "fast" else "render") else 0
+    return len(s.periods) * s.steps + rows
+
+
+def fringe_memory_bytes(cfg: Config) -> int:
+    """Peak memory of one render's fringe work: every pattern as a float RGBA Blender image plus the
+    rendered stack read back at FRINGE_SUPERSAMPLE x the camera resolution (float32) and its mean;
+    with `hdr`, the fused float32 stack and one exposure's sensor output besides."""
+    (Wp, Hp), (W, H) = cfg.projector.resolution, cfg.camera.resolution
+    ss = FRINGE_SUPERSAMPLE
+    hdr = 8 * W * H if cfg.structured_light.hdr else 0
+    return _fringe_frames(cfg) * (Wp * Hp * 16 + W * H * ss * ss * 4 + W * H * 4 + hdr)
+
+
+def fringe_period_camera_px(cfg: Config) -> float:
+    """Predicted finest fringe period in camera pixels, the worst camera pose.
+
+    One projector pixel at distance d is d * sensor_p / (f_p * W_p) metres wide; the camera sees a
+    length L at distance d' as L * fx_cam / d' pixels. In camera-object axes the camera looks down
+    -Z, so a projector at z_p > 0 sits behind the camera: d = d' + z_p for a part d' in front of
+    the camera. Distances d' are from each camera pose to the drop zone centre."""
+    from ..sl.triangulate import intrinsics_from_blender
+    c, pr, sl = cfg.camera, cfg.projector, cfg.structured_light
+    fx_cam = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]),
+                                           int(c.resolution[1]), c.sensor_fit,
+                                           sensor_height_mm=c.sensor_width)[0, 0])
+    fringe_proj_px = pr.resolution[0] / max(sl.periods)
+    metres_per_proj_px = pr.sensor_width / (pr.focal_length * pr.resolution[0])   # at 1 m
+    worst = math.inf
+    for d in camera_distances(cfg):
+        d_cam = max(d, c.clip_start)
+        d_proj = max(d_cam + pr.location[2], c.clip_start)
+        worst = min(worst, fringe_proj_px * metres_per_proj_px * d_proj * fx_cam / d_cam)
+    return worst
+
+
+def camera_distances(cfg: Config) -> list[float]:
+    """Camera-to-bin distances a run can render from (m): each pool pose to the drop zone centre, or
+    the bin_view sampler's distance range."""
+    c = cfg.camera
+    if c.sampler.kind == "bin_view":
+        return [float(d) for d in c.sampler.distance]
+    return [math.dist(p.location, cfg.scene.drop_zone_loc) for p in c.poses] or [1.0]
