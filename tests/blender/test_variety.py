@@ -113,7 +113,7 @@ def test_bin_material_drawn_per_scene_from_a_list(tmp_path):
     (recorded in scene.json, the same as the pure draw), and it is what the floor renders with: a
     mirror-like steel floor under the overhead key light sends its light away from the camera
     above it (a black world elsewhere), so those scenes are darker than the matte grey ones."""
-    from datapipe.core import materials
+    from datapipe import materials_spec as materials
     from datapipe.seeds import scene_seed
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
