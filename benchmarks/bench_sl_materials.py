@@ -5,7 +5,7 @@
 Scenes (benchmarks/sl_bench_scenes.py): the demo's parts dropped into its bin (seed 0, scene 0),
 camera straight down from `height` above the bin floor, made as an original-layout pickle preset
 (the original GUI's workflow), structured light on, 320x240, everything else default. The parts
-get one material (core/materials.py presets; 'file' = what the meshes carry, the grey default);
+get one material (materials_spec.py presets; 'file' = what the meshes carry, the grey default);
 the bin keeps its built-in grey. Each (rig, height, material) is rendered once (Cycles CPU, the
 product's own fringe call) and cached; the exposure modes reuse the same radiance:
 

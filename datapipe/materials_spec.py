@@ -1,4 +1,5 @@
-"""The material spec language (no bpy): surface materials of the parts (`objects[i].material`) and of the bin (`scene.bin_material`).
+"""The material spec (no bpy): surface materials of the parts (`objects[i].material`) and of the
+bin (`scene.bin_material`).
 
 A material is given as
 - ``"file"`` (default): what the mesh file carries (parts) or the built-in grey bin material
