@@ -104,15 +104,6 @@ def intrinsics_from_sensor(focal_mm: float, sensor_mm: float, width: int, height
                                           sensor_height_mm=sensor_mm)
 
 
-def intrinsics_from_blender(focal_mm: float, sensor_mm: float, width: int, height: int,
-                            sensor_fit: str = "AUTO") -> np.ndarray:
-    """Deprecated: the former name of `intrinsics_from_sensor`, identical behaviour (one sensor
-    size for whichever dimension the fit selects). Kept only while datapipe/config/ (validate.py, plan.py) still calls
-    it; use `intrinsics_from_sensor` (DataPipe configs) or `intrinsics_from_blender_camera` (a
-    real Blender camera) in new code."""
-    return intrinsics_from_sensor(focal_mm, sensor_mm, width, height, sensor_fit)
-
-
 def project_points(K, T_cam_X, pts) -> np.ndarray:
     """Points in frame X (N,3) -> pixel coordinates (N,2) through T_cam_X (4x4) and K."""
     pts = np.asarray(pts, dtype=np.float64)

@@ -45,11 +45,10 @@ def fringe_period_camera_px(cfg: Config) -> float:
     length L at distance d' as L * fx_cam / d' pixels. In camera-object axes the camera looks down
     -Z, so a projector at z_p > 0 sits behind the camera: d = d' + z_p for a part d' in front of
     the camera. Distances d' are from each camera pose to the drop zone centre."""
-    from ..sl.triangulate import intrinsics_from_blender
+    from ..geometry import intrinsics_from_sensor
     c, pr, sl = cfg.camera, cfg.projector, cfg.structured_light
-    fx_cam = float(intrinsics_from_blender(c.focal_length, c.sensor_width, int(c.resolution[0]),
-                                           int(c.resolution[1]), c.sensor_fit,
-                                           sensor_height_mm=c.sensor_width)[0, 0])
+    fx_cam = float(intrinsics_from_sensor(c.focal_length, c.sensor_width, int(c.resolution[0]),
+                                          int(c.resolution[1]), c.sensor_fit)[0, 0])
     fringe_proj_px = pr.resolution[0] / max(sl.periods)
     metres_per_proj_px = pr.sensor_width / (pr.focal_length * pr.resolution[0])   # at 1 m
     worst = math.inf

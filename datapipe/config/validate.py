@@ -337,8 +337,8 @@ def _sampler_problems(cfg: Config) -> list[Problem]:
     res, fit = c.resolution, c.sensor_fit
     if len(res) == 2 and min(res) >= 1 and c.focal_length > 0 and c.sensor_width > 0 and fit in SENSOR_FITS:
         from ..camera_sampler import view_problems
-        from ..geometry import intrinsics_from_blender
-        K = intrinsics_from_blender(c.focal_length, c.sensor_width, res[0], res[1], fit)
+        from ..geometry import intrinsics_from_sensor
+        K = intrinsics_from_sensor(c.focal_length, c.sensor_width, res[0], res[1], fit)
         half_fov = math.degrees(min(math.atan(res[0] / 2 / K[0, 0]), math.atan(res[1] / 2 / K[1, 1])))
         s = cfg.scene
         if len(s.drop_zone_scale) == 3 and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2:
