@@ -385,6 +385,7 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
             models = load_models(run_dir / layout.MODELS_DIR)
         except Exception:
             models = {}
+    meshes = {k: (mdl.verts_mm, mdl.faces) for k, mdl in models.items()}
     errs, fracs, n_all, n_vis, sl_valid = [], [], [], [], []
     any_sl = False
     for sd, sc, rd in sample:
@@ -405,8 +406,11 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
         for o in objs:
             visib = int(np.count_nonzero(m == int(o["mask_index"]))) if m is not None else int(o.get("px_count_visib") or 0)
             nv += visib > 0
-        fracs += visible_fractions(objs, m, K, {k: (mdl.verts_mm, mdl.faces) for k, mdl in models.items()},
-                                   data["W"], data["H"])
+        stored = [o["visib_fract"] for o in objs if isinstance(o.get("visib_fract"), (int, float))]
+        if objs and len(stored) == len(objs):     # the run recorded them (scene.json): no re-rasterising
+            fracs += stored
+        else:                                     # a run from before visib_fract was recorded
+            fracs += visible_fractions(objs, m, K, meshes, data["W"], data["H"])
         n_vis.append(nv)
     err = np.concatenate(errs) if errs else np.zeros(0)
     panels = []

@@ -188,8 +188,7 @@ class Pipeline:
         self.stats["seconds"]["setup"] = time.perf_counter() - t0
         self.stats["imports"] = world.import_count
         # the models in mm, for the visible fractions (datapipe/visibility.py)
-        self._models = {k: (np.asarray(m[0], dtype=np.float64) * 1000.0, m[1])
-                        for k, m in world.model_meshes().items()}
+        self._models = {k: (np.asarray(m[0], dtype=np.float64) * 1000.0, m[1]) for k, m in meshes.items()}
         self._t_loop = time.perf_counter()
         return world
 

@@ -17,6 +17,7 @@ from ..config import Config
 from ..config.plan import camera_distances
 from ..errors import ConfigError, Problem
 from ..io.bop_models import entry_field, expand_bop_objects
+from ..fill import hull_volume
 from ..part_fit import fill_problems
 from ..geometry import intrinsics_from_sensor
 from . import collision
@@ -53,15 +54,6 @@ def _import_measure(path: str) -> tuple[int, int, np.ndarray, np.ndarray]:
         return len(allpts), n_faces, allpts, alltris
     finally:
         remove_import_leftovers(before_objs, before_meshes, before_colls)
-
-
-def hull_volume(pts: np.ndarray) -> float:
-    """Convex hull volume of points (m^3); 0 for flat or degenerate point sets."""
-    from scipy.spatial import ConvexHull, QhullError
-    try:
-        return float(ConvexHull(pts).volume)
-    except (QhullError, ValueError):
-        return 0.0
 
 
 def check_meshes(cfg: Config) -> list[Problem]:
