@@ -124,7 +124,7 @@ DEMO_SCRIPT = r"""
 import json, sys, time
 import bpy
 from datapipe import config as C
-from datapipe.core.pipeline import Pipeline
+from datapipe.engine.pipeline import Pipeline
 spec = json.loads(sys.argv[1])
 cfg = C.default_config()
 cfg.render.threads = 2

@@ -4,7 +4,7 @@
 
 Cases (procedural parts from tests/physics_parts.py and the demo assets), each a few scenes at the
 default settings unless the case says otherwise; every result is measured independently of Bullet
-by datapipe.physics_check on the model meshes at the final poses (pairs deeper than 0.5 mm, parts
+by datapipe.checks.physics_check on the model meshes at the final poses (pairs deeper than 0.5 mm, parts
 under the floor, parts more than 2 mm from everything). `--baseline` also times the demo scenes
 with another checkout's simulation (e.g. main before this change) for the cost comparison.
 
@@ -35,7 +35,7 @@ from datapipe.config import ObjectEntry, assets_dir, default_config  # noqa: E40
 from datapipe.core.objects import ObjectManager  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
 from datapipe.core.simulation import Simulation, plan_substeps  # noqa: E402
-from datapipe.seeds import scene_rng  # noqa: E402
+from datapipe.draws.seeds import scene_rng  # noqa: E402
 
 ASSETS = assets_dir()
 COLUMNS = ["case", "scene", "parts", "lost", "pairs>0.5mm", "max_depth_mm", "below_floor", "floating>2mm",
@@ -145,7 +145,7 @@ from datapipe.config import default_config
 from datapipe.core.scene import BlendScene
 from datapipe.core.objects import ObjectManager
 from datapipe.core.simulation import Simulation
-from datapipe.seeds import scene_rng
+from datapipe.draws.seeds import scene_rng
 bpy.ops.wm.read_factory_settings(use_empty=True)
 cfg = default_config()
 bs = BlendScene(cfg).setup(); om = ObjectManager(cfg, bs).load_sources(); sim = Simulation(cfg, bs)
@@ -173,7 +173,7 @@ from datapipe.config import ObjectEntry, default_config
 from datapipe.core.scene import BlendScene
 from datapipe.core.objects import ObjectManager
 from datapipe.core.simulation import Simulation
-from datapipe.seeds import scene_rng
+from datapipe.draws.seeds import scene_rng
 parts = json.loads(parts_json)
 specs = json.loads(sys.argv[6])
 def path(k):
@@ -259,7 +259,7 @@ def write_md(rows, loads, rest, base, total_s, before=()):
          "`benchmarks/bench_physics.py` (defaults: substeps chosen per scene, AUTO collision shapes unless the case "
          "names one). Per case the sums over its scenes; depth, frames and substeps are the maxima; `sim s` is the "
          "mean simulation wall time per scene (2 shared CPU cores: +-30%). Measured independently of Bullet "
-         "(`datapipe/physics_check.py`: model meshes at the final poses).", "",
+         "(`datapipe/checks/physics_check.py`: model meshes at the final poses).", "",
          ]
     L += table
     if before:

@@ -24,7 +24,7 @@ CASE_SCRIPT = r"""
 import json, sys, time, resource
 import bpy
 from datapipe import config as C
-from datapipe.core.pipeline import Pipeline
+from datapipe.engine.pipeline import Pipeline
 spec = json.loads(sys.argv[1])
 cfg = C.default_config()
 cfg.scene.num_renders = spec["renders"]

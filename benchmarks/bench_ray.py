@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from datapipe import config as C  # noqa: E402
-from datapipe import distributed  # noqa: E402
+from datapipe.engine import distributed  # noqa: E402
 
 
 def preset(tmp: Path, renders: int, threads: int) -> Path:

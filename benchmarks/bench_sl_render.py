@@ -43,7 +43,7 @@ from report_util import write_with_notes  # noqa: E402
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
-from datapipe.seeds import scene_rng  # noqa: E402
+from datapipe.draws.seeds import scene_rng  # noqa: E402
 from datapipe.sl.scanner import FILTERED, MIN_CONTRAST  # noqa: E402
 
 SEED = 1234                       # render seed (Cycles + sensor model) of every case

@@ -51,7 +51,7 @@ def make_config(n: int, res, varied: bool) -> C.Config:
 
 def run(cfg: C.Config, out: Path) -> float:
     import bpy
-    from datapipe.core.pipeline import Pipeline
+    from datapipe.engine.pipeline import Pipeline
     bpy.ops.wm.read_factory_settings(use_empty=True)
     t0 = time.perf_counter()
     for ev in Pipeline(cfg, out).run():
@@ -61,7 +61,7 @@ def run(cfg: C.Config, out: Path) -> float:
 
 
 def measure(out: Path) -> list[dict]:
-    from datapipe.exr import read_depth, read_mask
+    from datapipe.io.exr import read_depth, read_mask
     import cv2
     rows = []
     for sj in sorted(out.glob("scene.*/scene.json")):

@@ -58,7 +58,7 @@ def render_cases(cases, cache: Path, log=print) -> dict:
     import bpy
 
     from datapipe.core.world import BlenderWorld
-    from datapipe.seeds import scene_rng
+    from datapipe.draws.seeds import scene_rng
     from datapipe.core.structured_light import has_shiny_surface
 
     cache.mkdir(parents=True, exist_ok=True)

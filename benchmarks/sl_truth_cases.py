@@ -32,7 +32,7 @@ DEMO_RENDERS = 4
 def _keep(store: list):
     """Wrap StructuredLightCamera.render_fringes/process so that every render's inputs land in `store`."""
     from datapipe.core import structured_light as SLmod
-    from datapipe.exr import read_depth, read_mask
+    from datapipe.io.exr import read_depth, read_mask
     from datapipe.io.layout import RENDER_FILES as FILES
 
     orig_process = SLmod.StructuredLightCamera.process
@@ -84,7 +84,7 @@ def demo_key(i: int, mode: str) -> str:
 def render_demo(cache: Path, mode: str, log=print) -> None:
     """The demo's renders in fringe mode `mode`, unless cached."""
     from datapipe import config as C
-    from datapipe.core.pipeline import Pipeline
+    from datapipe.engine.pipeline import Pipeline
 
     if all((cache / f"{demo_key(i, mode)}.npz").is_file() for i in range(DEMO_RENDERS)):
         return
@@ -114,7 +114,7 @@ def render_rig(cache: Path, cases, mode: str, log=print) -> None:
 
     from datapipe import config as C
     from datapipe.core.world import BlenderWorld
-    from datapipe.seeds import scene_rng
+    from datapipe.draws.seeds import scene_rng
 
     groups: dict = {}
     for rig, h, mat in cases:

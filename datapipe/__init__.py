@@ -1,7 +1,7 @@
 """DataPipe: synthetic 6D-pose datasets for bin picking with a simulated structured-light camera.
 
-`datapipe.config` and `datapipe.sl` are free of Blender; everything under `datapipe.core` and
-`datapipe.ui` needs the `bpy` module (or runs inside Blender).
+Everything under `datapipe.core` and `datapipe.ui` needs the `bpy` module (or runs inside Blender);
+every other module imports without it (`config`, `sl`, `io`, `draws`, `checks`, `engine`, ...).
 """
 __version__ = "0.1.0"
 

@@ -21,11 +21,11 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from . import config as config_mod
-from .blender_log import BlenderLog
+from .engine.blender_log import BlenderLog
 from .errors import ConfigError, DataPipeError
 from .io.layout import BLENDER_LOG
-from .outdir import OutLock, OutputStateError
-from .text_rules import output_folder_problem
+from .io.outdir import OutLock, OutputStateError
+from .checks.text_rules import output_folder_problem
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -144,10 +144,10 @@ def _command(args) -> int:
             _prepare_blender()
             from .core.preflight import preflight
             preflight(cfg)
-        from .part_fit import part_fit_warnings
+        from .checks.part_fit import part_fit_warnings
         for w in part_fit_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
-        from .device_checks import device_warnings      # the bin against a device's range and view
+        from .checks.device_checks import device_warnings      # the bin against a device's range and view
         for w in device_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
         cams = (f"{len(cfg.camera.poses)} camera poses" if cfg.camera.sampler.kind == "pool"
@@ -158,7 +158,7 @@ def _command(args) -> int:
               f"{cams}, structured light {sl_text})")
         return 0
     if args.command == "sensors":
-        from .device_checks import table
+        from .checks.device_checks import table
         print(table())
         return 0
     if args.command == "show":
@@ -187,7 +187,7 @@ def _command(args) -> int:
 def _refuse_links_in_run_dir(args, folder: str) -> None:
     """`show`/`bop` writing into the run folder (no --out): not through a link there."""
     if args.out is None:
-        from .outdir import refuse_links_under
+        from .io.outdir import refuse_links_under
         refuse_links_under(Path(args.run_dir), folder)
 
 
@@ -208,7 +208,7 @@ def _sl_plan(cfg) -> list[str]:
 
 
 def _run(cfg, args, preset_path) -> int:
-    from .seeds import parse_shard
+    from .draws.seeds import parse_shard
     try:
         shard = parse_shard(args.shard)
     except ValueError as e:
@@ -223,7 +223,7 @@ def _run(cfg, args, preset_path) -> int:
         cfg.scene.seed = args.seed
     cfg.validate()                  # before the scene plan is drawn: its bounds are checked here
     if args.ray is not None:
-        from .distributed import run_distributed
+        from .engine.distributed import run_distributed
         if preset_path is None:
             raise DataPipeError("--ray needs a preset file (fix: `python -m datapipe run "
                                 f"{config_mod.presets_dir() / 'default.json'} --ray` runs the demo preset)")
@@ -236,7 +236,7 @@ def _run(cfg, args, preset_path) -> int:
                         extra_args=(["--quiet"] if args.quiet else []) + (["--strict"] if args.strict else [])
                         + (["--verbose"] if args.verbose else []))
         return 0
-    from .core.pipeline import Pipeline
+    from .engine.pipeline import Pipeline
     pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
                     strict=args.strict, on_step=None if args.quiet else _print_step)
     pipe.check()                    # the output folder: refusals before anything is written
@@ -265,7 +265,7 @@ def _run(cfg, args, preset_path) -> int:
 
 
 def _print_step(p) -> None:
-    """A line inside a scene (datapipe/progress.py); may come from the heartbeat thread."""
+    """A line inside a scene (datapipe/engine/progress.py); may come from the heartbeat thread."""
     print(p.line(), file=sys.stderr, flush=True)
 
 

@@ -4,7 +4,7 @@ Each scanner is one JSON file in `datapipe/presets/devices/` (`<name>.json`): th
 figures with their sources, what had to be assumed (and why), the Config sections it fills
 (`config`: camera, projector, structured_light at full resolution), the binning it offers and its
 noise model (`sensor`: datapipe.sl.sensor.SensorModel fields, the full well calibrated so that the
-simulated plane precision matches the data sheet: `datapipe.device_checks.calibrate_full_well`).
+simulated plane precision matches the data sheet: `datapipe.checks.device_checks.calibrate_full_well`).
 
 A preset names a device at the top level and may bin the camera:
 
@@ -16,7 +16,7 @@ every field out, so save -> load gives the same Config).
 
 This module is data only (config/ and sl/sensor.py build on it); what a device means physically
 (field of view, predicted precision, calibration, validate's warnings, `python -m datapipe sensors`)
-is `datapipe.device_checks`.
+is `datapipe.checks.device_checks`.
 """
 from __future__ import annotations
 

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from .text_rules import name_problem, short
+from .checks.text_rules import name_problem, short
 
 FILE = "file"
 PRESETS: dict[str, dict] = {

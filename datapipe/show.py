@@ -34,7 +34,7 @@ from .io import layout
 from .io.files import imwrite_atomic, read_json
 from .io.models import load_models
 from .visibility import visible_fractions
-from .outdir import OutputStateError
+from .io.outdir import OutputStateError
 
 PANELS = ("rgb", "depth", "sl_depth", "diff", "mask", "poses")
 PAD = 8
@@ -178,7 +178,7 @@ def _is_datapipe_scene(scene) -> bool:
 
 
 def _load_render(scene_dir: Path, rd: dict) -> dict:
-    from .exr import read_depth, read_mask
+    from .io.exr import read_depth, read_mask
     W, H = (int(x) for x in rd["resolution"])
     out = {"W": W, "H": H}
     p = layout.render_file(scene_dir, rd, "rgb")

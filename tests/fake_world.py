@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 import fixtures_native as fx
-from datapipe.core.world import Part, SceneStart, View
+from datapipe.engine.world import Part, SceneStart, View
 from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_sensor
 from datapipe.io.native import write_render_maps
 

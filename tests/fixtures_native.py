@@ -8,8 +8,8 @@ depth + noise with NaN holes at edges and at random) with sl_valid.png. scene.js
 output_dict.pickle and models/ (via write_models) are written like the pipeline writes them, scene
 by scene, scene.json last.
 
-Scenes are deterministic from (seed, scene index) (datapipe.seeds), and the plan comes from
-datapipe.seeds.plan_scenes, so a shard of a run holds the very scenes one process makes.
+Scenes are deterministic from (seed, scene index) (datapipe.draws.seeds), and the plan comes from
+datapipe.draws.seeds.plan_scenes, so a shard of a run holds the very scenes one process makes.
 
 Also a stand-in for the headless runner (used by the Ray tests until the real pipeline exists):
 
@@ -32,9 +32,9 @@ import numpy as np
 
 from datapipe.config import Config, ObjectEntry, CameraPose
 from datapipe.io import legacy as legacy_pickle
-from datapipe.exr import write_exr
+from datapipe.io.exr import write_exr
 from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_sensor
-from datapipe.seeds import plan_scenes, render_seed, scene_seed, shard_scenes, parse_shard
+from datapipe.draws.seeds import plan_scenes, render_seed, scene_seed, shard_scenes, parse_shard
 
 # half extents (m) of the box models, obj_id = index + 1
 BOX_HALF = [(0.020, 0.015, 0.010), (0.030, 0.010, 0.0075), (0.0125, 0.0125, 0.0125)]

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.bin_shape import draw_bin, varies
-from datapipe.seeds import bin_rng
+from datapipe.draws.bin_shape import draw_bin, varies
+from datapipe.draws.seeds import bin_rng
 
 
 def test_default_draws_nothing_and_ranges_are_respected():

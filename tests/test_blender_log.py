@@ -1,4 +1,4 @@
-"""datapipe.blender_log: output written at the file-descriptor level (as Blender's C code writes it:
+"""datapipe.engine.blender_log: output written at the file-descriptor level (as Blender's C code writes it:
 `write(1, ...)` and C's buffered `printf`) goes to the log file, not the terminal; `verbose` shows
 it too; error lines reach stderr; what came before the log file is known is written first; stderr
 (DataPipe's progress) is untouched. Each case runs in a subprocess, whose real fds 1 and 2 are
@@ -17,7 +17,7 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="uses libc's pri
 PRELUDE = """
 import ctypes, os, sys
 sys.path.insert(0, {root!r})
-from datapipe.blender_log import BlenderLog
+from datapipe.engine.blender_log import BlenderLog
 libc = ctypes.CDLL(None)
 def c_print(text):                         # C stdio, buffered when fd 1 is not a terminal
     libc.printf(text.encode() + b"\\n")

@@ -16,7 +16,7 @@ import pytest
 from datapipe.io.bop import BopWriter, export_bop
 from datapipe.io.models import write_models
 from datapipe.errors import DataPipeError
-from datapipe.exr import read_exr, write_exr
+from datapipe.io.exr import read_exr, write_exr
 
 import fixtures_native as fx
 from bop_reference import iter_gt, ref_load_json, ref_png, ref_read_ply

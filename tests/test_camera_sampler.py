@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.camera_sampler import draw_bin_view, look_at_pose, pose_parameters, view_problems
+from datapipe.draws.camera_sampler import draw_bin_view, look_at_pose, pose_parameters, view_problems
 from datapipe.geometry import BLENDER_TO_OPENCV, camera_pose_from_config, project_points
-from datapipe.seeds import camera_rng
+from datapipe.draws.seeds import camera_rng
 
 
 def _sampler(**kw):

@@ -8,7 +8,8 @@ import pytest
 
 from datapipe import cli
 from datapipe import config as C
-from datapipe import device_checks, devices
+from datapipe.checks import device_checks
+from datapipe import devices
 from datapipe.errors import ConfigError
 from datapipe.sl.scanner import Scanner
 from datapipe.sl.sensor import PRESETS, SensorModel

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from datapipe import config as config_mod
-from datapipe.distributed import merge_shards, run_distributed
+from datapipe.engine.distributed import merge_shards, run_distributed
 from datapipe.errors import DataPipeError
-from datapipe.exr import read_exr
+from datapipe.io.exr import read_exr
 
 import fixtures_native as fx
 from distributed_helpers import killing, legacy, local_ray  # noqa: F401  (local_ray: a fixture)
@@ -174,7 +174,7 @@ def test_a_left_behind_runner_is_stopped_but_nothing_else(tmp_path):
     import os
     import socket
     import subprocess
-    from datapipe.distributed import _stop_previous_runner
+    from datapipe.engine.distributed import _stop_previous_runner
     shard = tmp_path / "shard_0000_of_0001"
     pid_file = tmp_path / "shard_0000_of_0001.pid"
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])

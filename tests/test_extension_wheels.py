@@ -20,11 +20,11 @@ PACKAGE = ROOT / "datapipe"
 BLENDER_MODULES = {"bpy", "mathutils", "bmesh", "bpy_extras", "addon_utils", "bl_math", "gpu", "gpu_extras",
                    "blf", "aud", "idprop", "imbuf", "freestyle", "bl_ui", "bl_operators", "rna_prop_ui"}
 BLENDER_BUNDLED = {"numpy"}          # Blender 4.2+ ship numpy in their Python (bpy's wheel requires numpy<2)
-OPTIONAL = {"ray": "datapipe.distributed (--ray, the `ray` extra)"}     # imported lazily, refused without
+OPTIONAL = {"ray": "datapipe.engine.distributed (--ray, the `ray` extra)"}     # imported lazily, refused without
 MODULE_TO_DIST = {"cv2": "opencv_contrib_python_headless", "scipy": "scipy", "OpenEXR": "openexr",
                   "coacd": "coacd"}   # wheel file names: the distribution with '-' as '_', lower case
 # (distribution, Blender platform) without a wheel on PyPI, and what the user gets there instead
-KNOWN_GAPS = {("coacd", "macos-x64"): "core/collision.missing_coacd: objects[i].collision_shape refused "
+KNOWN_GAPS = {("coacd", "macos-x64"): "collision.missing_coacd: objects[i].collision_shape refused "
                                       "with the fix (pip install coacd, or CONVEX_HULL)"}
 
 
@@ -70,7 +70,7 @@ def manifest_wheels() -> tuple[list[str], dict[str, set[str]]]:
 def test_the_import_walk_sees_what_the_package_imports():
     """The derivation itself: it finds the known imports, lazy ones inside functions included."""
     found = imported_top_modules()
-    assert "datapipe/exr.py" in found["OpenEXR"] and "datapipe/core/collision.py" in found["coacd"]
+    assert "datapipe/io/exr.py" in found["OpenEXR"] and "datapipe/collision.py" in found["coacd"]
     assert {"bpy", "mathutils", "numpy", "cv2", "scipy", "ray", "json"} <= set(found)
 
 

@@ -1,12 +1,12 @@
 """Lighting draws and blackbody colours without bpy. The colours are checked against an independent
 reference: the Planckian locus chromaticity of Kim et al. (2002, US patent 7024034), a cubic fit
-valid 1667..25000 K, not the Planck x CMF integration of datapipe.lighting."""
+valid 1667..25000 K, not the Planck x CMF integration of datapipe.draws.lighting."""
 import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.lighting import blackbody_rgb, blackbody_xyz, draw_lighting
-from datapipe.seeds import lighting_rng
+from datapipe.draws.lighting import blackbody_rgb, blackbody_xyz, draw_lighting
+from datapipe.draws.seeds import lighting_rng
 
 
 def _kim_xy(T):

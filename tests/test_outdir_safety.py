@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from fake_world import BoxWorld, Crash
-from datapipe import cli, outdir
-from datapipe.core.pipeline import Pipeline
+from datapipe import cli
+from datapipe.io import outdir
+from datapipe.engine.pipeline import Pipeline
 from datapipe.errors import DataPipeError
 from datapipe.io import files, layout, legacy
 from test_run_loop import run, small_cfg
@@ -245,7 +246,7 @@ def test_disk_full_in_atomic_writes_names_the_file_and_removes_the_temporary(tmp
 
 def test_exr_and_png_writers_on_a_full_disk(tmp_path, monkeypatch):
     import OpenEXR
-    from datapipe import exr
+    from datapipe.io import exr
 
     def full_exr(self, path):
         open(path, "wb").write(b"\x76\x2f\x31\x01 partial")
@@ -269,7 +270,7 @@ def test_exr_and_png_writers_on_a_full_disk(tmp_path, monkeypatch):
 
 
 def test_a_truncated_or_garbled_exr_is_a_file_error_naming_it(tmp_path):
-    from datapipe import exr
+    from datapipe.io import exr
     good = tmp_path / "good.exr"
     exr.write_exr(good, {"Z": np.random.default_rng(0).random((64, 64)), "Y": np.ones((64, 64))})
     data = good.read_bytes()
@@ -445,7 +446,7 @@ def test_disk_full_at_the_first_record_then_resume(one_run, tmp_path, monkeypatc
 
 
 def test_a_distributed_run_refuses_links_before_its_shards_start(tmp_path):
-    from datapipe import distributed
+    from datapipe.engine import distributed
     victim = _victim(tmp_path)
     out = tmp_path / "OUT"
     out.mkdir()

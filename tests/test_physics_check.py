@@ -3,7 +3,7 @@ floor depth are known exactly."""
 import numpy as np
 import pytest
 
-from datapipe.physics_check import Part, check_scene, point_triangle_distance, winding_number
+from datapipe.checks.physics_check import Part, check_scene, point_triangle_distance, winding_number
 
 
 def box(half):
@@ -75,7 +75,7 @@ def test_leaning_on_a_wall_is_not_floating():
 
 def test_part_fit_warns_for_a_part_larger_than_the_drop_zone(tmp_path):
     from datapipe.config import ObjectEntry, default_config
-    from datapipe.part_fit import mesh_extent, part_fit_warnings
+    from datapipe.checks.part_fit import mesh_extent, part_fit_warnings
     v, f = box((0.02, 0.01, 0.005))
     p = tmp_path / "box.obj"
     p.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v) + "".join(f"f {a+1} {b+1} {c+1}\n" for a, b, c in f))
@@ -96,7 +96,7 @@ def test_part_fit_reads_ply_with_the_model_reader_in_every_encoding(tmp_path):
     """part_fit's extent of a PLY comes from io.models.read_ply (one PLY reader): ascii, binary
     little endian (write_ply) and a hand-written binary big endian file give the box's size."""
     from datapipe.io.models import read_ply, write_ply
-    from datapipe.part_fit import mesh_extent
+    from datapipe.checks.part_fit import mesh_extent
     v, f = box((0.02, 0.01, 0.005))
     for binary in (True, False):
         p = tmp_path / f"box_{binary}.ply"
@@ -118,7 +118,7 @@ def test_part_fit_reads_ply_with_the_model_reader_in_every_encoding(tmp_path):
 
 
 def test_physics_line_and_totals_say_what_went_wrong():
-    from datapipe.physics_check import add_to_totals, physics_line, totals_line
+    from datapipe.checks.physics_check import add_to_totals, physics_line, totals_line
     sim = {"parts": 9, "frames": 200, "settled": False, "substeps": 13, "attempts": 2,
            "removed": [{"name": "a", "reason": "left the bin"}, {"name": "b", "reason": "fell through the floor"}],
            "unsettled": [{"name": "c", "speed": 0.3}], "interpenetrating_pairs": [{"a": "d", "b": "e", "depth_mm": 1.2}],

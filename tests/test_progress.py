@@ -1,4 +1,4 @@
-"""Lines inside a scene (datapipe/progress.py) without Blender: the ETA arithmetic, the heartbeat on a
+"""Lines inside a scene (datapipe/engine/progress.py) without Blender: the ETA arithmetic, the heartbeat on a
 fake clock, and the step events of a run on the fake world (tests/fake_world.py), whose renders
 report their steps as the Blender world does."""
 import json
@@ -8,9 +8,9 @@ import pytest
 
 import fixtures_native as fx
 from fake_world import BoxWorld
-from datapipe import progress
-from datapipe.core.pipeline import Pipeline
-from datapipe.progress import STEP, Tracker, estimate_eta
+from datapipe.engine import progress
+from datapipe.engine.pipeline import Pipeline
+from datapipe.engine.progress import STEP, Tracker, estimate_eta
 from datapipe.visibility import VisibStats
 
 

@@ -1,7 +1,7 @@
-"""Quality gates (datapipe.quality): each useless render is named, a good one says nothing."""
+"""Quality gates (datapipe.checks.quality): each useless render is named, a good one says nothing."""
 import numpy as np
 
-from datapipe import quality as Q
+from datapipe.checks import quality as Q
 
 
 def good_rgb():

@@ -1,4 +1,4 @@
-"""The run loop (core/pipeline.py) with a fake world (tests/fake_world.py), no Blender: run.json,
+"""The run loop (engine/pipeline.py) with a fake world (tests/fake_world.py), no Blender: run.json,
 resume after a crash, cancel, shards + merge, writers caught up on resume, refusals.
 
 The reference is always an uninterrupted single run of the same preset and seed: a resumed,
@@ -13,8 +13,8 @@ import pytest
 
 import fixtures_native as fx
 from fake_world import BoxWorld, Crash
-from datapipe.core.pipeline import Pipeline
-from datapipe.distributed import merge_shards
+from datapipe.engine.pipeline import Pipeline
+from datapipe.engine.distributed import merge_shards
 from datapipe.errors import DataPipeError
 from datapipe.io import layout
 

@@ -1,6 +1,6 @@
 import pytest
 
-from datapipe import seeds
+from datapipe.draws import seeds
 
 
 def test_plan_sums_and_respects_bounds():

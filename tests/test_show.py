@@ -7,7 +7,7 @@ import pytest
 
 from datapipe import cli, show
 from datapipe.errors import DataPipeError
-from datapipe.exr import read_exr
+from datapipe.io.exr import read_exr
 
 import fixtures_native as fx
 

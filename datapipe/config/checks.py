@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from ..errors import Problem
-from ..text_rules import path_problem, short as _short
+from ..checks.text_rules import path_problem, short as _short
 from .limits import MAX_FIELD_OF_VIEW_DEG, MAX_RESOLUTION
 
 

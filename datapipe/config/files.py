@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..errors import ConfigError, Problem
 from ..io.files import write_text_atomic
-from ..pickle_depth import pickle_depth
+from ..checks.pickle_depth import pickle_depth
 from .legacy import from_legacy_dict
 from .limits import MAX_PICKLE_NESTING
 from .schema import Config

@@ -9,7 +9,7 @@ import typing
 from typing import Any
 
 from ..errors import ConfigError, Problem
-from ..text_rules import short as _short
+from ..checks.text_rules import short as _short
 from .checks import _join
 from .limits import MAX_FREE_NESTING, SCHEMA_VERSION
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, Problem
-from ..text_rules import path_problem
+from ..checks.text_rules import path_problem
 from .limits import OUTPUT_KINDS, SCHEMA_VERSION
 
 def _vec(*values: float):
@@ -35,16 +35,16 @@ class SceneConfig:
     make_bin: bool = True              # build a floor + walls around the drop zone (else: floor only)
     bin_wall_thickness: float = 0.01   # m
     bin_size_scale: list[float] = _vec(1.0, 1.0)   # per scene: zone x and y half extents times a
-                                                   # factor from [min, max] (datapipe.bin_shape)
+                                                   # factor from [min, max] (datapipe.draws.bin_shape)
     bin_wall_scale: list[float] = _vec(1.0, 1.0)   # per scene: wall height (the zone's) times [min, max]
     fill: list[float] | None = None    # [min, max] share of the bin's inner volume the parts' convex hulls
-                                       # fill, drawn per scene (datapipe/fill.py); each entry's instance
+                                       # fill, drawn per scene (datapipe/draws/fill.py); each entry's instance
                                        # count stays within [min_instances, max_instances]
     blend_file: str | None = None      # open this .blend first; its object "drop_zone" wins over the above
     other_objects: str = "auto"        # objects of the open scene DataPipe did not make (Blender's startup
                                        # cube and light...): "hide" them from the renders for the run,
                                        # "keep" them in; "auto": keep with a blend_file, else hide
-    seed: int = 0                      # base seed; scene i derives its own (see datapipe.seeds)
+    seed: int = 0                      # base seed; scene i derives its own (see datapipe.draws.seeds)
     bin_material: Any = "file"         # floor + walls: "file" (built-in 0.5 grey, roughness 0.6), a
                                        # preset name, a dict of Principled BSDF values, or a list of
                                        # those: one drawn per scene (core/materials.py)
@@ -84,7 +84,7 @@ class CameraPose:
 class CameraSamplerConfig:
     """How each render's camera pose is chosen. "pool": drawn from `camera.poses` (without
     replacement within a scene); "bin_view": a look-at pose around the bin floor's centre, drawn
-    per render from the ranges below (datapipe.camera_sampler explains the angles)."""
+    per render from the ranges below (datapipe.draws.camera_sampler explains the angles)."""
     kind: str = "pool"
     distance: list[float] = _vec(0.6, 0.85)        # m, camera centre to the look-at target
     tilt_deg: list[float] = _vec(0.0, 25.0)        # optical axis from straight down
@@ -149,7 +149,7 @@ class StructuredLightConfig:
 
 @dataclass
 class LightingConfig:
-    """Lighting drawn per scene (datapipe.lighting), each value uniform in its [min, max]. A config
+    """Lighting drawn per scene (datapipe.draws.lighting), each value uniform in its [min, max]. A config
     without a `lighting` section (null) keeps the fixed key light of `render.light_power`."""
     key_power: list[float] = _vec(25.0, 100.0)                  # W, the area light above the bin
     key_color_temperature: list[float] = _vec(3000.0, 6500.0)   # K, blackbody colour of the key light

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from ..errors import Problem
 from ..materials_spec import material_problem
-from ..text_rules import name_problem, output_folder_problem, short as _short
+from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
 from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_RENDERS, MAX_SAMPLES,
                      MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS)
@@ -308,7 +308,7 @@ def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:
     ck.problems += _range_problems("scene.bin_size_scale", s.bin_size_scale, lo_bound=0.05, hi_bound=20.0)
     ck.problems += _range_problems("scene.bin_wall_scale", s.bin_wall_scale, lo_bound=0.05, hi_bound=20.0)
     if s.fill is not None:
-        from ..fill import MAX_FILL
+        from ..draws.fill import MAX_FILL
         ck.problems += _range_problems("scene.fill", s.fill, lo_bound=0.0, hi_bound=MAX_FILL)
     ck.problems += _sampler_problems(cfg)
     ck.problems += _lighting_problems(cfg.lighting)
@@ -336,7 +336,7 @@ def _sampler_problems(cfg: Config) -> list[Problem]:
                            "keep the distances between camera.clip_start and camera.clip_end"))
     res, fit = c.resolution, c.sensor_fit
     if len(res) == 2 and min(res) >= 1 and c.focal_length > 0 and c.sensor_width > 0 and fit in SENSOR_FITS:
-        from ..camera_sampler import view_problems
+        from ..draws.camera_sampler import view_problems
         from ..geometry import intrinsics_from_sensor
         K = intrinsics_from_sensor(c.focal_length, c.sensor_width, res[0], res[1], fit)
         half_fov = math.degrees(min(math.atan(res[0] / 2 / K[0, 0]), math.atan(res[1] / 2 / K[1, 1])))

@@ -103,7 +103,7 @@ class BlendCamera:
         return T
 
     def set_view(self, view) -> np.ndarray:
-        """Move the camera to a sampled pose (`datapipe.camera_sampler.BinView`); returns T_world_cam.
+        """Move the camera to a sampled pose (`datapipe.draws.camera_sampler.BinView`); returns T_world_cam.
         The projector, parented to the camera, moves with it."""
         self._require_setup()
         T = self._place(*view.blender_pose())

@@ -194,7 +194,7 @@ def take_written_exr(directory: str | os.PathLike, basename: str, what: str = "p
     Blender reports no write error (a full disk leaves no file, a truncated one, or one without
     some layers), so each of those is an OSError naming the file (exit status 1), never a wrong
     preset: no file, an unreadable file (exr.read_exr), or one lacking a channel of `expect`."""
-    from ..exr import read_exr, unreadable
+    from ..io.exr import read_exr, unreadable
     from ..io.files import disk_full_error
     written = written_files(directory, basename)
     if not written:

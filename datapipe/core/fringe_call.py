@@ -20,7 +20,7 @@ def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *,
     node is switched off for the call and everything is restored afterwards. `what`: the progress
     line's words for what it renders. Returns wall seconds."""
     import bpy
-    from .. import progress
+    from ..engine import progress
     from . import compat
 
     render_dir = Path(render_dir)

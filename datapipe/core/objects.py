@@ -24,7 +24,7 @@ Templates
 
 Instances
     `populate(rng)` makes, per entry, a random number in [min_instances, max_instances] (or, with
-    `scene.fill`, the counts datapipe/fill.py draws from the parts' hull volumes) of linked
+    `scene.fill`, the counts datapipe/draws/fill.py draws from the parts' hull volumes) of linked
     copies (`obj.copy()`: same mesh data, no re-import), named f"{entry_name}_{k:03d}" (k from 0
     within the scene), with unique pass_index 1..n, a uniformly random orientation, placed on a
     grid of bounding spheres inside the drop zone's footprint in layers from the zone's centre
@@ -36,7 +36,7 @@ Instances
     clears the previous scene's instances; `clear()` deletes them; the templates (and their mesh
     data) stay.
 
-Collision shapes (see core/collision.py)
+Collision shapes (see collision.py)
     AUTO (the default) is DECOMPOSED for a clearly concave mesh (it fills less than 70% of its
     convex hull), else CONVEX_HULL. DECOMPOSED, and MESH (Blender's triangle-mesh shape for moving
     parts threw concave parts out of the bin), simulate the part as a COMPOUND rigid body: one
@@ -64,9 +64,9 @@ from mathutils import Matrix, Quaternion, Vector
 from ..config import Config
 from ..errors import ConfigError, DataPipeError
 from ..io.bop_models import entry_field
-from . import collision
+from .. import collision
 from .scene import BlendScene, add_rigid_body, find_layer_collection, remove_unused_data
-from ..fill import draw_share, fill_counts, hull_volume
+from ..draws.fill import draw_share, fill_counts, hull_volume
 
 TEMPLATES_COLLECTION = "datapipe_templates"
 OBJECTS_COLLECTION = "datapipe_objects"
@@ -413,7 +413,7 @@ class ObjectManager:
         return list(instances)
 
     def _draw_counts(self, rng: np.random.Generator) -> list[int]:
-        """Instances per entry: uniform in [min, max] each, or by scene.fill (datapipe/fill.py)."""
+        """Instances per entry: uniform in [min, max] each, or by scene.fill (datapipe/draws/fill.py)."""
         entries = self.cfg.objects
         fill = self.cfg.scene.fill
         self.last_fill = None

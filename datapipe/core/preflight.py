@@ -17,10 +17,10 @@ from ..config import Config
 from ..config.plan import camera_distances
 from ..errors import ConfigError, Problem
 from ..io.bop_models import entry_field, expand_bop_objects
-from ..fill import hull_volume
-from ..part_fit import fill_problems
+from ..draws.fill import hull_volume
+from ..checks.part_fit import fill_problems
 from ..geometry import intrinsics_from_sensor
-from . import collision
+from .. import collision
 from .objects import _IMPORTERS, DECOMPOSED_SHAPES, _run_importer, remove_import_leftovers
 
 MIN_PART_PX = 0.25       # a part narrower than this on the camera image is not in the dataset (tiny

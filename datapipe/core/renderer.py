@@ -37,7 +37,7 @@ import bpy
 from . import compat, object_coords
 from ..config import Config
 from ..errors import DataPipeError
-from .. import progress
+from ..engine import progress
 from ..io.native import write_render_maps
 from .objects import OBJECTS_COLLECTION
 

@@ -366,7 +366,7 @@ class BlendScene:
                 obj.data.materials.append(mat)
 
     def apply_bin(self, draw: dict) -> None:
-        """Rebuild floor, walls and occlusion box for one scene's `datapipe.bin_shape.draw_bin`: the
+        """Rebuild floor, walls and occlusion box for one scene's `datapipe.draws.bin_shape.draw_bin`: the
         zone's x, y half extents (placement and the "left the bin" test follow them) and the wall
         height change; the floor and the zone's centre stay."""
         for obj in [self.floor, *self.walls, self.occlusion_box]:
@@ -381,7 +381,7 @@ class BlendScene:
         bpy.context.view_layer.update()
 
     def apply_lighting(self, draw: dict) -> None:
-        """Set the key light and the ambient world from one scene's `datapipe.lighting.draw_lighting`.
+        """Set the key light and the ambient world from one scene's `datapipe.draws.lighting.draw_lighting`.
         The ambient is a white world background (the fringe layers override it with a black world,
         so the projector alone lights the patterns)."""
         ld = self.key_light.data

@@ -23,7 +23,7 @@
    removed (and the convex pieces of decomposed parts deleted), their matrix_world set to the
    final pose, the world's cache freed and the world disabled, so rendering at any frame shows
    exactly these poses;
-5. measures the frozen result independently (`datapipe.physics_check`): interpenetrating pairs,
+5. measures the frozen result independently (`datapipe.checks.physics_check`): interpenetrating pairs,
    parts under the floor, floating parts.
 
 `rng` is accepted for the contract but not drawn from: Bullet is deterministic for a given
@@ -40,8 +40,8 @@ import numpy as np
 from mathutils import Matrix
 
 from ..config import Config
-from ..physics_check import Part, SceneCheck, check_scene, physics_line
-from .. import progress
+from ..checks.physics_check import Part, SceneCheck, check_scene, physics_line
+from ..engine import progress
 from .objects import COM_PROP, SIM_MESH_PROP, STAGE_LAYERS, Instance, ObjectManager
 from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_body
 

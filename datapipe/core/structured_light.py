@@ -74,7 +74,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import sl
-from .. import progress
+from ..engine import progress
 from ..config.plan import FRINGE_SUPERSAMPLE, builds_row_code   # FRINGE_SUPERSAMPLE: the memory check counts it
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
 from ..io.native import write_render_maps

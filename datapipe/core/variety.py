@@ -1,7 +1,7 @@
 """Scene variety in the Blender world: per-scene bin and lighting, per-render camera pose.
 
-The draws are pure (`datapipe.bin_shape`, `datapipe.lighting`, `datapipe.camera_sampler`), each
-from its own seed stream of (base seed, scene[, render]) (`datapipe.seeds`), so --resume and shards
+The draws are pure (`datapipe.draws.bin_shape`, `datapipe.draws.lighting`, `datapipe.draws.camera_sampler`), each
+from its own seed stream of (base seed, scene[, render]) (`datapipe.draws.seeds`), so --resume and shards
 make the same scenes, and a feature left off draws nothing and changes no other draw: a config
 without variety renders exactly as before.
 
@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import bin_shape, materials_spec
-from ..camera_sampler import draw_bin_view
+from ..draws import bin_shape
+from .. import materials_spec
+from ..draws.camera_sampler import draw_bin_view
 from ..config import Config
-from ..lighting import draw_lighting
-from ..seeds import bin_rng, camera_rng, lighting_rng, scene_seed
+from ..draws.lighting import draw_lighting
+from ..draws.seeds import bin_rng, camera_rng, lighting_rng, scene_seed
 
 
 class SceneVariety:

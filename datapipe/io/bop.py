@@ -48,7 +48,7 @@ import cv2
 import numpy as np
 
 from ..errors import DataPipeError
-from ..exr import read_depth, read_exr, read_mask, write_exr
+from .exr import read_depth, read_exr, read_mask, write_exr
 from . import layout
 from .files import copy_atomic, imwrite_atomic, read_json, read_json_or_empty, write_json_lines_atomic
 from .models import Model, load_models, model_filename, write_models, write_ply

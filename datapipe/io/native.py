@@ -39,7 +39,7 @@ def write_render_maps(render_dir: Path, maps: dict) -> dict[str, Path]:
     """Write one render's output maps into its folder under the layout's names, in the order given:
     {kind: {channel: (H, W) array}} as EXR, {kind: uint8 image (BGR or grey)} as PNG. Returns
     {kind: path}."""
-    from ..exr import write_exr
+    from .exr import write_exr
     from .files import imwrite_atomic
 
     render_dir = Path(render_dir)

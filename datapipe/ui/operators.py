@@ -428,7 +428,7 @@ class DATAPIPE_OT_check(Operator):
 
     @user_errors
     def execute(self, context):
-        from ..core.pipeline import Pipeline
+        from ..engine.pipeline import Pipeline
         from ..core.preflight import preflight
         cfg = props_to_config(_props(context))
         cfg.validate()
@@ -452,7 +452,7 @@ class DATAPIPE_OT_run(Operator):
 
     @user_errors
     def execute(self, context):
-        from ..core.pipeline import Pipeline
+        from ..engine.pipeline import Pipeline
         props = _props(context)
         if runner.is_running():
             raise DataPipeError("run: a run is already in progress (fix: wait for it or click Cancel)")

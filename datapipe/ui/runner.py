@@ -4,7 +4,7 @@ with window-manager progress and a status line), or in one blocking loop when th
 
 One run at a time per Blender process; its state lives here (not in the .blend), so a file saved
 mid-run never believes it is still running. Blender's own output during each step (render
-`Saved:` lines, importer timings) goes to the run's `blender.log` (datapipe.blender_log), not the
+`Saved:` lines, importer timings) goes to the run's `blender.log` (datapipe.engine.blender_log), not the
 system console; lines Blender marks as errors are shown there as well.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import traceback
 
 import bpy
 
-from ..blender_log import BlenderLog
+from ..engine.blender_log import BlenderLog
 from ..errors import DataPipeError
 from ..io.layout import BLENDER_LOG
 
@@ -34,7 +34,7 @@ class Run:
         self.finished = False
         self.in_step = False                 # the pipeline itself may open a .blend (scene.blend_file)
         self.blender_log = BlenderLog()
-        self.last_step = None                # last line inside a scene (datapipe/progress.py)
+        self.last_step = None                # last line inside a scene (datapipe/engine/progress.py)
         if getattr(pipeline, "on_step", False) is None:
             pipeline.on_step = self.on_step
 

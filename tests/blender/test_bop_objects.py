@@ -7,7 +7,7 @@ import json
 import bpy
 import numpy as np
 
-from datapipe.exr import read_depth, read_exr, read_mask
+from datapipe.io.exr import read_depth, read_exr, read_mask
 
 from test_bop_models import BOP_PARTS, make_bop_models
 from test_pipeline import run, tiny_config

@@ -121,10 +121,10 @@ def test_draw_poses_without_replacement(factory_scene):
 def test_sampled_view_places_camera_and_parented_projector(factory_scene):
     """A bin_view draw moves the camera object to the drawn look-at pose (Blender's matrix_world is
     the ground truth) and the projector, parented to the camera, follows it (T_cam_proj fixed)."""
-    from datapipe.camera_sampler import draw_bin_view, pose_parameters
+    from datapipe.draws.camera_sampler import draw_bin_view, pose_parameters
     from datapipe.config import CameraSamplerConfig
     from datapipe.core import projector as pj
-    from datapipe.seeds import camera_rng
+    from datapipe.draws.seeds import camera_rng
     cfg = make_cfg()
     cam = BlendCamera(cfg, factory_scene).setup()
     proj = pj.Projector(cfg, factory_scene, cam.obj)

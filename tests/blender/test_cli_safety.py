@@ -11,10 +11,11 @@ import pickle
 
 import pytest
 
-from datapipe import cli, config as C, outdir
+from datapipe import cli, config as C
+from datapipe.io import outdir
 from datapipe.io import layout
 from datapipe.io.files import write_json_atomic
-from datapipe.seeds import scene_seed
+from datapipe.draws.seeds import scene_seed
 
 
 def main(capsys, *argv):
@@ -155,7 +156,7 @@ def test_8_corrupt_state_and_os_errors_are_one_message(tmp_path, capsys, monkeyp
     code, _, err = main(capsys, "run", p, "--out", tmp_path / "file" / "sub")
     assert code == 1 and str(tmp_path / "file") in err and "fix:" in err
     # disk full at the first write
-    from datapipe.core import pipeline
+    from datapipe.engine import pipeline
 
     def full(self, status):
         raise OSError(errno.ENOSPC, "No space left on device", str(self.out / "run.json"))
@@ -295,7 +296,7 @@ def test_21_take_written_exr_refuses_short_and_incomplete_files(tmp_path):
     import errno
     import numpy as np
     from datapipe.core import compat
-    from datapipe.exr import write_exr
+    from datapipe.io.exr import write_exr
     full = tmp_path / "full.exr"
     write_exr(full, {"Image.R": np.ones((24, 32)), "Depth.V": np.ones((24, 32))})
     data = full.read_bytes()

@@ -1,4 +1,4 @@
-"""Dense piles (scene.fill, drops in stages) and the lines inside a scene (datapipe/progress.py), with
+"""Dense piles (scene.fill, drops in stages) and the lines inside a scene (datapipe/engine/progress.py), with
 real bpy: Bullet, Cycles on the CPU (tiny renders)."""
 import json
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.core.pipeline import Pipeline
-from datapipe.fill import hull_volume
-from datapipe.progress import STEP
+from datapipe.engine.pipeline import Pipeline
+from datapipe.draws.fill import hull_volume
+from datapipe.engine.progress import STEP
 
 FLOOR_TOL = 0.002      # m: Bullet's contact margin and resting penetration under load (test_simulation)
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from datapipe import config as config_mod
-from datapipe.distributed import run_distributed
+from datapipe.engine.distributed import run_distributed
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from distributed_helpers import killing, legacy, local_ray  # noqa: E402,F401  (local_ray: a fixture)

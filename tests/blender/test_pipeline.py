@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.core.pipeline import Pipeline
-from datapipe.exr import read_depth, read_mask, read_normals
+from datapipe.engine.pipeline import Pipeline
+from datapipe.io.exr import read_depth, read_mask, read_normals
 
 
 def tiny_config(num_renders=3, res=(96, 72), samples=2):
@@ -279,7 +279,7 @@ def test_7_second_ctrl_c_stops_at_once_and_stays_resumable(tmp_path):
     assert "Traceback" not in text and "stopped at once" in text
     assert json.loads((out / "run.json").read_text())["status"] == "cancelled"
     assert not any(json.loads(p.read_text()).get("complete") for p in scenes(out))
-    from datapipe.outdir import OutLock
+    from datapipe.io.outdir import OutLock
     with OutLock(out):                               # the dead run's lock is gone with it
         pass
 
@@ -319,7 +319,7 @@ def test_4_kill_right_after_scene_json_is_repaired_on_resume(tmp_path, monkeypat
 
 def test_quality_gate_warns_and_strict_stops(tmp_path):
     """Defect #6: a black dataset finished with exit 0 and no word."""
-    from datapipe.core.pipeline import QualityError
+    from datapipe.engine.pipeline import QualityError
     cfg = tiny_config(num_renders=1, res=(32, 24), samples=1)
     cfg.render.light_power = 0.0
     cfg.structured_light.enabled = False

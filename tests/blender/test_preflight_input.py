@@ -14,8 +14,8 @@ import pytest
 
 from datapipe import cli, config as C
 from datapipe.core.preflight import check_blend, check_meshes
-from datapipe.part_fit import RANDOM_PACKING_MAX, bin_volume
-from datapipe.text_rules import MAX_ID_NAME_BYTES
+from datapipe.checks.part_fit import RANDOM_PACKING_MAX, bin_volume
+from datapipe.checks.text_rules import MAX_ID_NAME_BYTES
 
 
 def main(capsys, *argv):

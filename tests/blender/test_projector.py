@@ -15,7 +15,7 @@ bpy = pytest.importorskip("bpy")
 from datapipe.config import Config  # noqa: E402
 from datapipe.core import projector as pj  # noqa: E402
 from datapipe.errors import DataPipeError  # noqa: E402
-from datapipe.exr import read_exr  # noqa: E402
+from datapipe.io.exr import read_exr  # noqa: E402
 from datapipe.geometry import (blender_camera_to_opencv,  # noqa: E402
                                euler_xyz_to_matrix, intrinsics_from_sensor, matrix_to_quat)
 

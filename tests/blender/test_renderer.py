@@ -20,7 +20,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from datapipe import exr  # noqa: E402
+from datapipe.io import exr  # noqa: E402
 from datapipe.config import CameraPose, Config  # noqa: E402
 from datapipe.core import compat  # noqa: E402
 from datapipe.core.camera import BlendCamera  # noqa: E402

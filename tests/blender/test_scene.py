@@ -163,7 +163,7 @@ def test_inside_bin():
 
 
 def test_apply_lighting_sets_key_light_and_ambient():
-    from datapipe.lighting import blackbody_rgb
+    from datapipe.draws.lighting import blackbody_rgb
     bs = BlendScene(_cfg()).setup()
     home = np.array(bs.key_light.matrix_world.translation)
     draw = {"key_power": 77.0, "key_color_temperature": 3200.0, "key_color": list(blackbody_rgb(3200.0)),
@@ -184,7 +184,7 @@ def test_apply_lighting_sets_key_light_and_ambient():
 def test_apply_bin_rebuilds_to_the_drawn_size():
     """After a drawn bin the boxes match the drawn half size and wall height analytically, old boxes
     are gone (no duplicates, no orphan meshes), and the floor stays put."""
-    from datapipe.bin_shape import draw_bin
+    from datapipe.draws.bin_shape import draw_bin
     cfg = _cfg()
     cfg.scene.bin_size_scale, cfg.scene.bin_wall_scale = [0.7, 1.3], [0.5, 1.5]
     bs = BlendScene(cfg).setup()

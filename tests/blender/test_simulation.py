@@ -16,7 +16,7 @@ from datapipe.config import ObjectEntry, assets_dir, default_config  # noqa: E40
 from datapipe.core.objects import ObjectManager  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
 from datapipe.core.simulation import SETTLE_CONFIRM_S, Simulation  # noqa: E402
-from datapipe.seeds import scene_rng  # noqa: E402
+from datapipe.draws.seeds import scene_rng  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 ASSETS = assets_dir()
@@ -143,7 +143,7 @@ from datapipe.config import default_config
 from datapipe.core.scene import BlendScene
 from datapipe.core.objects import ObjectManager
 from datapipe.core.simulation import Simulation
-from datapipe.seeds import scene_rng
+from datapipe.draws.seeds import scene_rng
 bpy.ops.wm.read_factory_settings(use_empty=True)
 cfg = default_config()
 bs = BlendScene(cfg).setup(); om = ObjectManager(cfg, bs).load_sources(); sim = Simulation(cfg, bs)

@@ -35,7 +35,7 @@ bpy = pytest.importorskip("bpy")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sl_scenes import depth_edges, direct_mask, rig_config  # noqa: E402
 
-from datapipe.exr import read_depth  # noqa: E402
+from datapipe.io.exr import read_depth  # noqa: E402
 
 SEED = 1234
 HEIGHT = 0.55
@@ -50,7 +50,7 @@ def scan(tmp_path_factory):
     from scipy.ndimage import binary_dilation
 
     from datapipe.core.world import BlenderWorld
-    from datapipe.seeds import scene_rng
+    from datapipe.draws.seeds import scene_rng
 
     tmp = tmp_path_factory.mktemp("sl_truth")
     bpy.ops.wm.read_factory_settings(use_empty=True)

@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from sl_scenes import RIGS, direct_mask, rig_config  # noqa: E402
 
 from datapipe import config as C  # noqa: E402
-from datapipe.exr import read_depth  # noqa: E402
+from datapipe.io.exr import read_depth  # noqa: E402
 
 HEIGHTS = (0.35, 1.5)          # m, camera above the bin floor: the ends of the issue's working distance
 SEED = 1234
@@ -63,7 +63,7 @@ def measure(tmp: Path, exposure=None) -> dict:
     """{(rig, height): metrics} of one dropped scene; `exposure` overrides the default ("auto")."""
     from datapipe.core.structured_light import StructuredLightCamera
     from datapipe.core.world import BlenderWorld
-    from datapipe.seeds import scene_rng
+    from datapipe.draws.seeds import scene_rng
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cfg = rig_config("default", HEIGHTS[0])

@@ -29,7 +29,7 @@ from pathlib import Path
 import pytest
 
 from datapipe import config as C
-from datapipe.core.pipeline import Pipeline
+from datapipe.engine.pipeline import Pipeline
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from snapshot_compare import compare_texts  # noqa: E402

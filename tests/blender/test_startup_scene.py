@@ -7,10 +7,10 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from datapipe import config as C  # noqa: E402
-from datapipe.core.pipeline import Pipeline  # noqa: E402
+from datapipe.engine.pipeline import Pipeline  # noqa: E402
 import cv2  # noqa: E402
 
-from datapipe.exr import read_mask  # noqa: E402
+from datapipe.io.exr import read_mask  # noqa: E402
 
 
 def _run(tmp_path, other_objects, sl=True):

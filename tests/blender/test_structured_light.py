@@ -19,12 +19,12 @@ from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
 from datapipe.core.camera import BlendCamera  # noqa: E402
-from datapipe.core.pipeline import Pipeline  # noqa: E402
+from datapipe.engine.pipeline import Pipeline  # noqa: E402
 from datapipe.geometry import T_cam_proj, projector_intrinsics, projector_matrix  # noqa: E402
 from datapipe.sl.scanner import REASON_NAMES  # noqa: E402
 from datapipe.core.renderer import Renderer  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
-from datapipe.exr import read_depth, read_exr  # noqa: E402
+from datapipe.io.exr import read_depth, read_exr  # noqa: E402
 
 RES = (320, 240)          # the preset's camera resolution: finest fringe ~5 camera px per period
 SEED = 11

@@ -15,7 +15,7 @@ from datapipe import config as C
 import datapipe.ui as ui
 from datapipe.ui import runner
 
-pipeline = pytest.importorskip("datapipe.core.pipeline")
+pipeline = pytest.importorskip("datapipe.engine.pipeline")
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -80,7 +80,7 @@ def test_run_matches_cli(d, tmp_path, capfd):
         a = _load_scene_json(out_ui / sj.relative_to(out_cli))
         b = _load_scene_json(sj)
         assert a == b
-    from datapipe.exr import read_depth, read_mask
+    from datapipe.io.exr import read_depth, read_mask
     for f in _files(out_cli):
         if f.endswith("depth.exr"):
             np.testing.assert_array_equal(read_depth(out_ui / f), read_depth(out_cli / f))

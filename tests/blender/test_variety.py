@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.camera_sampler import pose_parameters
-from datapipe.core.pipeline import Pipeline
+from datapipe.draws.camera_sampler import pose_parameters
+from datapipe.engine.pipeline import Pipeline
 
 
 def variety_config():
@@ -114,7 +114,7 @@ def test_bin_material_drawn_per_scene_from_a_list(tmp_path):
     mirror-like steel floor under the overhead key light sends its light away from the camera
     above it (a black world elsewhere), so those scenes are darker than the matte grey ones."""
     from datapipe import materials_spec as materials
-    from datapipe.seeds import scene_seed
+    from datapipe.draws.seeds import scene_seed
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cfg = variety_config()

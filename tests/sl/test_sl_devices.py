@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 import synth
 
-from datapipe import device_checks, devices
+from datapipe.checks import device_checks
+from datapipe import devices
 from datapipe.config import Config
 from datapipe.geometry import T_cam_proj, projector_intrinsics
 from datapipe.sl.scanner import Scanner

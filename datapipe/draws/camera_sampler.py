@@ -19,7 +19,7 @@ in-plane rotation (as roll does).
 
 Each of the four is drawn uniformly within its [min, max] (tilt uniform in degrees, not uniform on
 the sphere: a range of tilts then gets equally many views of each tilt). All draws come from one
-numpy Generator the caller seeds from (base seed, scene, render) (`datapipe.seeds.camera_rng`).
+numpy Generator the caller seeds from (base seed, scene, render) (`datapipe.draws.seeds.camera_rng`).
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import BLENDER_TO_OPENCV, matrix_to_quat
+from ..geometry import BLENDER_TO_OPENCV, matrix_to_quat
 
 
 @dataclass

@@ -16,13 +16,14 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from .. import __version__, outdir
+from .. import __version__
+from ..io import outdir
 from ..config import Config
 from ..errors import DataPipeError
-from .. import progress
-from ..physics_check import add_to_totals, physics_line, totals_line
-from ..progress import Progress, Tracker, fmt_s
-from ..quality import render_warnings
+from . import progress
+from ..checks.physics_check import add_to_totals, physics_line, totals_line
+from .progress import Progress, Tracker, fmt_s
+from ..checks.quality import render_warnings
 from ..io import layout, native
 from ..io.files import read_json, write_json_atomic
 from ..io.bop_models import expand_bop_objects, models_symmetries
@@ -30,11 +31,12 @@ from ..io.models import write_models
 from ..io.legacy import LegacyPickleWriter
 from ..io.writers import Writers, open_writers
 from ..visibility import VisibStats, visible_fractions
-from ..seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
-from .world import BlenderWorld, World
+from ..draws.seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
+from ..core.world import BlenderWorld
+from .world import World
 
 class QualityError(DataPipeError):
-    """--strict: a render failed a quality gate (datapipe.quality)."""
+    """--strict: a render failed a quality gate (datapipe.checks.quality)."""
 
 
 STAGES = ("placement", "simulation", "render", "structured_light", "write")
@@ -52,7 +54,7 @@ class Pipeline:
                  force: bool = False, shard: tuple[int, int] = (0, 1), seed: int | None = None,
                  strict: bool = False, world: Callable[[Config, Path], World] = BlenderWorld,
                  on_step: Callable[[Progress], None] | None = None, heartbeat_s: float = progress.HEARTBEAT_S):
-        """`on_step`: receives the lines inside a scene (datapipe/progress.py), at least every
+        """`on_step`: receives the lines inside a scene (datapipe/engine/progress.py), at least every
         `heartbeat_s` seconds while a step lasts, possibly from the heartbeat thread."""
         self.cfg = cfg.copy()
         self.on_step, self.heartbeat_s = on_step, heartbeat_s
@@ -267,7 +269,7 @@ class Pipeline:
 
     # -- quality gates ----------------------------------------------------------------------------
     def _quality_gate(self, i: int, r: int, view, scene: dict, rec: dict) -> list[str]:
-        """Warnings of one render (datapipe.quality), kept in run.json; with strict=True an error."""
+        """Warnings of one render (datapipe.checks.quality), kept in run.json; with strict=True an error."""
         sl_info = rec.get("structured_light") or {}
         warnings = render_warnings(
             rgb=view.rgb, visible_px=[o["px_count_visib"] for o in rec["objects"]],

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from .io.files import atomic_path, disk_full_error
+from .files import atomic_path, disk_full_error
 
 
 def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], *, half: bool = False) -> None:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from ..errors import Problem
+from .errors import Problem
 
 CONCAVE_FILL = 0.7                 # mesh volume / hull volume below this: decompose
 COACD_SETTINGS = {"threshold": 0.05, "max_convex_hull": 16, "preprocess_mode": "auto", "seed": 0}
@@ -136,7 +136,7 @@ def decompose(verts: np.ndarray, tris: np.ndarray, cache: Path | None = None) ->
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
     os.close(fd)
-    from ..io.files import atomic_path
+    from .io.files import atomic_path
     # atomic: parallel workers never read half a file; a failed write leaves no temporary
     with atomic_path(path, tmp) as t, open(t, "wb") as fh:
         np.savez(fh, verts=np.concatenate([p[0] for p in pieces]), tris=np.concatenate([p[1] for p in pieces]),

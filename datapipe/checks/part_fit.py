@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataPipeError, Problem
-from .io.models import read_ply
+from ..errors import DataPipeError, Problem
+from ..io.models import read_ply
 
 RANDOM_PACKING_MAX = 0.74   # densest random packing of convex parts (see the module doc), of hull volume
 
@@ -86,7 +86,7 @@ def part_fit_warnings(cfg) -> list[str]:
 def bin_volume(scene_cfg) -> float:
     """Inner volume (m^3) of the smallest bin a scene can draw: the drop zone's footprint times the
     wall height (the zone's height without walls), each at the low end of scene.bin_size_scale /
-    bin_wall_scale (datapipe.bin_shape)."""
+    bin_wall_scale (datapipe.draws.bin_shape)."""
     hx, hy, hz = (float(v) for v in scene_cfg.drop_zone_scale)
     size = min(scene_cfg.bin_size_scale)
     wall = min(scene_cfg.bin_wall_scale) if scene_cfg.make_bin else 1.0

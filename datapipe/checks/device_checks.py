@@ -16,12 +16,12 @@ import math
 import numpy as np
 from scipy.optimize import brentq
 
-from .camera_sampler import look_at_pose
-from .config import CameraConfig, Config, ProjectorConfig, StructuredLightConfig
-from .devices import binning_factors, config_sections, device, names
-from .geometry import T_cam_proj, camera_pose_from_config, intrinsics_from_sensor, projector_intrinsics
-from .sl.exposure import AUTO_TARGET
-from .sl.sensor import SensorModel
+from ..draws.camera_sampler import look_at_pose
+from ..config import CameraConfig, Config, ProjectorConfig, StructuredLightConfig
+from ..devices import binning_factors, config_sections, device, names
+from ..geometry import T_cam_proj, camera_pose_from_config, intrinsics_from_sensor, projector_intrinsics
+from ..sl.exposure import AUTO_TARGET
+from ..sl.sensor import SensorModel
 
 
 def _build_cfg(sections: dict):

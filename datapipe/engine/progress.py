@@ -1,7 +1,7 @@
 """Progress events of a run, and the lines inside a scene: which step runs, what it renders, how
 far it is, and the ETA. No bpy at import.
 
-The run loop (core/pipeline.py) yields `Progress` events between its steps (a render done, a scene
+The run loop (engine/pipeline.py) yields `Progress` events between its steps (a render done, a scene
 done). Inside a scene the world's work blocks for minutes (a drop, a Cycles call), so the loop
 starts a `Tracker` for the run and the world reports into it through this module's functions
 (`begin`, `advance`, `note`, `cycles`; no-ops when no tracker runs). The tracker hands
@@ -26,7 +26,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable
 
-from .io import layout
+from ..io import layout
 
 STEP = "step"                # Progress.stage of a line inside a scene
 # the steps of a render, in order (placement and simulation only in a scene's first render)

@@ -23,9 +23,9 @@ import stat
 from pathlib import Path
 from typing import Iterator
 
-from .errors import DataPipeError, OutputStateError  # noqa: F401 (re-exported)
-from .io import layout
-from .io.files import write_text_atomic
+from ..errors import DataPipeError, OutputStateError  # noqa: F401 (re-exported)
+from . import layout
+from .files import write_text_atomic
 
 LOCK_FILE = ".datapipe.lock"
 MANIFEST_FILE = "manifest.json"

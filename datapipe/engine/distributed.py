@@ -2,7 +2,7 @@
 
     python -m datapipe run PRESET --out DIR --ray [ADDRESS] [--shards N]
 
-The run's scenes are split into N contiguous shards (datapipe.seeds.shard_scenes). Each shard is one
+The run's scenes are split into N contiguous shards (datapipe.draws.seeds.shard_scenes). Each shard is one
 Ray task that launches the headless runner in its own process (bpy is one per process):
 
     <python> -m datapipe run SHARD_PRESET --out DIR/_shards/shard_I_of_N --shard I/N --seed S --resume
@@ -33,13 +33,14 @@ import time
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
-from . import config as config_mod, outdir
-from .errors import DataPipeError
-from .io import layout
-from .io.files import copy_atomic, read_json, write_json_atomic
-from .io.layout import config_identity, scene_name
-from .io.writers import open_writers
-from .seeds import plan_scenes, shard_scenes
+from .. import config as config_mod
+from ..io import outdir
+from ..errors import DataPipeError
+from ..io import layout
+from ..io.files import copy_atomic, read_json, write_json_atomic
+from ..io.layout import config_identity, scene_name
+from ..io.writers import open_writers
+from ..draws.seeds import plan_scenes, shard_scenes
 
 SHARDS_DIR = "_shards"
 SHARD_PRESET = "preset.json"
@@ -378,7 +379,7 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
     say(f"ray: merged {summary['scenes']} scenes ({summary['images']} renders) from {len(dirs)} shard(s) into {out}")
     if "bop" in summary:
         say(f"ray: BOP dataset written to {out / layout.BOP_DIR}")
-    from .show import overview_after_run
+    from ..show import overview_after_run
     overview = overview_after_run(out, cfg.output)
     if overview is not None:
         summary["overview"] = str(overview)

@@ -1,0 +1,72 @@
+"""The world a run renders, as the run loop (engine/pipeline.py) sees it: a small protocol and the
+records it returns. No bpy; the real world is `BlenderWorld` (core/world.py).
+
+The pipeline owns the run: plan, seeds, folders, resume, cancel, shards, run.json, the writers, the
+annotations. A world only makes things: once `setup()`, then per scene `start_scene(scene_id, base_seed,
+rng, n)` (draw the bin and lights, drop parts, settle, pick camera poses) and per render
+`render(render_dir, pose_index, seed, scene_id=, render_id=, base_seed=)` (place the camera,
+files + what the annotations need), then `finish_scene()`; `close()` at the end. Tests pass a fake world
+(tests/fake_world.py: analytic boxes, numpy ray casting) to check the run loop without Blender.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+
+
+@dataclass
+class Part:
+    """One object instance of a scene, as the annotations name it."""
+    name: str               # "{entry name}_{k:03d}", numbered within the scene
+    filename: str           # the mesh file it was imported from
+    obj_id: int             # its Config.objects entry's obj_id (Config.obj_id)
+    mask_index: int         # its pass index in mask.exr (1..n; 0 = background)
+    material: str = "file"  # the material label it was given (core/materials.py; "file": the mesh's own)
+
+
+@dataclass
+class SceneStart:
+    """A scene after the drop: the parts that stayed, the drop's record, the camera poses to render."""
+    parts: list[Part]
+    simulation: dict                    # scene.json's "simulation": frames, settled, removed [{name, reason}], ...
+    pose_indices: list              # pool index per render, or None where the camera pose is drawn per render
+    drawn: dict = field(default_factory=dict)        # scene.json's per-scene draws: {"bin": ..., "lighting": ...}
+    seconds: dict = field(default_factory=dict)      # {"placement": s, "simulation": s}
+
+
+@dataclass
+class View:
+    """One render: its files and what its annotations are computed from."""
+    files: dict[str, Path]              # output kind -> written file (native, then structured light)
+    K: np.ndarray                       # 3x3
+    resolution: tuple[int, int]         # (W, H)
+    T_world_cam: np.ndarray             # 4x4, OpenCV camera frame
+    T_world_blcam: np.ndarray           # 4x4, the Blender camera object's world matrix
+    T_world_obj: list[np.ndarray]       # per part of the scene, in SceneStart.parts order
+    mask: np.ndarray | None             # (H, W) pass indices, None without a mask output
+    rgb: np.ndarray | None = None       # (H, W, 3) uint8, for the quality gates (not kept)
+    camera_sampler: dict | None = None      # the drawn camera pose's parameters (bin_view sampler)
+    structured_light: dict | None = None    # the render's structured_light record (files excluded)
+    seconds: dict = field(default_factory=dict)      # {"render": s, "write": s, "structured_light": s}
+
+
+class World(Protocol):
+    import_count: int                   # mesh files read this run
+    setup_notes: list[str]              # what setup() did that the user should hear about
+
+    def setup(self) -> None: ...
+
+    def model_meshes(self) -> dict: ...
+
+    def start_scene(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int) -> SceneStart: ...
+
+    def render(self, render_dir: Path, pose_index: int | None, seed: int, *, scene_id: int, render_id: int,
+               base_seed: int) -> View: ...
+
+    def finish_scene(self) -> None: ...
+
+    def close(self) -> None: ...
