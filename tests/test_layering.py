@@ -9,7 +9,9 @@
 - no core module imports `show` (the run engine does not depend on the reporting module);
 - the native layout's file names are spelled in datapipe/io/layout.py only;
 - no function is longer than MAX_FUNCTION_LINES, except the ones listed (owned and being split
-  elsewhere).
+  elsewhere);
+- no module of the package is longer than MAX_MODULE_LINES (issue #22: small modules named for what
+  they hold).
 """
 import ast
 import json
@@ -21,6 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "datapipe"
 MAX_FUNCTION_LINES = 120
+MAX_MODULE_LINES = 600
 # qualified name -> why it may be longer for now
 LONG_FUNCTION_EXCEPTIONS = {
 }
@@ -266,3 +269,15 @@ def test_core_holds_only_what_needs_blender():
         blender |= more
     assert "datapipe.core.renderer" in blender and "datapipe.core.fringe_fast" in blender   # the walk is real
     assert sorted(set(mods) - blender - BLENDER_OBJECT_MODULES) == []
+
+
+def _module_lengths() -> dict[str, int]:
+    return {str(p.relative_to(ROOT)): len(p.read_text().splitlines()) for p in _sources()}
+
+
+def test_no_module_over_the_limit():
+    """Every module of the package (tests/ and benchmarks/ are not the package) stays short enough to
+    read whole; a longer one is split by what it holds."""
+    lengths = _module_lengths()
+    assert {k: v for k, v in lengths.items() if v > MAX_MODULE_LINES} == {}
+    assert len(lengths) > 50 and max(lengths.values()) > MAX_MODULE_LINES // 2   # the walk sees the package

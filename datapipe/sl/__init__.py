@@ -1,12 +1,14 @@
 """Structured light (fringe projection), pure numpy: patterns, phase, unwrapping, triangulation,
 a camera noise model, the decoder and its metrics, and the scanner (sensor -> decode -> filters). No Blender here, ever (docs/CONVENTIONS.md)."""
-from .decode import (NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason, decode, estimate_noise_sigma,
-                     modulation_floor_factor)
+from .decode import decode
+from .decode_result import NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason
+from .decode_setup import modulation_floor_factor
 from .filters import edge_speckle_filter, multipath_filter, reflection_filter
 from .fringe_synth import (bounce_modulation, indirect_gain, pattern_profiles, projector_columns, quadrature_profiles,
                            synthesize_fringes)
 from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
                       theoretical_phase_sigma)
+from .noise import estimate_noise_sigma
 from .patterns import fringe_patterns, phase_shifts
 from .phase import PhaseResult, phase_shift
 from .scanner import Scan, Scanner

@@ -64,7 +64,8 @@ import numpy as np
 
 from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from ._errors import bad_value
-from .decode import DecodeResult, Reason, decode
+from .decode import decode
+from .decode_result import DecodeResult, Reason
 from .exposure import Capture, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set, lit_pixels
 from .filters import (direct_frequencies, direct_offset_ratio, edge_speckle_filter, global_light_filter, multipath_filter,
                       projector_rows, reflection_filter, row_from_phase, row_residual)

@@ -1,6 +1,7 @@
 """DataPipe's Blender add-on UI: the `DataPipe` sidebar tab of the 3D viewport.
 
-- `props`      the PropertyGroup tree `bpy.types.Scene.datapipe` (mirrors `datapipe.config.Config`)
+- `props`      the PropertyGroup tree `bpy.types.Scene.datapipe` (mirrors `datapipe.config.Config`; a
+               package, one module per group of Config sections)
 - `convert`    `props_to_config(props) -> Config`, `config_to_props(cfg, props)`: the one mapping
 - `operators`  thin operators `datapipe.*` (build a Config, call core)
 - `panels`     panels and UI lists

@@ -197,6 +197,7 @@ def test_every_config_field_has_a_property(ui_registered):
 
 def test_sensor_field_suggests_presets(ui_registered):
     from datapipe.sl.sensor import PRESETS
-    assert P._sensor_search(None, None, "") == sorted(PRESETS)
-    assert all("ind" in name for name in P._sensor_search(None, None, "IND"))
+    from datapipe.ui.props.structured_light import _sensor_search
+    assert _sensor_search(None, None, "") == sorted(PRESETS)
+    assert all("ind" in name for name in _sensor_search(None, None, "IND"))
     assert ui_registered.structured_light.sensor == C.StructuredLightConfig().sensor

@@ -1,0 +1,86 @@
+"""Step 2 of the decoder (:mod:`datapipe.sl.decode`): uncertain pixels take (or confirm) their fringe
+order from confident neighbours on the same surface (:mod:`datapipe.sl.spatial`) and are
+triangulated again."""
+from __future__ import annotations
+
+import numpy as np
+
+from .confidence import phase_var_cycles
+from .decode_result import Reason
+from .decode_setup import DecodeSetup
+from .decode_slab import DecodeMaps
+from .spatial import correct_orders
+
+__all__ = ["neighbour_pass"]
+
+
+def _any_supported(st: DecodeSetup, out: DecodeMaps, idx) -> bool:
+    """Has some candidate two confident 8-neighbours (the least any prediction pair needs)? Read at
+    the candidates' neighbours only, so scattered noise pixels in a shadow cost no full-image pass."""
+    H, W = st.shape
+    r, c = np.divmod(idx, W)
+    n = np.zeros(idx.size, np.int8)
+    thr = np.float32(st.max_wrong)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                q = np.clip(r + dy, 0, H - 1) * W + np.clip(c + dx, 0, W - 1)
+                with np.errstate(invalid="ignore"):
+                    ok = (out.p_wrong.ravel()[q] <= thr) & ~out.inconsistent.ravel()[q]
+                if st.order_factor or st.max_order_error is not None:
+                    ok &= ~out.legacy_bad.ravel()[q]
+                n += ok & (q != idx)
+    return bool(np.any(n >= 2))
+
+
+def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
+    """Uncertain pixels take / confirm their order from confident neighbours, then are
+    triangulated again (see :mod:`.spatial`)."""
+    if not out.candidates:
+        return
+    idx = np.concatenate(out.candidates)
+    if not _any_supported(st, out, idx):
+        return
+    # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): not good
+    with np.errstate(invalid="ignore"):
+        good = out.p_wrong <= np.float32(st.max_wrong)
+    good &= ~out.inconsistent
+    if st.order_factor or st.max_order_error is not None:
+        good &= ~out.legacy_bad
+    if not good.any():
+        return
+    F = len(st.plan.periods)
+    if st.sigma_fn is not None:
+        sig = np.asarray(st.sigma_fn(np.maximum(out.offset.ravel()[idx].astype(np.float64), 0)), np.float64)
+    elif st.sigma_map is not None:
+        sig = st.sigma_map.ravel()[idx].astype(np.float64)
+    else:
+        sig = np.full(idx.size, st.sigma_scalar)
+    s = sig * st.row_sigma
+    cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
+    s = s.astype(np.float32)
+    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
+    ia, xa, pa = correct_orders(out.proj_x, good, idx, cyc, var_c, st.plan.periods, st.wcoded,
+                                max_wrong=st.max_wrong)
+    if ia.size == 0:
+        return
+    out.proj_x.ravel()[ia] = xa
+    out.p_wrong.ravel()[ia] = pa
+    out.filled.ravel()[ia] = True
+    out.phase.ravel()[ia] = xa * (2 * np.pi * max(st.plan.periods) / st.wcoded)
+    H, W = st.shape
+    rows = np.unique(ia // W)
+    # re-triangulate the touched rows (contiguous runs), keep the result only for corrected pixels
+    hit = np.zeros((H, W), bool)
+    hit.ravel()[ia] = True
+    starts = rows[np.r_[True, np.diff(rows) > 1]]
+    ends = rows[np.r_[np.diff(rows) > 1, True]] + 1
+    for r0, r1 in zip(starts, ends):
+        z, ill, outside = st.tri.slab(out.proj_x[r0:r1], r0, r1, max_depth_slope=st.max_depth_slope,
+                                      check_other_axis=st.check_other_axis)
+        h = hit[r0:r1]
+        out.depth[r0:r1][h] = z[h]
+        rs = out.reason[r0:r1]
+        rs[h] = 0
+        rs[h & ill] = Reason.ILL_CONDITIONED
+        rs[h & outside] = Reason.OUTSIDE_PROJECTOR

@@ -1,0 +1,230 @@
+"""The decoder's input checks and setup: everything decided before the first pixel is touched
+(frames, phase kernel, triangulator, saturation, noise sigma and the modulation floor of
+:mod:`datapipe.sl.decode`'s module doc), gathered in a :class:`DecodeSetup`."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.special import gammainccinv
+
+from ._errors import bad_type, bad_value
+from .confidence import consistency_limits
+from .gamma import gamma_phase_lut
+from .noise import fit_noise_model, variance_function
+from .patterns import _check_steps, phase_shifts
+from .phase import PhaseKernel, check_image_dtype, work_dtype_for
+from .triangulate import Triangulator
+from .unwrap import plan_unwrap
+
+__all__ = ["DecodeSetup", "prepare_decode", "modulation_floor_factor"]
+
+
+def modulation_floor_factor(steps: int | np.ndarray = None, false_valid_rate: float = 1e-3, *,
+                            shifts=None) -> float:
+    """Floor / sigma_I: ``sqrt(2/N) * sqrt(-2 ln p)`` for uniform shifts (generic shifts: the mean
+    variance of the least-squares C and S rows replaces 2/N)."""
+    return _row_sigma(steps, shifts) * float(np.sqrt(-2.0 * np.log(false_valid_rate)))
+
+
+def _row_sigma(steps=None, shifts=None) -> float:
+    """Noise of the least-squares C and S estimates per unit image noise: sqrt(2/N) if uniform."""
+    if shifts is None:
+        shifts = phase_shifts(int(steps))
+    coef = PhaseKernel(shifts).coef
+    return float(np.sqrt(0.5 * (np.sum(coef[1] ** 2) + np.sum(coef[2] ** 2))))
+
+
+def _frames(images, n_expected: int, periods, steps):
+    """List of 2D frames (views, no copy) from (F*N,H,W), (F,N,H,W) or a sequence of 2D arrays."""
+    if isinstance(images, np.ndarray):
+        arr = images
+        if arr.ndim == 4:
+            if arr.shape[:2] != (len(periods), steps):
+                raise bad_value("images", f"has shape {arr.shape}: (F, N) = {arr.shape[:2]} but "
+                                f"periods/steps give ({len(periods)}, {steps})",
+                                "pass (len(periods), steps, H, W) or (len(periods)*steps, H, W)")
+            arr = arr.reshape((-1,) + arr.shape[2:])
+        elif arr.ndim != 3:
+            raise bad_value("images", f"has shape {arr.shape}; expected (F*N, H, W) or (F, N, H, W)",
+                            "stack the fringe images frequency-major along the first axis")
+        frames = list(arr)
+    elif isinstance(images, (list, tuple)):
+        frames = []
+        for i, f in enumerate(images):
+            if not isinstance(f, np.ndarray):
+                raise bad_type("images", f"item {i} is a {type(f).__name__}, not a numpy array",
+                               "pass a list of (H, W) numpy arrays or one stacked array")
+            frames.append(f)
+        if frames and frames[0].ndim != 2:
+            raise bad_value("images", f"list items have shape {frames[0].shape}; expected (H, W)",
+                            "pass single-channel images")
+    else:
+        raise bad_type("images", f"must be a numpy array or a list of arrays, got {type(images).__name__}",
+                       "pass an (F*N, H, W) array")
+    if len(frames) != n_expected:
+        raise bad_value("images", f"has {len(frames)} images but periods={tuple(periods)} x steps={steps} "
+                        f"needs {n_expected}",
+                        "pass all N steps of every frequency, frequency-major, or fix periods/steps")
+    shape = frames[0].shape
+    for f in frames:
+        check_image_dtype(f.dtype)
+        if f.shape != shape:
+            raise bad_value("images", f"mixes image shapes {shape} and {f.shape}", "pass equally sized images")
+    if min(shape) < 1:
+        raise bad_value("images", f"has empty images of shape {shape}", "pass non-empty images")
+    return frames
+
+
+def _check_positive(name, v, allow_none=True, upper=None, strict=True):
+    if v is None and allow_none:
+        return None
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise bad_type(name, f"must be a number, got {v!r}", "pass a float") from None
+    if not np.isfinite(x) or (x <= 0 if strict else x < 0) or (upper is not None and x > upper):
+        rng = f"in (0, {upper}]" if upper is not None else ("> 0" if strict else ">= 0")
+        raise bad_value(name, f"must be a finite number {rng}, got {v!r}", f"pass a value {rng}")
+    return x
+
+
+@dataclass
+class DecodeSetup:
+    """Everything decided before the first pixel is touched."""
+    plan: object
+    frames: list
+    steps: int
+    kernel: PhaseKernel
+    tri: Triangulator
+    wcoded: int
+    work: np.dtype
+    is_float: bool
+    sat: float | None
+    min_contrast: float
+    max_depth_slope: float | None
+    check_other_axis: bool
+    max_wrong: float
+    max_order_error: float | None
+    spatial: bool
+    gamma_lut: tuple | None
+    factor: float
+    row_sigma: float
+    joint_q2: float             # 2 * Gamma(F) quantile of the joint modulation test (module doc)
+    consistency_limits: tuple = ()
+    min_modulation: float | None = None
+    floor_scalar: float | None = None
+    sigma_scalar: float | None = None
+    sigma_map: np.ndarray | None = None
+    sigma_fn: Callable | None = None
+    var_fn: Callable | None = None        # raw slab offset -> (sigma_I * row_sigma)^2 (noise.variance_function)
+    order_factor: float = 0.0
+    order_floor: float | None = None
+    noise_model: dict = field(default_factory=dict)
+
+    @property
+    def shape(self):
+        return self.frames[0].shape
+
+
+def _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis):
+    if axis not in ("x", "y"):
+        raise bad_value("axis", f"must be 'x' or 'y', got {axis!r}", "'x' when fringes code projector columns")
+    if triangulator is None:
+        return Triangulator.cached(P_cam, P_proj, (W, H), proj_size, axis=axis)
+    if triangulator.cam_size != (W, H):
+        raise bad_value("triangulator", f"was built for cam_size {triangulator.cam_size}, images are {(W, H)}",
+                        "build the Triangulator with the images' (width, height)")
+    if triangulator.axis != axis:
+        raise bad_value("triangulator", f"codes axis {triangulator.axis!r}, decode was asked for {axis!r}",
+                        "build it with the same axis")
+    return triangulator
+
+
+def _noise_setup(st: DecodeSetup, noise_sigma, min_modulation, order_sigmas, shifts):
+    """Noise sigma (scalar / map / callable; None: fitted per pixel, :mod:`.noise`), modulation
+    floor and the legacy order floor. ``st.noise_model`` says which."""
+    H, W = st.shape
+    st.min_modulation = min_modulation
+    if noise_sigma is None:
+        fit = fit_noise_model(st.frames, st.steps, shifts=shifts, saturation=st.sat)
+        st.noise_model = dict(fit.describe(),
+                              source="fitted per pixel from the stack: sigma^2 against the mean intensity A")
+        if not fit.bin_a:
+            st.sigma_scalar = float(np.sqrt(fit.read_var))
+        else:
+            st.sigma_fn = fit
+    elif callable(noise_sigma):
+        st.sigma_fn = noise_sigma
+        st.noise_model = {"kind": "callable", "source": "given: noise_sigma(signal) per pixel"}
+    elif np.ndim(noise_sigma) == 0:
+        st.sigma_scalar = _check_positive("noise_sigma", noise_sigma, strict=False)
+        st.noise_model = {"kind": "scalar", "source": "given: one sigma for every pixel"}
+    else:
+        sigma_map = np.asarray(noise_sigma, dtype=np.float32)
+        if sigma_map.shape != (H, W):
+            raise bad_value("noise_sigma", f"has shape {sigma_map.shape}, images are {(H, W)}",
+                            "pass a scalar, an (H, W) array or a callable sigma(signal)")
+        if not np.all(np.isfinite(sigma_map)) or np.any(sigma_map < 0):
+            raise bad_value("noise_sigma", "has negative or non-finite entries", "pass sigmas >= 0")
+        st.sigma_map = sigma_map
+        st.noise_model = {"kind": "map", "source": "given: (H, W) sigma map"}
+    st.floor_scalar = None if st.sigma_scalar is None else st.sigma_scalar * st.factor
+    if min_modulation is not None:
+        st.floor_scalar = min_modulation
+    if st.sigma_fn is not None:
+        st.var_fn = variance_function(st.sigma_fn, st.kernel.a_scale, st.row_sigma ** 2)
+    if order_sigmas:
+        st.order_factor = st.plan.noise_gain() * st.row_sigma * order_sigmas / np.pi
+        if st.sigma_scalar is not None:
+            st.order_floor = st.sigma_scalar * st.order_factor
+
+
+def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
+                   min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
+                   max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial,
+                   projector_gamma) -> DecodeSetup:
+    """Check :func:`datapipe.sl.decode.decode`'s arguments (an error names the field, before any work)
+    and decide everything its steps need."""
+    steps = _check_steps(steps)
+    plan = plan_unwrap(periods, unwrap)
+    frames = _frames(images, len(plan.periods) * steps, plan.periods, steps)
+    H, W = frames[0].shape
+    if shifts is not None:
+        shifts = np.asarray(shifts, dtype=np.float64).ravel()
+        if shifts.size != steps:
+            raise bad_value("shifts", f"has {shifts.size} entries for steps={steps}", "give one shift per step")
+    else:
+        shifts = phase_shifts(steps)
+    kernel = PhaseKernel(shifts)
+    tri = _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis)
+    in_dtype = frames[0].dtype
+    if saturation is None:
+        sat = float(np.iinfo(in_dtype).max) if in_dtype.kind in "iu" else None
+    else:
+        sat = float(saturation)
+        if np.isnan(sat):
+            raise bad_value("saturation", "is NaN", "pass the saturation level in image units or None")
+        if np.isinf(sat):
+            sat = None
+    gamma = _check_positive("projector_gamma", projector_gamma, allow_none=False, upper=10.0)
+    false_valid_rate = _check_positive("false_valid_rate", false_valid_rate, upper=0.5)
+    F = len(plan.periods)
+    q2 = 2.0 * float(gammainccinv(F, false_valid_rate))
+    st = DecodeSetup(plan=plan, frames=frames, steps=steps, kernel=kernel, tri=tri,
+                     wcoded=tri.proj_size[0] if axis == "x" else tri.proj_size[1],
+                     work=work_dtype_for([f.dtype for f in frames]),
+                     is_float=any(f.dtype.kind == "f" for f in frames),
+                     sat=sat, min_contrast=_check_positive("min_contrast", min_contrast, strict=False),
+                     max_depth_slope=_check_positive("max_depth_slope", max_depth_slope),
+                     check_other_axis=bool(check_other_axis),
+                     max_wrong=_check_positive("max_wrong", max_wrong, allow_none=False, upper=1.0),
+                     max_order_error=_check_positive("max_order_error", max_order_error, upper=0.5),
+                     spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
+                     factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
+                     row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
+    st.consistency_limits = consistency_limits(F, plan.lattice.d_min if plan.lattice is not None else 1.0)
+    _noise_setup(st, noise_sigma, _check_positive("min_modulation", min_modulation, strict=False),
+                 _check_positive("order_sigmas", order_sigmas, strict=False), shifts)
+    return st

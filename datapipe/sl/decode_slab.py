@@ -1,0 +1,153 @@
+"""Step 1 of the decoder (:mod:`datapipe.sl.decode`), one row slab at a time: phases, NO_LIGHT /
+SATURATED / INVALID_INPUT, fringe orders and the probability that they are wrong, depth; into the
+image-sized :class:`DecodeMaps`."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .confidence import phase_var_from_snr, wrong_probability
+from .decode_result import Reason
+from .decode_setup import DecodeSetup
+from .gamma import correct_cycles
+from .spatial import MAX_FINE_NOISE
+from .unwrap import unwrap_cycles
+
+__all__ = ["DecodeMaps", "decode_slab"]
+
+
+@dataclass
+class DecodeMaps:
+    """The image-sized maps the steps fill: slab by slab (:func:`decode_slab`), then the neighbour pass."""
+    depth: np.ndarray
+    proj_x: np.ndarray
+    phase: np.ndarray
+    reason: np.ndarray        # causes other than BAD_ORDER until _assemble
+    order_error: np.ndarray
+    p_wrong: np.ndarray       # NaN where no order was decoded
+    legacy_bad: np.ndarray    # legacy order rules (order_sigmas / max_order_error)
+    inconsistent: np.ndarray
+    filled: np.ndarray        # order taken from the neighbours (sl.spatial)
+    modulation: np.ndarray
+    offset: np.ndarray
+    wrapped: list
+    candidates: list = field(default_factory=list)   # per slab: flat indices of the pixels the neighbour pass
+                                                      # may fill (above max_wrong, order decoded, fine phase precise)
+
+    @classmethod
+    def allocate(cls, H, W, F):
+        f32 = np.float32
+        return cls(depth=np.empty((H, W), f32), proj_x=np.empty((H, W), f32), phase=np.empty((H, W), f32),
+                   reason=np.zeros((H, W), np.uint8), order_error=np.empty((H, W), f32),
+                   p_wrong=np.empty((H, W), f32), legacy_bad=np.zeros((H, W), bool),
+                   inconsistent=np.zeros((H, W), bool), filled=np.zeros((H, W), bool),
+                   modulation=np.empty((F, H, W), f32), offset=np.empty((H, W), f32),
+                   wrapped=[np.empty((H, W), f32) for _ in range(F)])
+
+
+def _slab_var(st: DecodeSetup, a, r0, r1):
+    """Per-pixel noise variance of the least-squares C and S rows, ``(sigma_I * row_sigma)^2``, of a
+    slab from its raw offset ``a`` (None when the noise is one scalar)."""
+    if st.var_fn is not None:
+        return st.var_fn(a)
+    if st.sigma_map is not None:
+        s = st.sigma_map[r0:r1]
+        return s * s * st.work.type(st.row_sigma ** 2)
+    return None
+
+
+def decode_slab(st: DecodeSetup, out: DecodeMaps, r0: int, r1: int, coefs):
+    """Rows r0:r1: phases, NO_LIGHT / SATURATED / INVALID_INPUT, orders, p_wrong, depth."""
+    wt = st.work.type
+    F = len(st.plan.periods)
+    direct = st.work == np.float32
+    inv2pi = wt(1.0 / (2 * np.pi))
+    cycs, var_c = [], []
+    nolight = satflag = invalid = lowsnr = None
+    off = out.offset[r0:r1]
+    contrast_k = (1.0 / (st.min_contrast * st.kernel.a_scale)) if st.min_contrast else None
+    for i in range(F):
+        fr = [st.frames[i * st.steps + n][r0:r1] for n in range(st.steps)]
+        wout, mout = out.wrapped[i][r0:r1], out.modulation[i, r0:r1]
+        phi, a, b, sflag, inv = st.kernel.compute(
+            fr, st.work, st.sat, check_finite=st.is_float,
+            out_phase=wout if direct else None, out_mod=mout if direct else None)
+        if not direct:
+            wout[...] = phi
+            mout[...] = b
+        c = np.multiply(phi, inv2pi)
+        if st.gamma_lut is not None:
+            c = correct_cycles(c, st.gamma_lut)
+            np.multiply(c, wt(2 * np.pi), out=wout, casting="same_kind")
+        cycs.append(c)
+        if i == 0:
+            np.copyto(off, a, casting="same_kind")
+        else:
+            np.add(off, a, out=off, casting="same_kind")
+        if sflag is not None:
+            satflag = sflag if satflag is None else (satflag | sflag)
+        if inv is not None:
+            invalid = inv if invalid is None else (invalid | inv)
+        if i == 0:                       # noise of the slab (from the offset, alike in all frequencies)
+            s2 = _slab_var(st, a, r0, r1)
+            if s2 is None:
+                s2 = wt((st.sigma_scalar * st.row_sigma) ** 2)
+            elif st.order_factor and st.order_floor is None:
+                sig = np.sqrt(s2) / wt(st.row_sigma)
+        q = np.multiply(b, b)
+        np.divide(q, s2, out=q)          # B^2 / s^2: Gamma evidence (floor) and phase SNR
+        var_c.append(phase_var_from_snr(q))
+        if st.min_modulation is not None:
+            nl = np.less_equal(b, wt(st.min_modulation))
+        else:                            # joint Gamma test: accumulate B^2 / s^2
+            nl = None
+            qsum = q.copy() if i == 0 else np.add(qsum, q, out=qsum)
+        if st.order_factor:          # legacy worst-case order floor
+            ob = np.less(b, wt(st.order_floor)) if st.order_floor is not None else \
+                np.less(b, sig * wt(st.order_factor))
+            lowsnr = ob if lowsnr is None else np.logical_or(lowsnr, ob, out=lowsnr)
+        if contrast_k is not None:       # B < min_contrast * A
+            low = np.less(b * wt(contrast_k), a)
+            nl = low if nl is None else (nl | low)
+        if nl is not None:
+            nolight = nl if nolight is None else np.logical_or(nolight, nl, out=nolight)
+    if st.min_modulation is None:
+        floor = np.less_equal(qsum, wt(st.joint_q2))
+        nolight = floor if nolight is None else np.logical_or(nolight, floor, out=nolight)
+    off *= np.float32(st.kernel.a_scale / F)
+    un = unwrap_cycles(cycs, st.plan, st.wcoded)
+    x = un.x if un.x.dtype == np.float32 else un.x.astype(np.float32)
+    out.proj_x[r0:r1] = x
+    out.order_error[r0:r1] = un.order_error
+    out.phase[r0:r1] = un.phase
+    p, inc = wrong_probability(un.margins, coefs, var_c, un.residuals, limits=st.consistency_limits,
+                               out=out.p_wrong[r0:r1] if direct else None)
+    if not direct:
+        out.p_wrong[r0:r1] = p
+    out.inconsistent[r0:r1] = inc
+    fillable = np.less_equal(var_c[st.plan.finest], wt(MAX_FINE_NOISE ** 2))
+    np.logical_and(np.greater(p, wt(st.max_wrong)), fillable, out=fillable)    # NaN p: False
+    legacy = out.legacy_bad[r0:r1]
+    if lowsnr is not None:
+        legacy |= lowsnr
+    if st.max_order_error is not None:
+        legacy |= np.greater(un.order_error, st.max_order_error)
+    z, ill, outside = st.tri.slab(x, r0, r1, max_depth_slope=st.max_depth_slope,
+                                  check_other_axis=st.check_other_axis, out_depth=out.depth[r0:r1])
+    rs = out.reason[r0:r1]
+    for r, m in ((Reason.OUTSIDE_PROJECTOR, outside), (Reason.ILL_CONDITIONED, ill), (Reason.NO_LIGHT, nolight),
+                 (Reason.SATURATED, satflag), (Reason.INVALID_INPUT, invalid)):
+        if m is not None and m.any():
+            rs[m] = r.value
+    basic = (rs == Reason.NO_LIGHT) | (rs == Reason.SATURATED) | (rs == Reason.INVALID_INPUT)
+    if basic.any():                      # no order decoded: no order verdict either
+        out.p_wrong[r0:r1][basic] = np.nan
+        out.inconsistent[r0:r1][basic] = False
+        legacy[basic] = False
+        fillable &= ~basic
+    fillable &= ~inc                     # the neighbour pass's candidates (sl.spatial)
+    if st.order_factor or st.max_order_error is not None:
+        fillable &= ~legacy
+    if fillable.any():
+        out.candidates.append(np.flatnonzero(fillable) + r0 * fillable.shape[1])
