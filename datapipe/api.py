@@ -15,6 +15,9 @@ before any work; `run` goes through the very checks and steps of `python -m data
 from __future__ import annotations
 
 import os
+import sys
+import threading
+from contextlib import contextmanager, redirect_stdout
 from pathlib import Path
 from typing import Callable
 
@@ -110,9 +113,39 @@ def run(cfg: Config, out: str | os.PathLike | None = None, *, on_progress: Calla
     from .cli import check_run_input, run_pipeline
     cfg = cfg.copy()
     check_run_input(cfg, out, seed)
-    pipe, _ = run_pipeline(cfg, out, resume=resume, force=force, shard=_shard(shard), seed=seed, strict=strict,
-                           verbose=verbose, on_event=on_progress, on_step=on_progress)
+    with _printing_to_terminal(on_progress) as callback:
+        pipe, _ = run_pipeline(cfg, out, resume=resume, force=force, shard=_shard(shard), seed=seed,
+                               strict=strict, verbose=verbose, on_event=callback, on_step=callback)
     return read_run(pipe.out)
+
+
+@contextmanager
+def _printing_to_terminal(on_progress):
+    """The callback with its print() on the terminal. During a run fd 1 carries Blender's C output
+    into OUT/blender.log (datapipe.blender_log), and a `sys.stdout` that writes to fd 1 would take
+    the script's progress lines there too; so the callback writes to fd 1 as it was before the run.
+    A `sys.stdout` that is not fd 1 (a notebook, an IDE, pytest) is left as it is."""
+    if on_progress is None:
+        yield None
+        return
+    try:
+        to_fd1 = sys.stdout.fileno() == 1
+    except (AttributeError, OSError, ValueError):      # io.UnsupportedOperation is an OSError
+        to_fd1 = False
+    if not to_fd1:
+        yield on_progress
+        return
+    sys.stdout.flush()
+    terminal = os.fdopen(os.dup(1), "w", buffering=1, encoding=sys.stdout.encoding, errors="backslashreplace")
+    lock = threading.Lock()                 # step lines may come from the heartbeat thread
+
+    def callback(p):
+        with lock, redirect_stdout(terminal):
+            on_progress(p)
+    try:
+        yield callback
+    finally:
+        terminal.close()
 
 
 def _shard(shard) -> tuple[int, int]:
