@@ -7,8 +7,7 @@ everything under `datapipe.core` and `datapipe.ui` needs the `bpy` module (or ru
 """
 __version__ = "0.1.0"
 
-# datapipe.api.__all__, spelled here so that `import datapipe` does not import the API (tests/test_api.py
-# checks the two lists agree)
+# datapipe.api's public names (its __all__), spelled here so that `import datapipe` does not import the API
 API_NAMES = (
     "presets", "load_preset", "validate", "preset_warnings", "run", "read_run", "patterns", "scan", "decode",
     "camera_matrix",

@@ -31,14 +31,9 @@ from .io.reader import Render, Run, Scene, read_run
 from .progress import Progress
 from .sl import DecodeResult, Reason, Scan
 
-__all__ = [
-    "presets", "load_preset", "validate", "preset_warnings", "run", "read_run", "patterns", "scan", "decode",
-    "camera_matrix",
-    "Config", "SceneConfig", "ObjectEntry", "CameraConfig", "CameraPose", "CameraSamplerConfig", "ProjectorConfig",
-    "StructuredLightConfig", "RenderConfig", "LightingConfig", "SimulationConfig", "OutputConfig",
-    "Problem", "ConfigError", "DataPipeError", "OutputStateError", "Progress", "Run", "Scene", "Render",
-    "Scan", "DecodeResult", "Reason",
-]
+from . import API_NAMES
+
+__all__ = list(API_NAMES)         # spelled once, in datapipe/__init__.py (the root's lazy names)
 
 
 # -- presets and configs ---------------------------------------------------------------------------

@@ -31,7 +31,7 @@ def exr_channel(path, name) -> np.ndarray:
 # -- the names ---------------------------------------------------------------------------------------
 
 def test_root_names_are_the_api_and_import_lazily():
-    assert set(datapipe.API_NAMES) == set(dp.__all__)
+    assert dp.__all__ == list(datapipe.API_NAMES)
     for name in dp.__all__:
         assert getattr(datapipe, name) is getattr(dp, name)
     with pytest.raises(AttributeError):
@@ -276,3 +276,16 @@ def test_read_run_refuses_what_is_not_a_run(tmp_path, box_run):
     (tmp_path / "scene.0001" / "scene.json").write_text('{"complete": true, "renders": [{"name": "x"}]}')
     with pytest.raises(dp.OutputStateError, match="not a DataPipe scene.json"):
         dp.read_run(tmp_path)
+
+
+def test_read_run_names_a_damaged_file(tmp_path):
+    out = fx.make_native_run(tmp_path / "run")
+    r = dp.read_run(out).renders[0]
+    png = r.path / "rgb.png"
+    png.write_bytes(png.read_bytes()[:40])
+    with pytest.raises(OSError) as e:
+        r.rgb
+    assert e.value.filename == str(png) and "corrupt" in str(e.value)
+    (r.path / "depth.exr").write_bytes(b"\x76\x2f\x31\x01" + b"\0" * 20)
+    with pytest.raises(OSError, match="corrupt"):
+        r.depth

@@ -12,6 +12,7 @@ Image arrays are read on access and not kept, so walking a large run holds one r
 """
 from __future__ import annotations
 
+import errno
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +49,15 @@ class Render:
         p = self.files.get(kind)
         return p if p is not None and p.is_file() else None
 
+    def _png(self, kind: str, flags: int) -> np.ndarray | None:
+        p = self._file(kind)
+        if p is None:
+            return None
+        img = cv2.imread(str(p), flags)
+        if img is None:
+            raise OSError(errno.EIO, "not a readable PNG (truncated or corrupt; was the disk full?)", str(p))
+        return img
+
     def _channel(self, kind: str, channel: str) -> np.ndarray | None:
         p = self._file(kind)
         return read_exr(p)[channel] if p is not None else None
@@ -55,13 +65,8 @@ class Render:
     @property
     def rgb(self) -> np.ndarray | None:
         """(H, W, 3) uint8, RGB order (sRGB, as rgb.png holds it)."""
-        p = self._file("rgb")
-        if p is None:
-            return None
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-        if img is None:
-            raise OSError(f"{p}: not a readable PNG (truncated or corrupt; was the disk full?)")
-        return np.ascontiguousarray(img[..., ::-1])
+        img = self._png("rgb", cv2.IMREAD_COLOR)
+        return None if img is None else np.ascontiguousarray(img[..., ::-1])
 
     @property
     def depth(self) -> np.ndarray | None:
@@ -76,13 +81,8 @@ class Render:
     @property
     def sl_valid(self) -> np.ndarray | None:
         """(H, W) bool: the scanner has depth there (sl_valid.png == 255)."""
-        p = self._file("sl_valid")
-        if p is None:
-            return None
-        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise OSError(f"{p}: not a readable PNG (truncated or corrupt; was the disk full?)")
-        return img == 255
+        img = self._png("sl_valid", cv2.IMREAD_GRAYSCALE)
+        return None if img is None else img == 255
 
     @property
     def sl_debug(self) -> dict[str, np.ndarray] | None:
@@ -99,16 +99,15 @@ class Render:
     @property
     def normals(self) -> np.ndarray | None:
         """(H, W, 3) float32 unit normals in the OpenCV camera frame."""
-        p = self._file("normals")
-        if p is None:
-            return None
-        ch = read_exr(p)
-        return np.stack([ch["X"], ch["Y"], ch["Z"]], axis=-1)
+        return self._xyz("normals")
 
     @property
     def object_coords(self) -> np.ndarray | None:
         """(H, W, 3) float32 model coordinates (m) of the part at each pixel; NaN off parts."""
-        p = self._file("object_coords")
+        return self._xyz("object_coords")
+
+    def _xyz(self, kind: str) -> np.ndarray | None:
+        p = self._file(kind)
         if p is None:
             return None
         ch = read_exr(p)
