@@ -58,13 +58,17 @@ def load_preset(preset: str | os.PathLike) -> Config:
 
 
 def validate(cfg: Config, *, blender: bool = False, check_files: bool = True) -> list[Problem]:
-    """Every problem of `cfg` at once (field path, message, fix); [] when `run` can start with it.
-    Raises nothing for a bad config.
+    """Every problem of `cfg` at once (field path, message, fix). Raises nothing for a bad config.
 
-    Without Blender: every field rule (what `run` checks first). `blender=True` adds what
-    `python -m datapipe validate` adds when the fields pass: each mesh file imported and measured,
-    `scene.blend_file` read by Blender, the part counts against the bin (imports bpy).
+    Without Blender: the type of every field (a value set in code is checked as a preset's would
+    be) and every field rule: what `run` checks first. `blender=True` adds what `python -m datapipe
+    validate` adds when the fields pass: each mesh file imported and measured, `scene.blend_file`
+    read by Blender, the part counts against the bin (imports bpy); then [] means `run` can start.
     `check_files=False` skips the look at files on disk (existence, headers)."""
+    try:
+        cfg = _checked_types(cfg)
+    except ConfigError as e:
+        return list(e.problems)
     problems = cfg.problems(check_files=check_files)
     if problems or not blender:
         return problems
@@ -74,6 +78,16 @@ def validate(cfg: Config, *, blender: bool = False, check_files: bool = True) ->
     except ConfigError as e:
         return list(e.problems)
     return []
+
+
+def _checked_types(cfg) -> Config:
+    """`cfg` parsed again from its dict: a field set in code to a value of the wrong type (a string
+    for a count, None for a list) is a ConfigError naming it, as in a preset, not a TypeError from
+    deep inside a rule. Returns the parsed copy."""
+    if not isinstance(cfg, Config):
+        raise DataPipeError(f"cfg: must be a datapipe Config, got {type(cfg).__name__} (fix: "
+                            "dp.load_preset(...), dp.Config(...) or dp.Config.from_dict(a_dict))")
+    return Config.from_dict(cfg.to_dict())
 
 
 def preset_warnings(cfg: Config) -> list[str]:
@@ -106,7 +120,7 @@ def run(cfg: Config, out: str | os.PathLike | None = None, *, on_progress: Calla
     `--strict`. Ctrl-C stops after the render in progress (the returned run says "cancelled";
     `resume=True` continues), a second Ctrl-C ends the process at once (exit status 130)."""
     from .cli import check_run_input, run_pipeline
-    cfg = cfg.copy()
+    cfg = _checked_types(cfg)              # (a copy: the caller's config is not changed)
     check_run_input(cfg, out, seed)
     with _printing_to_terminal(on_progress) as callback:
         pipe, _ = run_pipeline(cfg, out, resume=resume, force=force, shard=_shard(shard), seed=seed,

@@ -85,6 +85,23 @@ def test_config_built_in_code_validates():
     assert [p.path for p in dp.validate(dp.Config())] == ["objects"]
 
 
+@pytest.mark.parametrize("change, path", [
+    (lambda c: setattr(c.scene, "num_renders", "many"), "scene.num_renders"),
+    (lambda c: setattr(c.structured_light, "periods", None), "structured_light.periods"),
+    (lambda c: setattr(c, "objects", None), "objects"),
+    (lambda c: setattr(c.camera, "poses", [[0, 0, 1]]), "camera.poses[0]"),
+])
+def test_wrong_types_set_in_code_are_problems_not_tracebacks(tmp_path, change, path):
+    cfg = dp.load_preset("default")
+    change(cfg)
+    assert path in [p.path for p in dp.validate(cfg)]
+    with pytest.raises(dp.ConfigError) as e:
+        dp.run(cfg, tmp_path / "out")
+    assert path in e.value.paths() and not (tmp_path / "out").exists()
+    with pytest.raises(dp.DataPipeError, match="must be a datapipe Config"):
+        dp.validate(cfg.to_dict())
+
+
 def test_preset_warnings_are_the_validate_commands():
     from datapipe.device_checks import device_warnings
     from datapipe.part_fit import part_fit_warnings
