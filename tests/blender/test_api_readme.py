@@ -94,6 +94,17 @@ def test_readme_script_runs(tmp_path):
     assert floor.sum() > 500
     np.testing.assert_allclose(gt[floor], z_floor[floor], atol=1e-4)   # Cycles' z pass: float32 at 0.8 m
 
+    # the run read back in this process, and resumed from the config it records: nothing to make
+    import datapipe.api as dp
+    run = dp.read_run(run_dir)
+    assert run.status == "complete" and [r.name for r in run.renders] == [rd["name"]]
+    np.testing.assert_array_equal(run.renders[0].sl_depth, sl)
+    before = scene_files[0].read_bytes()
+    events = []
+    again = dp.run(run.config, run_dir, resume=True, on_progress=events.append)
+    assert again.status == "complete" and scene_files[0].read_bytes() == before
+    assert [e.stage for e in events] == ["skip", "done"] and "nothing to do" in events[-1].message
+
 
 def test_validate_with_blender_lists_the_preflights_problems(tmp_path):
     """validate(cfg, blender=True) is `python -m datapipe validate`: a mesh file without faces passes the
