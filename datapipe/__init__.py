@@ -9,7 +9,7 @@ __version__ = "0.1.0"
 
 # datapipe.api's public names (its __all__), spelled here so that `import datapipe` does not import the API
 API_NAMES = (
-    "presets", "load_preset", "validate", "preset_warnings", "run", "read_run", "patterns", "scan", "decode",
+    "presets", "load_preset", "validate", "check", "preset_warnings", "run", "read_run", "patterns", "scan", "decode",
     "camera_matrix",
     "Config", "SceneConfig", "ObjectEntry", "CameraConfig", "CameraPose", "CameraSamplerConfig", "ProjectorConfig",
     "StructuredLightConfig", "RenderConfig", "LightingConfig", "SimulationConfig", "OutputConfig",

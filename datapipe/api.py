@@ -80,6 +80,14 @@ def validate(cfg: Config, *, blender: bool = False, check_files: bool = True) ->
     return []
 
 
+def check(cfg: Config, *, blender: bool = False) -> Config:
+    """`validate`, raising: ConfigError with every problem (field path, message, fix), else `cfg`."""
+    problems = validate(cfg, blender=blender)
+    if problems:
+        raise ConfigError(problems)
+    return cfg
+
+
 def _checked_types(cfg) -> Config:
     """`cfg` parsed again from its dict: a field set in code to a value of the wrong type (a string
     for a count, None for a list) is a ConfigError naming it, as in a preset, not a TypeError from

@@ -83,6 +83,11 @@ def test_config_built_in_code_validates():
     assert all(p.fix for p in problems)
     assert dp.validate(cfg, check_files=False)[0].path == "scene.num_renders"
     assert [p.path for p in dp.validate(dp.Config())] == ["objects"]
+    with pytest.raises(dp.ConfigError) as e:
+        dp.check(cfg)
+    assert e.value.problems == problems
+    ok = dp.load_preset("default")
+    assert dp.check(ok) is ok
 
 
 @pytest.mark.parametrize("change, path", [
