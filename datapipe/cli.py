@@ -139,11 +139,7 @@ def main(argv: list[str] | None = None) -> int:
 def _command(args) -> int:
     if args.command == "validate":
         cfg = config_mod.load(args.preset)
-        cfg.validate()             # every field problem, before Blender is even imported
-        with BlenderLog(verbose=args.verbose):     # Blender's chatter is dropped, its errors shown
-            _prepare_blender()
-            from .core.preflight import preflight
-            preflight(cfg)
+        check_config(cfg, verbose=args.verbose)
         from .checks.part_fit import part_fit_warnings
         for w in part_fit_warnings(cfg):
             print(f"datapipe: warning: {w}", file=sys.stderr)
@@ -184,6 +180,17 @@ def _command(args) -> int:
     return _run(cfg, args, preset_path=args.preset)
 
 
+def check_config(cfg, verbose: bool = False) -> None:
+    """What `validate` checks (also datapipe.api.validate(blender=True)): every field, before Blender
+    is even imported, then the Blender preflight (mesh files imported and measured, scene.blend_file
+    read). Raises ConfigError with every problem; writes nothing."""
+    cfg.validate()
+    with BlenderLog(verbose=verbose):     # Blender's chatter is dropped, its errors shown
+        _prepare_blender()
+        from .core.preflight import preflight
+        preflight(cfg)
+
+
 def _refuse_links_in_run_dir(args, folder: str) -> None:
     """`show`/`bop` writing into the run folder (no --out): not through a link there."""
     if args.out is None:
@@ -213,15 +220,7 @@ def _run(cfg, args, preset_path) -> int:
         shard = parse_shard(args.shard)
     except ValueError as e:
         return _err(str(e))
-    if args.out is not None and not args.out.strip():
-        raise DataPipeError("--out: empty folder name (fix: give the output folder, e.g. --out out; "
-                            "nothing was written)")
-    bad_out = args.out is not None and output_folder_problem(args.out)
-    if bad_out:
-        raise DataPipeError(f"--out: {bad_out[0]} (fix: {bad_out[1]}; nothing was written)")
-    if args.seed is not None:
-        cfg.scene.seed = args.seed
-    cfg.validate()                  # before the scene plan is drawn: its bounds are checked here
+    check_run_input(cfg, args.out, args.seed)
     if args.ray is not None:
         from .engine.distributed import run_distributed
         if preset_path is None:
@@ -236,32 +235,65 @@ def _run(cfg, args, preset_path) -> int:
                         extra_args=(["--quiet"] if args.quiet else []) + (["--strict"] if args.strict else [])
                         + (["--verbose"] if args.verbose else []))
         return 0
+    t0 = time.perf_counter()
+
+    def print_event(p) -> None:
+        if not args.quiet or p.stage in ("done", "cancelled"):
+            print(p.line(), file=sys.stderr, flush=True)
+    pipe, last = run_pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
+                              strict=args.strict, verbose=args.verbose, on_event=print_event,
+                              on_step=None if args.quiet else _print_step)
+    if last is not None and last.stage == "cancelled":
+        return 130
+    print(f"dataset: {_printable(pipe.out)} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def check_run_input(cfg, out, seed) -> None:
+    """The checks of a run's own arguments before anything else (`run`, `demo`, datapipe.api.run):
+    the output folder's name, then every field of the config with the seed applied (the scene
+    plan's bounds are checked here). Raises DataPipeError / ConfigError; writes nothing."""
+    if out is not None and not os.fspath(out).strip():
+        raise DataPipeError("--out: empty folder name (fix: give the output folder, e.g. --out out; "
+                            "nothing was written)")
+    bad_out = out is not None and output_folder_problem(os.fspath(out))
+    if bad_out:
+        raise DataPipeError(f"--out: {bad_out[0]} (fix: {bad_out[1]}; nothing was written)")
+    if seed is not None:
+        cfg.scene.seed = seed
+    cfg.validate()
+
+
+def run_pipeline(cfg, out, *, resume: bool = False, force: bool = False, shard: tuple[int, int] = (0, 1),
+                 seed: int | None = None, strict: bool = False, verbose: bool = False,
+                 on_event=None, on_step=None):
+    """Run a checked config (`check_run_input`) in one process, as `run` does (also datapipe.api.run):
+    the output folder's refusals, the Blender preflight (mesh imports), then the pipeline under the
+    folder's lock, Ctrl-C stopping after the render in progress, Blender's output in OUT/blender.log,
+    and the overview sheet after a finished run. `on_event(Progress)` gets the loop's events (render,
+    scene, done, ...), `on_step(Progress)` the lines inside a scene (maybe from the heartbeat thread).
+    Returns (the Pipeline, its last event: stage "done" or "cancelled")."""
     from .engine.pipeline import Pipeline
-    pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
-                    strict=args.strict, on_step=None if args.quiet else _print_step)
+    pipe = Pipeline(cfg, out, resume=resume, force=force, shard=shard, seed=seed, strict=strict, on_step=on_step)
     pipe.check()                    # the output folder: refusals before anything is written
-    blender_log = BlenderLog(verbose=args.verbose)  # Blender's own output: OUT/blender.log (kept in
-    with blender_log:                               # memory until the run folder may be written)
+    blender_log = BlenderLog(verbose=verbose)  # Blender's own output: OUT/blender.log (kept in
+    with blender_log:                          # memory until the run folder may be written)
         _prepare_blender()
         from .core.preflight import preflight
         preflight(pipe.cfg)         # mesh files imported and measured; still nothing written
-    t0 = time.perf_counter()
     last = None
     with OutLock(pipe.out), _StopOnSignal(pipe), blender_log:
         pipe.check()                # again, under the lock: another run may have started meanwhile
         for last in pipe.run():
             blender_log.log_to(pipe.out / BLENDER_LOG)   # the folder is prepared at the first event
-            if not args.quiet or last.stage in ("done", "cancelled"):
-                print(last.line(), file=sys.stderr, flush=True)
+            if on_event is not None:
+                on_event(last)
         if last is not None and last.stage == "done":
             from .show import overview_after_run
             overview_after_run(pipe.out, pipe.cfg.output)
             pipe.manifest.update()  # the sheets are the run's files too
     blender_log.close()
-    if last is not None and last.stage == "cancelled":
-        return 130
-    print(f"dataset: {_printable(pipe.out)} ({pipe.total} renders, {time.perf_counter() - t0:.1f} s)")
-    return 0
+    return pipe, last
 
 
 def _print_step(p) -> None:

@@ -1,0 +1,219 @@
+"""Reading a run folder back (the public `datapipe.api.read_run`): run.json, every complete scene's
+scene.json, and each render's files as numpy arrays in the project's conventions (docs/CONVENTIONS.md:
+metres, OpenCV camera frame, planar depth with NaN where there is no data). No bpy.
+
+    run = read_run("out/demo")
+    run.status, run.config, run.stats            # run.json
+    for r in run.renders:                        # every render of every complete scene, in order
+        r.K, r.T_world_cam, r.objects            # scene.json (poses as 4x4 arrays, visib_fract, ...)
+        r.rgb, r.depth, r.sl_depth, r.mask       # read from the files on each access (None: not written)
+
+Image arrays are read on access and not kept, so walking a large run holds one render at a time.
+"""
+from __future__ import annotations
+
+import errno
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import DataPipeError, OutputStateError
+from .exr import read_exr
+from . import layout
+from .files import read_json
+
+# scene.json keys that hold matrices: given as numpy arrays
+_MATRICES = ("K", "T_world_cam", "T_world_blcam")
+_OBJECT_MATRICES = ("T_cam_obj", "cam2obj_pose")
+
+
+@dataclass
+class Render:
+    """One render: its scene.json record and its files. Arrays are (H, W[, C]); None when the run did
+    not write that output (e.g. `sl_depth` with structured light off)."""
+    scene: str                     # "scene.0001"
+    name: str                      # "render.0001"
+    path: Path                     # the render folder
+    record: dict                   # the render's scene.json record as stored (lists, not arrays)
+    K: np.ndarray                  # (3, 3) camera intrinsics, pixel centres at integers
+    resolution: tuple[int, int]    # (W, H)
+    T_world_cam: np.ndarray        # (4, 4) camera pose in the world, OpenCV camera frame, m
+    objects: list[dict]            # per visible-or-not part: name, obj_id, mask_index, T_cam_obj (4x4 array,
+                                   # m), px_count_visib, visib_fract (BOP's), material ...
+    files: dict[str, Path] = field(default_factory=dict)     # output kind -> file
+
+    def _file(self, kind: str) -> Path | None:
+        p = self.files.get(kind)
+        return p if p is not None and p.is_file() else None
+
+    def _png(self, kind: str, flags: int) -> np.ndarray | None:
+        p = self._file(kind)
+        if p is None:
+            return None
+        img = cv2.imread(str(p), flags)
+        if img is None:
+            raise OSError(errno.EIO, "not a readable PNG (truncated or corrupt; was the disk full?)", str(p))
+        return img
+
+    def _channel(self, kind: str, channel: str) -> np.ndarray | None:
+        p = self._file(kind)
+        return read_exr(p)[channel] if p is not None else None
+
+    @property
+    def rgb(self) -> np.ndarray | None:
+        """(H, W, 3) uint8, RGB order (sRGB, as rgb.png holds it)."""
+        img = self._png("rgb", cv2.IMREAD_COLOR)
+        return None if img is None else np.ascontiguousarray(img[..., ::-1])
+
+    @property
+    def depth(self) -> np.ndarray | None:
+        """(H, W) float32 z-buffer depth: planar, along the camera z axis, m; NaN where no surface."""
+        return self._channel("depth", "Z")
+
+    @property
+    def sl_depth(self) -> np.ndarray | None:
+        """(H, W) float32 structured-light (scanner) depth, m; NaN where the scanner gives no data."""
+        return self._channel("sl_depth", "Z")
+
+    @property
+    def sl_valid(self) -> np.ndarray | None:
+        """(H, W) bool: the scanner has depth there (sl_valid.png == 255)."""
+        img = self._png("sl_valid", cv2.IMREAD_GRAYSCALE)
+        return None if img is None else img == 255
+
+    @property
+    def sl_debug(self) -> dict[str, np.ndarray] | None:
+        """The decoder's channels (`structured_light.debug`): confidence, reason, phase, sigma_z, ..."""
+        p = self._file("sl_debug")
+        return read_exr(p) if p is not None else None
+
+    @property
+    def mask(self) -> np.ndarray | None:
+        """(H, W) int32 instance mask: an object's `mask_index`, 0 = background."""
+        m = self._channel("mask", "Y")
+        return None if m is None else np.rint(m).astype(np.int32)
+
+    @property
+    def normals(self) -> np.ndarray | None:
+        """(H, W, 3) float32 unit normals in the OpenCV camera frame."""
+        return self._xyz("normals")
+
+    @property
+    def object_coords(self) -> np.ndarray | None:
+        """(H, W, 3) float32 model coordinates (m) of the part at each pixel; NaN off parts."""
+        return self._xyz("object_coords")
+
+    def _xyz(self, kind: str) -> np.ndarray | None:
+        p = self._file(kind)
+        if p is None:
+            return None
+        ch = read_exr(p)
+        return np.stack([ch["X"], ch["Y"], ch["Z"]], axis=-1)
+
+
+@dataclass
+class Scene:
+    """One complete scene: its scene.json (simulation record, drawn bin/lighting, parts) and renders."""
+    name: str
+    path: Path
+    record: dict
+    renders: list[Render]
+
+
+@dataclass
+class Run:
+    """A run folder: run.json and its complete scenes (a running or cancelled run has fewer)."""
+    path: Path
+    record: dict                   # run.json as stored
+    scenes: list[Scene]
+
+    @property
+    def status(self) -> str:
+        """"complete", "running" (or killed), "cancelled" or "failed"."""
+        return str(self.record.get("status", "unknown"))
+
+    @property
+    def seed(self) -> int | None:
+        return self.record.get("seed")
+
+    @property
+    def stats(self) -> dict:
+        """run.json's stats: seconds per stage, simulation frames, physics, visib_fract summary."""
+        return self.record.get("stats") or {}
+
+    @property
+    def warnings(self) -> list[dict]:
+        """The quality gates' warnings: [{"render": "scene.0001/render.0001", "warning": ...}]."""
+        return list(self.record.get("warnings") or [])
+
+    @property
+    def config(self):
+        """The Config the run was made with (run.json's `config`, parsed again)."""
+        from ..config import Config
+        return Config.from_dict(self.record["config"])
+
+    @property
+    def renders(self) -> list[Render]:
+        """Every render of every complete scene, in order."""
+        return [r for s in self.scenes for r in s.renders]
+
+    @property
+    def models_info(self) -> dict[int, dict]:
+        """models/models_info.json (BOP conventions, mm): obj_id -> diameter, extents, symmetries."""
+        p = self.path / layout.MODELS_DIR / layout.MODELS_INFO
+        return {int(k): v for k, v in read_json(p).items()} if p.is_file() else {}
+
+    def model_file(self, obj_id: int) -> Path:
+        """The part's mesh as the run wrote it: models/obj_XXXXXX.ply, in mm (BOP)."""
+        from .models import model_filename
+        return self.path / layout.MODELS_DIR / model_filename(obj_id)
+
+
+def read_run(path: str | os.PathLike) -> Run:
+    """The run in folder `path` (a finished one, or what a running / stopped one has completed).
+
+    Raises DataPipeError when `path` is not a DataPipe run folder, OutputStateError when its run.json
+    or a scene.json is not a DataPipe record."""
+    out = Path(path)
+    if not out.is_dir():
+        raise DataPipeError(f"run: {out} is not a folder (fix: give the output folder of a DataPipe run, "
+                            "the --out of `python -m datapipe run`)")
+    run_file = out / layout.RUN_FILE
+    if not run_file.is_file():
+        raise DataPipeError(f"run: {out} has no {layout.RUN_FILE}: not a DataPipe run folder (fix: give the "
+                            "output folder of a DataPipe run)")
+    from .outdir import read_record
+    record = read_record(run_file, "run record")
+    scenes = []
+    for sdir, scene in layout.iter_scenes(out):
+        scenes.append(Scene(sdir.name, sdir, scene, [_render(sdir, scene, rd) for rd in _renders(sdir, scene)]))
+    return Run(out, record, scenes)
+
+
+def _renders(sdir: Path, scene: dict) -> list[dict]:
+    renders = scene.get("renders")
+    if not isinstance(renders, list) or not all(isinstance(rd, dict) and isinstance(rd.get("name"), str)
+                                                and all(k in rd for k in ("K", "resolution", "T_world_cam"))
+                                                for rd in renders):
+        raise OutputStateError(f"{sdir / layout.SCENE_FILE}: not a DataPipe scene.json (its renders lack name, "
+                               "K, resolution or T_world_cam) (fix: give the folder of a DataPipe run, or move "
+                               "the foreign file away)")
+    return renders
+
+
+def _render(sdir: Path, scene: dict, rd: dict) -> Render:
+    objects = []
+    for o in rd.get("objects", []):
+        o = dict(o)
+        for k in _OBJECT_MATRICES:
+            if k in o:
+                o[k] = np.asarray(o[k], dtype=np.float64)
+        objects.append(o)
+    files = {kind: layout.render_file(sdir, rd, kind) for kind in layout.RENDER_FILES}
+    W, H = (int(v) for v in rd["resolution"])
+    return Render(scene=sdir.name, name=rd["name"], path=sdir / rd["name"], record=rd,
+                  K=np.asarray(rd["K"], dtype=np.float64), resolution=(W, H),
+                  T_world_cam=np.asarray(rd["T_world_cam"], dtype=np.float64), objects=objects, files=files)
