@@ -138,18 +138,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def _command(args) -> int:
     if args.command == "validate":
+        from .checks import gate
         cfg = config_mod.load(args.preset)
-        cfg.validate()             # every field problem, before Blender is even imported
-        with BlenderLog(verbose=args.verbose):     # Blender's chatter is dropped, its errors shown
-            _prepare_blender()
-            from .core.preflight import preflight
-            preflight(cfg)
-        from .part_fit import part_fit_warnings
-        for w in part_fit_warnings(cfg):
-            print(f"datapipe: warning: {w}", file=sys.stderr)
-        from .device_checks import device_warnings      # the bin against a device's range and view
-        for w in device_warnings(cfg):
-            print(f"datapipe: warning: {w}", file=sys.stderr)
+        # Blender only once the rules pass; its chatter is dropped, its errors shown
+        report = gate.run_checks(cfg, blender_session=lambda: _blender(BlenderLog(verbose=args.verbose)))
+        _print_warnings(report.warnings)
         cams = (f"{len(cfg.camera.poses)} camera poses" if cfg.camera.sampler.kind == "pool"
                 else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
         sl = cfg.structured_light
@@ -182,6 +175,11 @@ def _command(args) -> int:
         return _run(cfg, args, preset_path=None)
     cfg = config_mod.load(args.preset)
     return _run(cfg, args, preset_path=args.preset)
+
+
+def _print_warnings(warnings: list[str]) -> None:
+    for w in warnings:
+        print(f"datapipe: warning: {w}", file=sys.stderr)
 
 
 def _refuse_links_in_run_dir(args, folder: str) -> None:
@@ -221,34 +219,30 @@ def _run(cfg, args, preset_path) -> int:
         raise DataPipeError(f"--out: {bad_out[0]} (fix: {bad_out[1]}; nothing was written)")
     if args.seed is not None:
         cfg.scene.seed = args.seed
-    cfg.validate()                  # before the scene plan is drawn: its bounds are checked here
     if args.ray is not None:
         from .distributed import run_distributed
         if preset_path is None:
             raise DataPipeError("--ray needs a preset file (fix: `python -m datapipe run "
                                 f"{config_mod.presets_dir() / 'default.json'} --ray` runs the demo preset)")
-        _prepare_blender()
-        from .core.preflight import preflight
-        preflight(cfg)              # here, not in each shard after OUT/_shards/ was written
         run_distributed(preset_path, args.out or cfg.output.path,
                         address=None if args.ray == "local" else args.ray,
                         num_shards=args.shards, seed=args.seed, retries=args.retries,
                         extra_args=(["--quiet"] if args.quiet else []) + (["--strict"] if args.strict else [])
-                        + (["--verbose"] if args.verbose else []))
+                        + (["--verbose"] if args.verbose else []),
+                        blender_session=lambda: _blender(BlenderLog(verbose=args.verbose)),
+                        warn=_print_warnings)     # the driver's gate, before OUT/_shards/ is written
         return 0
     from .core.pipeline import Pipeline
     pipe = Pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
                     strict=args.strict, on_step=None if args.quiet else _print_step)
-    pipe.check()                    # the output folder: refusals before anything is written
     blender_log = BlenderLog(verbose=args.verbose)  # Blender's own output: OUT/blender.log (kept in
-    with blender_log:                               # memory until the run folder may be written)
-        _prepare_blender()
-        from .core.preflight import preflight
-        preflight(pipe.cfg)         # mesh files imported and measured; still nothing written
+                                                    # memory until the run folder may be written)
+    report = pipe.check(blender_session=lambda: _blender(blender_log))    # the gate, before anything is written
+    _print_warnings(report.warnings)
     t0 = time.perf_counter()
     last = None
     with OutLock(pipe.out), _StopOnSignal(pipe), blender_log:
-        pipe.check()                # again, under the lock: another run may have started meanwhile
+        pipe.check()                # again (rules + folder), under the lock: another run may have started
         for last in pipe.run():
             blender_log.log_to(pipe.out / BLENDER_LOG)   # the folder is prepared at the first event
             if not args.quiet or last.stage in ("done", "cancelled"):
@@ -332,6 +326,14 @@ class _StopOnSignal:
             signal.signal(s, h)
         os.close(self.wfd)                  # the watcher's read returns: it ends
         os.close(self.rfd)
+
+
+@contextmanager
+def _blender(log: BlenderLog):
+    """Where the gate's Blender checks run: Blender's output into `log`, the bpy module's empty scene."""
+    with log:
+        _prepare_blender()
+        yield
 
 
 def _prepare_blender() -> None:

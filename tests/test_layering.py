@@ -3,7 +3,8 @@
 - every module outside core/ and ui/ (found by walking the package), the run loop (core.pipeline,
   core.world: bpy only inside BlenderWorld's methods) and core.collision import with bpy absent (a subprocess
   whose import system refuses `bpy` and `mathutils`, so an installed bpy wheel cannot hide a slip);
-- no module outside core/ and ui/ imports from core/ (except the command line, which drives it);
+- no module outside core/ and ui/ imports from core/ (except the command line, which drives it, and
+  the gate of checks, which runs the Blender preflight);
 - no core module imports `show` (the run engine does not depend on the reporting module);
 - the native layout's file names are spelled in datapipe/io/layout.py only;
 - no function is longer than MAX_FUNCTION_LINES, except the ones listed (owned and being split
@@ -43,8 +44,9 @@ def _bpy_free_modules() -> list[str]:
 
 
 BPY_FREE = _bpy_free_modules()
-# Modules outside BPY_SIDE that may import core/: the command line drives the pipeline.
-CORE_IMPORTERS = {"datapipe.cli"}
+# Modules outside BPY_SIDE that may import core/: the command line drives the pipeline; the gate of
+# checks runs the Blender mesh preflight (core/preflight.py), imported inside the step that needs it.
+CORE_IMPORTERS = {"datapipe.cli", "datapipe.checks.gate"}
 
 _BLOCKER = """
 import importlib.abc, json, sys

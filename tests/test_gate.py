@@ -1,0 +1,146 @@
+"""Issue 22: one gate of checks (datapipe/checks/gate.py). Its steps run in one order and stop at the
+first that refuses; every entry that checks or starts a run goes through it, seen by behaviour: the
+gate replaced by a recorder that refuses, each entry must stop with the gate's message and write
+nothing. No bpy: the meshes step is recorded, not run (the real one: tests/blender/test_ui_gate.py).
+"""
+import pytest
+
+import fixtures_native as fx
+from fake_world import BoxWorld
+from datapipe import cli, config as C
+from datapipe.checks import gate
+from datapipe.core.pipeline import Pipeline
+from datapipe.core.world import BlenderWorld
+from datapipe.distributed import run_distributed
+from datapipe.errors import ConfigError, DataPipeError, Problem
+
+
+@pytest.fixture
+def cfg(tmp_path):
+    c = fx.default_config(num_renders=2, min_per_scene=1, max_per_scene=1, resolution=(32, 24),
+                          mesh_dir=tmp_path / "meshes")
+    c.output.overview = False
+    return c
+
+
+@pytest.fixture
+def steps(monkeypatch):
+    """Each step of the gate records its name when it runs (the meshes step without Blender)."""
+    seen = []
+
+    def record(name, fn):
+        def wrapped(*a, **kw):
+            seen.append(name)
+            return fn(*a, **kw)
+        return wrapped
+    monkeypatch.setattr(C.Config, "validate", record("config", C.Config.validate))
+    monkeypatch.setattr(gate, "_mesh_preflight", record("meshes", lambda cfg, session: {}))
+    monkeypatch.setattr(gate, "_part_fit", record("part_fit", gate._part_fit))
+    monkeypatch.setattr(gate, "_device", record("device", gate._device))
+    monkeypatch.setattr(gate, "memory_warnings", record("memory", gate.memory_warnings))
+    return seen
+
+
+def test_the_steps_run_in_order(cfg, steps, tmp_path):
+    report = gate.run_checks(cfg, folder=lambda c: steps.append("folder"))
+    assert steps == list(gate.STEPS) == report.steps
+    assert report.steps == ["config", "meshes", "part_fit", "device", "memory", "folder"]
+    steps.clear()
+    assert gate.run_checks(cfg, blender=False).steps == steps == ["config", "part_fit", "device", "memory"]
+    steps.clear()
+    assert gate.run_checks(cfg, inputs=False, folder=lambda c: steps.append("folder")).steps == ["config", "folder"]
+
+
+def test_a_refusing_step_stops_the_gate(cfg, steps, monkeypatch):
+    folder = []
+
+    def broken_mesh(cfg, session):
+        steps.append("meshes")
+        raise ConfigError(Problem("objects[0].filepath", "broken", "fix it"))
+    monkeypatch.setattr(gate, "_mesh_preflight", broken_mesh)
+    with pytest.raises(ConfigError, match=r"objects\[0\]\.filepath: broken"):
+        gate.run_checks(cfg, folder=folder.append)
+    assert steps == ["config", "meshes"] and folder == []
+    steps.clear()
+    bad = cfg.copy()
+    bad.scene.num_renders = 0
+    with pytest.raises(ConfigError, match="scene.num_renders"):
+        gate.run_checks(bad, folder=folder.append)
+    assert steps == ["config"] and folder == []
+
+
+def test_the_fill_refusal_comes_from_the_measured_volumes(cfg, monkeypatch):
+    """The part-fit step refuses when the hull volumes the meshes step measured cannot fit the bin."""
+    monkeypatch.setattr(gate, "_mesh_preflight", lambda c, session: {0: 1.0})     # a 1 m^3 part
+    with pytest.raises(ConfigError, match=r"objects\[0\]\.max_instances: a scene may hold"):
+        gate.run_checks(cfg)
+
+
+def test_memory_warning_against_this_machine(cfg, monkeypatch):
+    cfg.structured_light.enabled = True
+    need = C.fringe_memory_bytes(cfg)
+    monkeypatch.setattr(gate, "machine_memory_bytes", lambda: need // 2)
+    (w,) = gate.memory_warnings(cfg)
+    assert w.startswith("structured_light: one render's fringe work needs about") and "(fix: " in w
+    monkeypatch.setattr(gate, "machine_memory_bytes", lambda: need)
+    assert gate.memory_warnings(cfg) == []
+    cfg.structured_light.enabled = False
+    monkeypatch.setattr(gate, "machine_memory_bytes", lambda: 1)
+    assert gate.memory_warnings(cfg) == []
+    assert gate.machine_memory_bytes() is None or gate.machine_memory_bytes() > 0
+
+
+# ------------------------------------------------------------------------------------------------
+# every entry calls the gate (and nothing runs past its refusal)
+
+class Refused(DataPipeError):
+    pass
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """The gate replaced by a recorder that refuses with a message of its own."""
+    seen = []
+
+    def refuse(cfg, **kw):
+        seen.append(kw)
+        raise Refused("gate: refused (fix: nothing)")
+    monkeypatch.setattr(gate, "run_checks", refuse)
+    return seen
+
+
+def test_pipeline_checks_and_runs_through_the_gate(cfg, calls, tmp_path):
+    out = tmp_path / "out"
+    for call in (lambda p: p.check(), lambda p: list(p.run())):
+        with pytest.raises(Refused):
+            call(Pipeline(cfg, out, world=BoxWorld.factory()))
+    assert [c["blender"] for c in calls] == [False, False]          # a fake world imports no meshes
+    assert all(c["folder"] is not None for c in calls)
+    with pytest.raises(Refused):
+        Pipeline(cfg, out).check()
+    assert calls[-1]["blender"] is True and BlenderWorld.imports_meshes   # the Blender world: the mesh preflight
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv", [["validate", "{p}"], ["run", "{p}", "--out", "{o}"],
+                                  ["run", "{p}", "--out", "{o}", "--ray"]])
+def test_the_cli_checks_through_the_gate(cfg, calls, tmp_path, capsys, argv):
+    p = tmp_path / "p.json"
+    C.save(cfg, p)
+    out = tmp_path / "o"
+    assert cli.main([a.format(p=p, o=out) for a in argv]) == 2
+    assert capsys.readouterr().err == "datapipe: error: gate: refused (fix: nothing)\n"
+    (call,) = calls
+    assert call.get("blender", True) is True and call.get("blender_session") is not None
+    assert (call.get("folder") is None) == (argv[0] == "validate")     # validate has no output folder
+    assert not out.exists()
+
+
+def test_the_ray_driver_checks_through_the_gate(cfg, calls, tmp_path):
+    p = tmp_path / "p.json"
+    C.save(cfg, p)
+    with pytest.raises(Refused):
+        run_distributed(p, tmp_path / "o", runner=["false"])
+    (call,) = calls
+    assert call["blender"] is True and call["folder"] is not None
+    assert not (tmp_path / "o").exists()
