@@ -36,7 +36,7 @@ def steps(monkeypatch):
     monkeypatch.setattr(C.Config, "validate", record("config", C.Config.validate))
     monkeypatch.setattr(gate, "_mesh_preflight", record("meshes", lambda cfg, session: {}))
     monkeypatch.setattr(gate, "_part_fit", record("part_fit", gate._part_fit))
-    monkeypatch.setattr(gate, "_device", record("device", gate._device))
+    monkeypatch.setattr(gate, "device_warnings", record("device", gate.device_warnings))
     monkeypatch.setattr(gate, "memory_warnings", record("memory", gate.memory_warnings))
     return seen
 

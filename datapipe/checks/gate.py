@@ -27,7 +27,10 @@ from pathlib import Path
 from typing import Callable, ContextManager
 
 from ..config import Config, fringe_memory_bytes
-from ..errors import ConfigError, Problem
+from ..device_checks import device_warnings
+from ..errors import ConfigError
+from ..io.bop_models import expand_bop_objects
+from ..part_fit import fill_problems, part_fit_warnings
 
 STEPS = ("config", "meshes", "part_fit", "device", "memory", "folder")
 
@@ -53,7 +56,6 @@ def run_checks(cfg: Config, *, blender: bool = True, folder: Callable[[Config], 
     meshes step runs in, entered before bpy is first imported (the CLI's: Blender's output to its
     log, the bpy module's empty scene; the add-on needs none). inputs=False: only the config rules
     and the folder (again under the run's lock, after a full pass)."""
-    from ..io.bop_models import expand_bop_objects
     report = CheckReport(cfg)
     cfg.validate()
     report.steps.append("config")
@@ -66,7 +68,7 @@ def run_checks(cfg: Config, *, blender: bool = True, folder: Callable[[Config], 
             report.steps.append("meshes")
         report.warnings += _part_fit(cfg, checked, volumes)
         report.steps.append("part_fit")
-        report.warnings += _device(cfg)
+        report.warnings += device_warnings(cfg)
         report.steps.append("device")
         report.warnings += memory_warnings(checked)
         report.steps.append("memory")
@@ -91,17 +93,11 @@ def _mesh_preflight(cfg: Config, session: Callable[[], ContextManager] | None) -
 def _part_fit(cfg: Config, checked: Config, volumes: dict[int, float] | None) -> list[str]:
     """The fill refusal (needs the measured volumes) and the drop-zone warnings. The warnings read the
     preset as written (`cfg`: its objects[i] are the user's entries)."""
-    from ..part_fit import fill_problems, part_fit_warnings
     if volumes is not None:
         problems = fill_problems(checked, volumes)
         if problems:
             raise ConfigError(problems)
     return part_fit_warnings(cfg)
-
-
-def _device(cfg: Config) -> list[str]:
-    from ..device_checks import device_warnings
-    return device_warnings(cfg)
 
 
 def memory_warnings(cfg: Config) -> list[str]:
