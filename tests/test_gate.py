@@ -144,3 +144,28 @@ def test_the_ray_driver_checks_through_the_gate(cfg, calls, tmp_path):
     (call,) = calls
     assert call["blender"] is True and call["folder"] is not None
     assert not (tmp_path / "o").exists()
+
+
+def test_with_scene_fill_the_bin_bound_is_the_share_plus_one_part(cfg, monkeypatch):
+    """scene.fill stops at its share (datapipe/fill.py): max_instances far past the bin are then only a
+    cap, as in tests/blender/test_dense_progress.py; the min_instances and a part too large for the
+    share's room are still refused."""
+    from datapipe.part_fit import RANDOM_PACKING_MAX, bin_volume, fill_problems
+    cfg.scene.fill = [0.15, 0.15]
+    room = RANDOM_PACKING_MAX * bin_volume(cfg.scene)
+    part = room / 100                                   # 300 of them would be 3 x the room
+    for o in cfg.objects:
+        o.min_instances, o.max_instances = 0, 100
+    volumes = {i: part for i in range(len(cfg.objects))}
+    assert fill_problems(cfg, volumes) == []
+    cfg.scene.fill = None
+    assert [p.path for p in fill_problems(cfg, volumes)] == ["objects[0].max_instances"]
+    cfg.scene.fill = [0.15, 0.15]
+    for o in cfg.objects:
+        o.min_instances = 40                            # 120 parts to start with: 1.2 x the room
+    assert [p.path for p in fill_problems(cfg, volumes)] == ["objects[0].min_instances"]
+    for o in cfg.objects:
+        o.min_instances = 0
+    big = (RANDOM_PACKING_MAX - 0.15) * bin_volume(cfg.scene) * 1.01      # the share plus this one: too much
+    assert [p.path for p in fill_problems(cfg, {0: big, 1: part, 2: part})] == ["scene.fill"]
+    assert fill_problems(cfg, {0: big * 0.98, 1: part, 2: part}) == []
