@@ -12,8 +12,8 @@ surrogates in paths and names, names past 63 bytes, 401-digit ints, 1e308, NaN, 
 replaced, a key removed or added, a list grown; a few files are cut short or have bytes flipped, and
 a few pickles hold a dict key nested up to 200,000 tuples deep. Then, in process and in this order:
 `config.load` (the CLI's loader), `Config.validate()` (files checked), and for the given share of
-the presets validate accepts, `core.preflight.preflight` (mesh imports, the .blend read by Blender,
-the bin volume) on the bpy module. `--cli N` then runs N of them (a quarter accepted, the rest
+the presets validate accepts, the gate `checks.run_checks` without an output folder (as `validate`:
+mesh imports, the .blend read by Blender, the bin volume) on the bpy module. `--cli N` then runs N of them (a quarter accepted, the rest
 refused, evenly by the stage that refused them) through `python -m datapipe validate` and
 `run --out` in subprocesses: exit codes, a fix in the message, nothing written, no traceback.
 
@@ -214,7 +214,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import bpy  # noqa: F401  (the preflight's Blender; imported once)
-    from datapipe.core.preflight import preflight
+    from datapipe.checks import run_checks
 
     rng = random.Random(args.seed)
     work = Path(tempfile.mkdtemp(prefix="datapipe_fuzz_"))
@@ -260,7 +260,7 @@ def main() -> None:
                 stage = "preflight"
                 t = time.process_time()
                 counts["went through the Blender preflight"] += 1
-                preflight(cfg)
+                run_checks(cfg)
                 cpu["preflight"] += time.process_time() - t
             counts["accepted"] += 1
             outcomes["accepted"].append(path)

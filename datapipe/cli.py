@@ -138,18 +138,14 @@ def main(argv: list[str] | None = None) -> int:
 
 def _command(args) -> int:
     if args.command == "validate":
+        from .checks.gate import memory_summary
         cfg = config_mod.load(args.preset)
-        check_config(cfg, verbose=args.verbose)
-        from .checks.part_fit import part_fit_warnings
-        for w in part_fit_warnings(cfg):
-            print(f"datapipe: warning: {w}", file=sys.stderr)
-        from .checks.device_checks import device_warnings      # the bin against a device's range and view
-        for w in device_warnings(cfg):
-            print(f"datapipe: warning: {w}", file=sys.stderr)
+        report = check_config(cfg, verbose=args.verbose)
+        _print_warnings(report.warnings)
         cams = (f"{len(cfg.camera.poses)} camera poses" if cfg.camera.sampler.kind == "pool"
                 else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
         sl = cfg.structured_light
-        sl_text = (f"on ({'; '.join(_sl_plan(cfg))})" if sl.enabled else "off")
+        sl_text = (f"on ({'; '.join(_sl_plan(cfg) + [memory_summary(report.cfg)])})" if sl.enabled else "off")
         print(f"{_printable(args.preset)}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
               f"{cams}, structured light {sl_text})")
         return 0
@@ -180,15 +176,19 @@ def _command(args) -> int:
     return _run(cfg, args, preset_path=args.preset)
 
 
-def check_config(cfg, verbose: bool = False) -> None:
-    """What `validate` checks (also datapipe.api.validate(blender=True)): every field, before Blender
-    is even imported, then the Blender preflight (mesh files imported and measured, scene.blend_file
-    read). Raises ConfigError with every problem; writes nothing."""
-    cfg.validate()
-    with BlenderLog(verbose=verbose):     # Blender's chatter is dropped, its errors shown
-        _prepare_blender()
-        from .core.preflight import preflight
-        preflight(cfg)
+def check_config(cfg, verbose: bool = False):
+    """What `validate` checks (also datapipe.api.validate(blender=True)): the gate of checks
+    (datapipe/checks/gate.py) without an output folder: every field, before Blender is even imported,
+    then the Blender preflight (mesh files imported and measured, scene.blend_file read), the part
+    fit, the device's range and the memory. Raises ConfigError with every problem; writes nothing.
+    Returns the gate's report (its `warnings`)."""
+    from .checks import gate
+    return gate.run_checks(cfg, blender_session=lambda: _blender(BlenderLog(verbose=verbose)))
+
+
+def _print_warnings(warnings: list[str]) -> None:
+    for w in warnings:
+        print(f"datapipe: warning: {w}", file=sys.stderr)
 
 
 def _refuse_links_in_run_dir(args, folder: str) -> None:
@@ -226,14 +226,13 @@ def _run(cfg, args, preset_path) -> int:
         if preset_path is None:
             raise DataPipeError("--ray needs a preset file (fix: `python -m datapipe run "
                                 f"{config_mod.presets_dir() / 'default.json'} --ray` runs the demo preset)")
-        _prepare_blender()
-        from .core.preflight import preflight
-        preflight(cfg)              # here, not in each shard after OUT/_shards/ was written
         run_distributed(preset_path, args.out or cfg.output.path,
                         address=None if args.ray == "local" else args.ray,
                         num_shards=args.shards, seed=args.seed, retries=args.retries,
                         extra_args=(["--quiet"] if args.quiet else []) + (["--strict"] if args.strict else [])
-                        + (["--verbose"] if args.verbose else []))
+                        + (["--verbose"] if args.verbose else []),
+                        blender_session=lambda: _blender(BlenderLog(verbose=args.verbose)),
+                        warn=_print_warnings)     # the driver's gate, before OUT/_shards/ is written
         return 0
     t0 = time.perf_counter()
 
@@ -251,8 +250,8 @@ def _run(cfg, args, preset_path) -> int:
 
 def check_run_input(cfg, out, seed) -> None:
     """The checks of a run's own arguments before anything else (`run`, `demo`, datapipe.api.run):
-    the output folder's name, then every field of the config with the seed applied (the scene
-    plan's bounds are checked here). Raises DataPipeError / ConfigError; writes nothing."""
+    the output folder's name, and the seed applied to the config (whose fields the gate of checks
+    then checks, in `run_pipeline` or the Ray driver). Raises DataPipeError; writes nothing."""
     if out is not None and not os.fspath(out).strip():
         raise DataPipeError("--out: empty folder name (fix: give the output folder, e.g. --out out; "
                             "nothing was written)")
@@ -261,29 +260,27 @@ def check_run_input(cfg, out, seed) -> None:
         raise DataPipeError(f"--out: {bad_out[0]} (fix: {bad_out[1]}; nothing was written)")
     if seed is not None:
         cfg.scene.seed = seed
-    cfg.validate()
 
 
 def run_pipeline(cfg, out, *, resume: bool = False, force: bool = False, shard: tuple[int, int] = (0, 1),
                  seed: int | None = None, strict: bool = False, verbose: bool = False,
-                 on_event=None, on_step=None):
-    """Run a checked config (`check_run_input`) in one process, as `run` does (also datapipe.api.run):
-    the output folder's refusals, the Blender preflight (mesh imports), then the pipeline under the
+                 on_event=None, on_step=None, on_warnings=_print_warnings):
+    """Run a config (after `check_run_input`) in one process, as `run` does (also datapipe.api.run):
+    the gate of checks (datapipe/checks/gate.py: fields, Blender preflight, part fit, device, memory,
+    output folder; its warnings to `on_warnings`), then the pipeline under the
     folder's lock, Ctrl-C stopping after the render in progress, Blender's output in OUT/blender.log,
     and the overview sheet after a finished run. `on_event(Progress)` gets the loop's events (render,
     scene, done, ...), `on_step(Progress)` the lines inside a scene (maybe from the heartbeat thread).
     Returns (the Pipeline, its last event: stage "done" or "cancelled")."""
     from .engine.pipeline import Pipeline
     pipe = Pipeline(cfg, out, resume=resume, force=force, shard=shard, seed=seed, strict=strict, on_step=on_step)
-    pipe.check()                    # the output folder: refusals before anything is written
     blender_log = BlenderLog(verbose=verbose)  # Blender's own output: OUT/blender.log (kept in
-    with blender_log:                          # memory until the run folder may be written)
-        _prepare_blender()
-        from .core.preflight import preflight
-        preflight(pipe.cfg)         # mesh files imported and measured; still nothing written
+                                               # memory until the run folder may be written)
+    report = pipe.check(blender_session=lambda: _blender(blender_log))    # the gate, before anything is written
+    on_warnings(report.warnings)
     last = None
     with OutLock(pipe.out), _StopOnSignal(pipe), blender_log:
-        pipe.check()                # again, under the lock: another run may have started meanwhile
+        pipe.check()                # again (rules + folder), under the lock: another run may have started
         for last in pipe.run():
             blender_log.log_to(pipe.out / BLENDER_LOG)   # the folder is prepared at the first event
             if on_event is not None:
@@ -364,6 +361,14 @@ class _StopOnSignal:
             signal.signal(s, h)
         os.close(self.wfd)                  # the watcher's read returns: it ends
         os.close(self.rfd)
+
+
+@contextmanager
+def _blender(log: BlenderLog):
+    """Where the gate's Blender checks run: Blender's output into `log`, the bpy module's empty scene."""
+    with log:
+        _prepare_blender()
+        yield
 
 
 def _prepare_blender() -> None:

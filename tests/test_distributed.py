@@ -122,12 +122,18 @@ def write_preset(path: Path, cfg) -> Path:
     return path
 
 
+def ray_run(preset, out, **kw):
+    """The Ray driver with the stand-in runner: nothing renders with Blender, so the driver's gate
+    leaves out the Blender mesh preflight (Blender-free tests never import bpy)."""
+    return run_distributed(preset, out, blender_checks=False, **kw)
+
+
 def test_ray_two_shards_match_one_process(tmp_path, local_ray):
     cfg = small_cfg(num_renders=4, min_per_scene=1, max_per_scene=1)      # 4 scenes
     preset = write_preset(tmp_path / "preset.json", cfg)
     single = fx.make_native_run(tmp_path / "single", cfg=cfg)
     logs = []
-    summary = run_distributed(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER, log=logs.append)
+    summary = ray_run(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER, log=logs.append)
     out = tmp_path / "out"
     assert summary["scenes"] == 4 and summary["images"] == 4 and summary["attempts"] == {0: 1, 1: 1}
     assert annotations(out) == annotations(single)
@@ -142,7 +148,7 @@ def test_ray_killed_shard_is_retried_and_resumes(tmp_path, local_ray, monkeypatc
     cfg = small_cfg(num_renders=4, min_per_scene=1, max_per_scene=1, formats=("native", "bop"))
     preset = write_preset(tmp_path / "preset.json", cfg)
     single = fx.make_native_run(tmp_path / "single", cfg=cfg)
-    summary = run_distributed(preset, tmp_path / "out", num_shards=2, runner=killing(FAKE_RUNNER, 0), retries=2,
+    summary = ray_run(preset, tmp_path / "out", num_shards=2, runner=killing(FAKE_RUNNER, 0), retries=2,
                               env={"FIXTURE_SCENE_DELAY": "1.0"})   # shard 0 killed once its first scene is done
     out = tmp_path / "out"
     assert summary["attempts"] == {0: 2, 1: 1}
@@ -160,12 +166,12 @@ def test_ray_failing_shard_is_reported_and_a_rerun_resumes(tmp_path, local_ray):
     preset = write_preset(tmp_path / "preset.json", cfg)
     failing = [sys.executable, "-c", "import sys; sys.exit(3)"]
     with pytest.raises(DataPipeError, match=r"2 of 2 shard\(s\) failed after 2 attempt\(s\).*run the same command"):
-        run_distributed(preset, tmp_path / "out", num_shards=2, runner=failing, retries=1)
+        ray_run(preset, tmp_path / "out", num_shards=2, runner=failing, retries=1)
     assert (tmp_path / "out" / "_shards" / "shard_0000_of_0002.log").read_text().count("=== attempt") == 2
-    summary = run_distributed(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER)
+    summary = ray_run(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER)
     assert summary["scenes"] == 4
     with pytest.raises(DataPipeError, match="already holds scenes"):
-        run_distributed(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER)
+        ray_run(preset, tmp_path / "out", num_shards=2, runner=FAKE_RUNNER)
 
 
 def test_a_left_behind_runner_is_stopped_but_nothing_else(tmp_path):

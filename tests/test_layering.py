@@ -5,7 +5,7 @@
   whose import system refuses `bpy` and `mathutils`, so an installed bpy wheel cannot hide a slip);
 - every module of core/ needs Blender: it imports bpy, or works on Blender's objects (listed);
 - no module outside core/ and ui/ imports from core/ (except the command line and the run loop, which
-  drive it);
+  drive it, and the gate of checks, which runs the Blender preflight);
 - no core module imports `show` (the run engine does not depend on the reporting module);
 - the native layout's file names are spelled in datapipe/io/layout.py only;
 - no function is longer than MAX_FUNCTION_LINES, except the ones listed (owned and being split
@@ -50,8 +50,10 @@ def _bpy_free_modules() -> list[str]:
 
 
 BPY_FREE = _bpy_free_modules()
-# Modules outside BPY_SIDE that may import core/: the command line drives the pipeline.
-CORE_IMPORTERS = {"datapipe.cli", "datapipe.engine.pipeline"}
+# Modules outside BPY_SIDE that may import core/: the command line and the run loop (it builds the
+# BlenderWorld) drive it; the gate of checks runs the Blender mesh preflight (core/preflight.py),
+# imported inside the step that needs it.
+CORE_IMPORTERS = {"datapipe.cli", "datapipe.engine.pipeline", "datapipe.checks.gate"}
 
 _BLOCKER = """
 import importlib.abc, json, sys

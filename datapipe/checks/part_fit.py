@@ -17,6 +17,8 @@ al., Science 303, 990 (2004)), and shaking-free drops stay well below. So if the
 scene's most parts exceed RANDOM_PACKING_MAX of the smallest bin a scene can draw, they cannot all
 lie in it: the surplus is thrown over the walls, scene after scene. Below that bound a full bin is
 the user's choice (parts may still pile over the walls: the simulation reports those it loses).
+With `scene.fill` a scene stops adding parts at its drawn share of the bin, so the bound applies
+to what it can then hold: its min_instances' hulls, or the largest share plus one part.
 """
 from __future__ import annotations
 
@@ -96,12 +98,15 @@ def bin_volume(scene_cfg) -> float:
 def fill_problems(cfg, hull_volumes: dict[int, float]) -> list[Problem]:
     """A problem at the object entry that adds the most volume when the convex hulls of a scene's
     largest part count (each entry's max_instances) cannot be packed into the bin (module doc).
-    `hull_volumes`: object entry index -> one part's hull volume in m^3 (scale applied)."""
+    `hull_volumes`: object entry index -> one part's hull volume in m^3 (scale applied).
+    With scene.fill the counts stop at the drawn share instead (_fill_share_problems)."""
     room = RANDOM_PACKING_MAX * bin_volume(cfg.scene)
     parts = {i: cfg.objects[i].max_instances * v for i, v in hull_volumes.items()}
     total = sum(parts.values())
     if total <= room or not parts:
         return []
+    if cfg.scene.fill is not None:
+        return _fill_share_problems(cfg, hull_volumes, room)
     worst = max(parts, key=parts.get)
     o, v = cfg.objects[worst], hull_volumes[worst]
     keep = int(max(0.0, room - (total - parts[worst])) // v) if v > 0 else o.max_instances
@@ -112,3 +117,26 @@ def fill_problems(cfg, hull_volumes: dict[int, float]) -> list[Problem]:
                     f"take {total * 1e3:.3g} litres ({o.max_instances} x {v * 1e6:.3g} cm^3 from this entry), and the bin holds {bin_volume(cfg.scene) * 1e3:.3g} litres: no random pile is "
                     f"denser than {RANDOM_PACKING_MAX:g} of that ({room * 1e3:.3g} litres), so the rest would be "
                     "thrown out of the bin", fix)]
+
+
+def _fill_share_problems(cfg, hull_volumes: dict[int, float], room: float) -> list[Problem]:
+    """scene.fill adds parts only until their hulls reach the drawn share of the scene's bin
+    (datapipe/draws/fill.py), starting from every entry's min_instances: a scene holds at most the
+    min_instances' hulls, or the largest share plus the one part that crosses it. As shares of the
+    drawn bin, both are largest in the smallest bin; max_instances then only caps the counts."""
+    smallest = bin_volume(cfg.scene)
+    least = {i: cfg.objects[i].min_instances * v for i, v in hull_volumes.items()}
+    if sum(least.values()) > room:
+        worst = max(least, key=least.get)
+        return [Problem(f"objects[{worst}].min_instances",
+                        f"the min_instances' convex hulls take {sum(least.values()) * 1e3:.3g} litres, more than "
+                        f"{RANDOM_PACKING_MAX:g} of the smallest bin ({room * 1e3:.3g} litres): the rest would be "
+                        "thrown out of the bin", "lower the min_instances of the object entries, or enlarge "
+                        "scene.drop_zone_scale")]
+    crossing = max(hull_volumes.values())
+    if float(cfg.scene.fill[1]) * smallest + crossing > room:
+        return [Problem("scene.fill", f"the fill share {float(cfg.scene.fill[1]):g} of the smallest bin "
+                        f"({smallest * 1e3:.3g} litres) plus one part of {crossing * 1e6:.3g} cm^3 exceeds "
+                        f"{RANDOM_PACKING_MAX:g} of it: no random pile is that dense", "lower scene.fill, or "
+                        "enlarge scene.drop_zone_scale")]
+    return []

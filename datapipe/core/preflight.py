@@ -1,10 +1,12 @@
 """Checks that need Blender, run before the output folder is touched.
 
-`check_meshes(cfg)` imports every distinct mesh file once, measures it and removes everything the
-import added, so `datapipe validate` and `datapipe run` refuse the same broken part files (no
-faces, NaN vertices, a part bigger than the bin or too small to see) and part counts whose convex
-hulls cannot fit the bin (part_fit.fill_problems) before anything is written. `check_blend(cfg)`
-reads `scene.blend_file` with Blender's own reader without opening it (the open scene stays).
+`measure_meshes(cfg)` imports every distinct mesh file once, measures it and removes everything the
+import added, so every entry through the gate (datapipe/checks/gate.py: `datapipe validate` and
+`run`, the add-on, the Ray driver) refuses the same broken part files (no faces, NaN vertices, a
+part bigger than the bin or too small to see) before anything is written; the hull volumes it
+measures feed the gate's part-fit step (part_fit.fill_problems); `check_meshes` is both at once.
+`check_blend(cfg)` reads `scene.blend_file` with Blender's own reader without opening it (the open
+scene stays).
 """
 from __future__ import annotations
 
@@ -15,8 +17,8 @@ import numpy as np
 
 from ..config import Config
 from ..config.plan import camera_distances
-from ..errors import ConfigError, Problem
-from ..io.bop_models import entry_field, expand_bop_objects
+from ..errors import Problem
+from ..io.bop_models import entry_field
 from ..draws.fill import hull_volume
 from ..checks.part_fit import fill_problems
 from ..geometry import intrinsics_from_sensor
@@ -57,7 +59,16 @@ def _import_measure(path: str) -> tuple[int, int, np.ndarray, np.ndarray]:
 
 
 def check_meshes(cfg: Config) -> list[Problem]:
-    """Problems of the part files themselves (call after Config.validate() passed)."""
+    """Problems of the part files themselves and of the bin's fill (call after Config.validate() passed)."""
+    problems, volumes = measure_meshes(cfg)
+    if not problems and cfg.scene.blend_file is None:       # a .blend's drop_zone is known only once open
+        problems += fill_problems(cfg, volumes)
+    return problems
+
+
+def measure_meshes(cfg: Config) -> tuple[list[Problem], dict[int, float]]:
+    """(problems of the part files, {object entry: one part's convex-hull volume in m^3}); the volumes
+    only without scene.blend_file (they are for part_fit.fill_problems against the configured bin)."""
     problems: list[Problem] = []
     measured: dict[str, tuple] = {}
     hulls: dict[str, float] = {}
@@ -112,9 +123,7 @@ def check_meshes(cfg: Config) -> list[Problem]:
             if path not in hulls:
                 hulls[path] = hull_volume(pts)
             volumes[i] = hulls[path] * o.scale ** 3
-    if not problems and cfg.scene.blend_file is None:       # a .blend's drop_zone is known only once open
-        problems += fill_problems(cfg, volumes)
-    return problems
+    return problems, volumes
 
 
 def check_blend(cfg: Config) -> list[Problem]:
@@ -154,12 +163,3 @@ def _name_clashes(cfg: Config, names: list[str], where: str) -> list[Problem]:
 def _needs_pieces(shape: str, pts: np.ndarray, tris: np.ndarray) -> bool:
     """Whether the part is simulated as convex pieces (objects.py resolves AUTO the same way)."""
     return shape in DECOMPOSED_SHAPES or (shape == "AUTO" and collision.is_clearly_concave(pts, tris))
-
-
-def preflight(cfg: Config) -> None:
-    """Every input check, Blender's included: ConfigError when anything would fail or be useless."""
-    cfg.validate()
-    expanded = expand_bop_objects(cfg)
-    problems = check_blend(expanded) + check_meshes(expanded)
-    if problems:
-        raise ConfigError(problems)

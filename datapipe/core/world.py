@@ -16,6 +16,8 @@ from ..engine.world import Part, SceneStart, View
 class BlenderWorld:
     """The bpy side of one run: built once, then scene after scene."""
 
+    imports_meshes = True      # Blender imports the part files: the gate's mesh preflight applies
+
     def __init__(self, cfg: Config, out: Path):
         self.cfg, self.out = cfg, out
         self.sl = None

@@ -5,8 +5,9 @@ A scene draws its share f uniformly from [min, max], starts every object entry a
 min_instances and adds one part at a time, of an entry drawn uniformly among those still below
 their max_instances, until the hulls reach f x the bin's inner volume (footprint x wall height of
 the bin drawn for the scene) or every entry is at its max. So the mix stays even in counts, the
-counts stay inside each entry's range (the preflight's bound on max_instances x hull volume holds
-for every scene), and a scene reports the share it reached (scene.json simulation.fill).
+counts stay inside each entry's range, a scene holds at most its min_instances' hulls or the share
+plus one part (what the input check bounds: part_fit.fill_problems), and a scene reports the share
+it reached (scene.json simulation.fill).
 
 Why hull volume: it is what the parts displace in a pile whatever their orientation, and what
 the input check measures. A random pile of convex parts is at most ~0.6-0.74 solid (the rest is

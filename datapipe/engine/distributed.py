@@ -31,10 +31,11 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, ContextManager, Iterable, Sequence
 
 from .. import config as config_mod
 from ..io import outdir
+from ..checks import gate
 from ..errors import DataPipeError
 from ..io import layout
 from ..io.files import copy_atomic, read_json, write_json_atomic
@@ -341,7 +342,9 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
                     num_shards: int | None = None, seed: int | None = None, retries: int = 2,
                     extra_args: Sequence[str] = (), cpus_per_shard: float = 1.0, gpus_per_shard: float = 0.0,
                     runner: Sequence[str] | None = None, keep_shards: bool = False,
-                    env: dict[str, str] | None = None, log: Callable[[str], None] | None = None) -> dict:
+                    env: dict[str, str] | None = None, log: Callable[[str], None] | None = None,
+                    blender_checks: bool = True, blender_session: Callable[[], ContextManager] | None = None,
+                    warn: Callable[[list[str]], None] | None = None) -> dict:
     """Make the preset's dataset in `out_dir` with shards running as Ray tasks; returns a summary.
 
     address: a Ray cluster ("auto", "ray://host:10001", ...); None starts a local Ray instance with
@@ -350,14 +353,23 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
     cpus_per_shard/gpus_per_shard: Ray resources a shard reserves (Cycles itself uses every core
     of its machine unless render.threads is set). runner: the command that takes
     `PRESET --out DIR --shard i/n --seed S --resume` (default `<worker python> -m datapipe run`).
-    env: extra environment variables for the runner processes."""
+    env: extra environment variables for the runner processes.
+    Before anything is written the preset goes through the gate (datapipe/checks/gate.py), as
+    `datapipe run` does: blender_checks=False leaves out its Blender mesh preflight (a driver without
+    bpy; each shard's `datapipe run` then refuses a broken mesh), blender_session is the context
+    that preflight runs in, warn receives the gate's warnings (default: printed as the CLI does)."""
     say = log or (lambda m: print(m, file=sys.stderr, flush=True))
     cfg = config_mod.load(preset_path)
     if seed is not None:
         cfg.scene.seed = int(seed)
-    cfg.validate()
     out = Path(out_dir).resolve()
-    _check_out_dir(out)
+    report = gate.run_checks(cfg, blender=blender_checks, blender_session=blender_session,
+                             folder=lambda _cfg: _check_out_dir(out))
+    if warn is not None:
+        warn(report.warnings)
+    else:
+        for w in report.warnings:
+            say(f"datapipe: warning: {w}")
     s = cfg.scene
     plan = plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
     shards_root = out / SHARDS_DIR

@@ -10,14 +10,16 @@ built only when there is something to render. Tests pass a fake world (tests/fak
 """
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, ContextManager, Iterator
 
 import numpy as np
 
 from .. import __version__
 from ..io import outdir
+from ..checks import gate
 from ..config import Config
 from ..errors import DataPipeError
 from . import progress
@@ -26,7 +28,7 @@ from .progress import Progress, Tracker, fmt_s
 from ..checks.quality import render_warnings
 from ..io import layout, native
 from ..io.files import read_json, write_json_atomic
-from ..io.bop_models import expand_bop_objects, models_symmetries
+from ..io.bop_models import models_symmetries
 from ..io.models import write_models
 from ..io.legacy import LegacyPickleWriter
 from ..io.writers import Writers, open_writers
@@ -65,11 +67,7 @@ class Pipeline:
         self.out = Path(out_dir if out_dir is not None else self.cfg.output.path).resolve()
         self.cfg.output.path = str(self.out)
         self.resume, self.force, self.shard, self.strict = resume, force, shard, strict
-        s = self.cfg.scene
-        self.plan = plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
-        self.scene_ids = shard_scenes(len(self.plan), shard)
-        self.first_image_id = np.concatenate([[0], np.cumsum(self.plan)]).astype(int)
-        self.total = int(sum(self.plan[i] for i in self.scene_ids))
+        self.report: gate.CheckReport | None = None      # the first full pass of check()
         self._cancel = False
         self._t_start = self._t_loop = 0.0
         self._made = 0                # renders made in this call (for the ETA)
@@ -81,11 +79,44 @@ class Pipeline:
         self._scenes_visib: dict[str, dict] = {}    # scene name -> its record (renders' visib_fract)
         self._models: dict = {}
 
+    # -- the plan: drawn on first use (check() refuses bad bounds before run() draws it) --------------
+    @functools.cached_property
+    def plan(self) -> list[int]:
+        """Renders per scene."""
+        s = self.cfg.scene
+        return plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
+
+    @functools.cached_property
+    def scene_ids(self) -> list[int]:
+        return shard_scenes(len(self.plan), self.shard)
+
+    @functools.cached_property
+    def first_image_id(self) -> np.ndarray:
+        return np.concatenate([[0], np.cumsum(self.plan)]).astype(int)
+
+    @functools.cached_property
+    def total(self) -> int:
+        """Renders this call makes at most (its shard's)."""
+        return int(sum(self.plan[i] for i in self.scene_ids))
+
     # -- checks before any Blender work ----------------------------------------------------------
-    def check(self) -> None:
-        """Raise ConfigError/DataPipeError for bad input or a refused output folder. Writes nothing."""
-        self.cfg.validate()
-        self.cfg = expand_bop_objects(self.cfg)      # one entry per object of a BOP models folder
+    def check(self, blender_session: Callable[[], ContextManager] | None = None) -> gate.CheckReport:
+        """The gate (datapipe/checks/gate.py): config rules, the mesh preflight (with the Blender
+        world), part fit, device, memory, then this run's output folder. Raises ConfigError /
+        DataPipeError; writes nothing. The first pass checks everything; later ones (under the
+        run's lock, at run()) only the rules and the folder, which may have changed meanwhile.
+        `blender_session`: the context the mesh preflight runs in (gate.run_checks; the CLI's log)."""
+        again = self.report is not None
+        report = gate.run_checks(self.cfg, blender=getattr(self.make_world, "imports_meshes", False),
+                                 folder=self._check_folder, blender_session=blender_session,
+                                 inputs=not again)
+        if not again:
+            self.report = report
+        return report
+
+    def _check_folder(self, cfg: Config) -> None:
+        """The gate's last step: the output folder's refusals (datapipe/io/outdir.py)."""
+        self.cfg = cfg                                # validated, one entry per object of a BOP folder
         if self.out.exists() and not self.out.is_dir():
             raise DataPipeError(f"output: {self.out} exists and is not a folder (fix: choose a folder path)")
         outdir.refuse_links(self.out)

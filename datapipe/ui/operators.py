@@ -421,6 +421,22 @@ def _output_dir(cfg: C.Config) -> Path:
     return p
 
 
+def _gate(op, context, pipeline) -> None:
+    """The pipeline's check (datapipe/checks/gate.py, what `datapipe run` goes through), its outcome
+    shown in the panel with the CLI's text: the refusal as the status, each warning as a line and
+    as a WARNING report."""
+    props = _props(context)
+    props.warnings = ""
+    try:
+        report = pipeline.check()
+    except DataPipeError as e:
+        props.status = f"Error: {e}"
+        raise
+    props.warnings = "\n".join(report.warnings)
+    for w in report.warnings:
+        op.report({"WARNING"}, w)
+
+
 class DATAPIPE_OT_check(Operator):
     """Check the settings as a run would (every problem at once, each naming its field)"""
     bl_idname = "datapipe.check"
@@ -429,12 +445,11 @@ class DATAPIPE_OT_check(Operator):
     @user_errors
     def execute(self, context):
         from ..engine.pipeline import Pipeline
-        from ..core.preflight import preflight
-        cfg = props_to_config(_props(context))
-        cfg.validate()
-        Pipeline(cfg, _output_dir(cfg), resume=_props(context).resume, force=_props(context).force).check()
-        preflight(cfg)          # mesh files, scene.blend_file, the bin's fill: what `datapipe validate` checks
-        self.report({"INFO"}, "Settings OK: ready to run")
+        props = _props(context)
+        cfg = props_to_config(props)
+        _gate(self, context, Pipeline(cfg, _output_dir(cfg), resume=props.resume, force=props.force))
+        props.status = "Settings OK: ready to run"
+        self.report({"INFO"}, props.status)
         return {"FINISHED"}
 
 
@@ -457,16 +472,13 @@ class DATAPIPE_OT_run(Operator):
         if runner.is_running():
             raise DataPipeError("run: a run is already in progress (fix: wait for it or click Cancel)")
         cfg = props_to_config(props)
-        cfg.validate()
         blocking = self.blocking or bpy.app.background
         if cfg.scene.blend_file and not bpy.app.background and bpy.data.is_dirty:
             raise DataPipeError("scene.blend_file: a run opens that file in place of the open one, which has "
                                 "unsaved changes (fix: save your file first, or run headless)")
         out = Path(bpy.path.abspath(self.output)) if self.output else _output_dir(cfg)
         pipeline = Pipeline(cfg, out, resume=props.resume, force=props.force)
-        pipeline.check()
-        from ..core.preflight import preflight
-        preflight(cfg)          # as the CLI: before the run writes anything
+        _gate(self, context, pipeline)      # as `datapipe run`: before the run writes anything
         run = runner.start(pipeline, context.scene.name, blocking=blocking)
         if not blocking:
             self.report({"INFO"}, f"DataPipe run started: {pipeline.total} renders into {pipeline.out}")

@@ -337,9 +337,12 @@ class DATAPIPE_PT_output(_DataPipePanel, Panel):
             col = layout.column(align=True)
             if running:
                 col.prop(props, "progress", text="Progress", slider=True)
-            row = col.row()
-            row.alert = props.status.startswith("Error")
-            row.label(text=props.status)
+            for line in props.status.splitlines():      # a refusal lists one problem per line
+                row = col.row()
+                row.alert = props.status.startswith("Error")
+                row.label(text=line)
+        for line in props.warnings.splitlines():
+            layout.label(text=f"Warning: {line}", icon="ERROR")
 
 
 class DATAPIPE_PT_render(_DataPipePanel, Panel):

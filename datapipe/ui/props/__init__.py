@@ -87,6 +87,8 @@ class DATAPIPE_PG_root(PropertyGroup):
     force: BoolProperty(name="Overwrite", description="Empty the output folder first if it holds an earlier "
                         "DataPipe run", default=False)
     status: StringProperty(name="Status", description="Last run status", default="")
+    warnings: StringProperty(name="Warnings", description="The last check's warnings, one per line (as "
+                             "`datapipe validate` prints them)", default="")
     progress: FloatProperty(name="Progress", description="Share of the run's renders done",
                             subtype="PERCENTAGE", min=0.0, max=100.0, default=0.0)
 
