@@ -138,13 +138,19 @@ class StructuredLightCamera:
             return
         Wp, Hp = self.proj_size
         gamma = self.cfg.structured_light.projector_gamma
-        patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps, gamma=gamma)
-        if self.row_code:                  # the global reflection filter's row code (sl.Scanner.scan)
-            patterns = np.concatenate([patterns, self.scanner.row_patterns(gamma)])
+        if self.fringe_mode == "quadrature":     # white + (cos, sin) per frequency: sl/fringe_basis.py
+            if gamma != 1.0:
+                raise ValueError("fringe_mode 'quadrature' needs a linear projector (projector_gamma 1)")
+            patterns = sl.quadrature_basis(Wp, Hp, self.periods,
+                                           row_periods=sl.scanner.ROW_PERIODS if self.row_code else ())
+        else:
+            patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps, gamma=gamma)
+            if self.row_code:              # the global reflection filter's row code (sl.Scanner.scan)
+                patterns = np.concatenate([patterns, self.scanner.row_patterns(gamma)])
         self.projector = Projector(self.cfg, self.scene, self.camera.obj)
         self.projector.build(patterns)
-        for ob, (K, length) in zip(self.projector.lights, self._light_frequencies()):
-            regularize_indirect(ob.data.node_tree, indirect_gain(K, length, self.indirect_blur_px))
+        for ob, (gain, offset) in zip(self.projector.lights, self._light_gains()):
+            regularize_indirect(ob.data.node_tree, gain, offset)
         self.layers = self.projector.make_view_layers(exclude=[LIGHTS_COLLECTION])
         self.layer_names = [vl.name for vl in self.layers]
         tree = self.renderer.tree
@@ -166,16 +172,25 @@ class StructuredLightCamera:
         self.indirect_blur_px = float(blur_px)
         if self.flat is not None:            # fast mode: bounced light is offset only, nothing to blur
             return
-        for ob, (K, length) in zip(self.projector.lights, self._light_frequencies()):
-            _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE], indirect_gain(K, length, self.indirect_blur_px))
+        for ob, (gain, offset) in zip(self.projector.lights, self._light_gains()):
+            _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE], gain, offset)
 
-    def _light_frequencies(self) -> list[tuple[float, int]]:
-        """(periods, projector px they span) of each pattern light: the fringes across the width,
-        then the row code's over the height."""
+    def _light_gains(self) -> list[tuple[float, float]]:
+        """(modulation a bounce keeps, the image's mean) of each pattern light (`regularize_indirect`):
+        the fringes across the width, then the row code's over the height. Quadrature mode: first
+        the white image (mean 1), then a (cos, sin) pair per frequency. The white image is shared by
+        every frequency, whose bounce gains differ; it gets the finest period's (~0): its bounce
+        light is then `offset x alpha`, what the mixed frames need wherever the image is opaque
+        (sl/fringe_basis.py), and the finest fringe (the depth) matches the render mode's also in the
+        image's faded outer half texel, where the coarse ones differ by (g_K - g_fine) x the fade."""
         Wp, Hp = self.proj_size
-        out = [(float(K), Wp) for K in self.periods for _ in range(self.steps)]
+        g = lambda K, length: indirect_gain(K, length, self.indirect_blur_px)  # noqa: E731
+        quad = self.fringe_mode == "quadrature"
+        n = 2 if quad else self.steps
+        out = [(g(max(self.periods), Wp), 1.0)] if quad else []
+        out += [(g(K, Wp), 0.5) for K in self.periods for _ in range(n)]
         if self.row_code:
-            out += [(float(K), Hp) for K in sl.scanner.ROW_PERIODS for _ in range(self.steps)]
+            out += [(g(K, Hp), 0.5) for K in sl.scanner.ROW_PERIODS for _ in range(n)]
         return out
 
     def wants_rows(self) -> bool:
@@ -229,10 +244,13 @@ class StructuredLightCamera:
         if rows and not self.row_code:
             raise ValueError("render_fringes(rows=True) without a row code (structured_light.reflection_filter "
                              "'auto' or 'global' in render mode builds one)")
-        names = self.layer_names if rows else self.layer_names[:len(self.periods) * self.steps]
-        what = f"{len(self.periods) * self.steps} fringe layers ({len(self.periods)} periods x {self.steps} steps)"
+        quad = self.fringe_mode == "quadrature"
+        n_fringe = sl.basis_size(len(self.periods)) if quad else len(self.periods) * self.steps
+        names = self.layer_names if rows else self.layer_names[:n_fringe]
+        what = (f"{n_fringe} quadrature layers (white + cos, sin of {len(self.periods)} periods)" if quad else
+                f"{n_fringe} fringe layers ({len(self.periods)} periods x {self.steps} steps)")
         if rows:
-            what += f" + {len(names) - len(self.periods) * self.steps} row-code layers"
+            what += f" + {len(names) - n_fringe} row-code layers"
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
                                   filter_width=self.filter_width, what=what)
@@ -241,6 +259,10 @@ class StructuredLightCamera:
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
             F, h, w = stack.shape
             stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
+        if quad:           # every phase step from white, cos and sin (linear light, same paths)
+            t0 = time.perf_counter()
+            stack = sl.frames_from_basis(stack, self.steps)
+            seconds += time.perf_counter() - t0
         return stack, seconds
 
     def process(self, rdir: Path, seed: int, T_world_cam) -> tuple[dict[str, Path], dict]:
@@ -285,19 +307,24 @@ class StructuredLightCamera:
 
 
 def resolve_fringe_mode(cfg) -> str:
-    """`structured_light.fringe_mode` with "auto" decided from the configured materials: "render"
-    when any of them (bin, or any choice of any object entry) has roughness below SHINY_ROUGHNESS,
-    since only path-traced patterns carry the fringes that shiny parts mirror (ghosts, holes);
-    "fast" otherwise, where the two modes agree (sl_fringe_modes.md); "render" as well for
-    reflection_filter "global" (a path-traced row code). Materials that come from the
-    mesh file ("file") count as diffuse: set "render" for meshes that carry shiny materials."""
+    """`structured_light.fringe_mode` with "auto" decided from the configured materials:
+    "quadrature" when any of them (bin, or any choice of any object entry) has roughness below
+    SHINY_ROUGHNESS, since only path-traced light carries the fringes that shiny parts mirror
+    (ghosts, holes) and the quadrature basis path-traces all of it at 1 + 2F instead of F x N
+    images (sl/fringe_basis.py: the same frames as "render", path for path;
+    benchmarks/results/sl_glossy_modes.md); "render" instead with a projector gamma (its patterns
+    are no mix of cos and sin); "fast" otherwise, where fast and render agree (sl_fringe_modes.md).
+    reflection_filter "global" needs a path-traced row code: never "fast". Materials that come
+    from the mesh file ("file") count as diffuse: set "quadrature" for meshes that carry shiny
+    materials."""
     from . import materials
 
     mode = cfg.structured_light.fringe_mode
     if mode != "auto":
         return mode
+    traced = "quadrature" if float(cfg.structured_light.projector_gamma) == 1.0 else "render"
     if cfg.structured_light.reflection_filter == "global":   # its row code must be path-traced
-        return "render"
+        return traced
     b = cfg.scene.bin_material
     specs = list(b) if isinstance(b, list) else [b]
     for entry in cfg.objects:
@@ -305,7 +332,7 @@ def resolve_fringe_mode(cfg) -> str:
         specs.extend(m if isinstance(m, list) else [m])
     shiny = any(spec != materials.FILE and float(materials.values(spec)["roughness"]) < SHINY_ROUGHNESS
                 for spec in specs)
-    return "render" if shiny else "fast"
+    return traced if shiny else "fast"
 
 
 def has_shiny_surface(bpy_scene) -> bool:

@@ -3,6 +3,7 @@ a camera noise model, the decoder and its metrics, and the scanner (sensor -> de
 from .decode import (NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason, decode, estimate_noise_sigma,
                      modulation_floor_factor)
 from .filters import edge_speckle_filter, multipath_filter, reflection_filter
+from .fringe_basis import basis_size, frames_from_basis, quadrature_basis
 from .fringe_synth import (bounce_modulation, indirect_gain, pattern_profiles, projector_columns, quadrature_profiles,
                            synthesize_fringes)
 from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
@@ -28,5 +29,5 @@ __all__ = [
     "pixel_depth_sigma", "edge_speckle_filter", "multipath_filter", "reflection_filter",
     "Scanner", "Scan",
     "synthesize_fringes", "pattern_profiles", "projector_columns", "quadrature_profiles", "bounce_modulation",
-    "indirect_gain",
+    "indirect_gain", "quadrature_basis", "frames_from_basis", "basis_size",
 ]
