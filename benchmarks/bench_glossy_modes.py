@@ -47,8 +47,10 @@ from datapipe import sl  # noqa: E402
 MATERIALS = ("steel", "aluminium")
 HEIGHTS = (0.6, 0.8)
 SIZES = {"320": (320, 240), "640": (640, 512), "1280": (1280, 1024)}
-# variant -> (fringe mode, Cycles seed offset)
-VARIANTS = {"render": ("render", 0), "render_seed2": ("render", 1), "quadrature": ("quadrature", 0)}
+# variant -> (fringe mode, Cycles seed offset, quadrature mode's coarse_supersample)
+VARIANTS = {"render": ("render", 0, None), "render_seed2": ("render", 1, None),
+            "quadrature": ("quadrature", 0, 2),              # one call: the render mode's paths
+            "quadrature_split": ("quadrature", 0, 1)}        # coarse periods + row code at 1 path per pixel
 WITHIN = 0.05          # the acceptance: quadrature within 5% of render
 
 
@@ -59,7 +61,8 @@ def plan(quick: bool, sizes):
     out = [("320", m, HEIGHTS, tuple(VARIANTS)) for m in MATERIALS]
     for s in sizes:
         if s != "320":                 # cost at a real size: one shiny case, no second seed
-            out.append((s, "steel", (0.8,), ("render", "quadrature") if s == "640" else ("quadrature",)))
+            out.append((s, "steel", (0.8,), ("render", "quadrature", "quadrature_split") if s == "640"
+                        else ("quadrature", "quadrature_split")))
     return out
 
 
@@ -102,13 +105,16 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
                             K=world.camera.K)
         log(f"  native {size} {material} {h}: {c:.1f} CPU s, {w:.1f} s wall")
     world.sl.teardown()
-    for mode in ("render", "quadrature"):
-        vs = [v for v in variants if VARIANTS[v][0] == mode]
+    for mode, css in [("render", None), ("quadrature", 2), ("quadrature", 1)]:
+        vs = [v for v in variants if VARIANTS[v][0] == mode and VARIANTS[v][2] == css
+              and any(key(size, material, h, v) not in meta for h in heights)]
         if not vs:
             continue
         cfg2 = cfg.copy()
         cfg2.structured_light.fringe_mode = mode
         slc = SLM.StructuredLightCamera(cfg2, scene, world.camera, world.renderer)
+        if css is not None:
+            slc.coarse_supersample = css
         slc.setup()
         for k, h in enumerate(heights):
             T, _, nat_c, nat_w = natives[h]
@@ -121,8 +127,7 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
                 kk = key(size, material, h, v)
                 np.savez_compressed(cache / f"{kk}.npz", rad=stack)
                 meta[kk] = {"size": size, "material": material, "height": h, "variant": v, "fringe_cpu_s": c,
-                            "fringe_wall_s": w, "native_cpu_s": nat_c, "native_wall_s": nat_w, "rows": rows,
-                            "layers": len(slc.layer_names) if rows else None}
+                            "fringe_wall_s": w, "native_cpu_s": nat_c, "native_wall_s": nat_w, "rows": rows}
                 meta_path.write_text(json.dumps(meta, indent=1))
                 log(f"  {kk}: {c:.1f} CPU s, {w:.1f} s wall ({c / nat_c:.2f}x native)")
         slc.teardown()

@@ -88,6 +88,8 @@ OUTPUT_NODE = "datapipe_sl_file_output"
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
 GLOSSY_NODE = "datapipe_sl_glossy_switch"
 SHINY_ROUGHNESS = 0.45           # a visible surface rougher than this scatters like a diffuse one (see module doc)
+QUAD_COARSE_SUPERSAMPLE = 1      # quadrature mode: the coarse periods + row code at the camera grid (1 path
+                                 # per pixel at the pixel centre) in a second call; = FRINGE_SUPERSAMPLE: one call
 
 
 class StructuredLightCamera:
@@ -107,6 +109,7 @@ class StructuredLightCamera:
         self.scanner = sl.Scanner.from_config(cfg)   # refuses an ambiguous period set before any render
         self.filter_width = FRINGE_FILTER_WIDTH
         self.supersample = FRINGE_SUPERSAMPLE
+        self.coarse_supersample = QUAD_COARSE_SUPERSAMPLE   # quadrature mode: the coarse periods' grid
         self.indirect_blur_px = INDIRECT_BLUR_PX
         self.sharp_glossy = False
         self.samples = int(s.samples)
@@ -141,8 +144,8 @@ class StructuredLightCamera:
         if self.fringe_mode == "quadrature":     # white + (cos, sin) per frequency: sl/fringe_basis.py
             if gamma != 1.0:
                 raise ValueError("fringe_mode 'quadrature' needs a linear projector (projector_gamma 1)")
-            patterns = sl.quadrature_basis(Wp, Hp, self.periods,
-                                           row_periods=sl.scanner.ROW_PERIODS if self.row_code else ())
+            patterns = np.concatenate([sl.quadrature_basis(Wp, Hp, per, row_periods=rows)
+                                       for per, rows, _ in self.quad_groups()])
         else:
             patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps, gamma=gamma)
             if self.row_code:              # the global reflection filter's row code (sl.Scanner.scan)
@@ -175,22 +178,40 @@ class StructuredLightCamera:
         for ob, (gain, offset) in zip(self.projector.lights, self._light_gains()):
             _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE], gain, offset)
 
+    def quad_groups(self) -> list[tuple[tuple, tuple, int]]:
+        """Quadrature mode's Cycles calls: (periods, row periods, supersample) each, one white image
+        + a (cos, sin) pair per period in each. The finest period (the depth) on the render mode's
+        2x2 point grid; the coarse ones (fringe orders only) and the row code (the reflection
+        filter) at `coarse_supersample` (1: one path per camera pixel at its centre, a quarter of
+        the paths; benchmarks/results/sl_glossy_modes.md), or all in one call when it equals
+        `supersample` (then the same paths as render mode: the same frames, float rounding aside)."""
+        rows = tuple(sl.scanner.ROW_PERIODS) if self.row_code else ()
+        if int(self.coarse_supersample) == int(self.supersample) or len(self.periods) == 1:
+            return [(tuple(self.periods), rows, int(self.supersample))]
+        fine = max(self.periods)
+        return [((fine,), (), int(self.supersample)),
+                (tuple(K for K in self.periods if K != fine), rows, int(self.coarse_supersample))]
+
     def _light_gains(self) -> list[tuple[float, float]]:
         """(modulation a bounce keeps, the image's mean) of each pattern light (`regularize_indirect`):
-        the fringes across the width, then the row code's over the height. Quadrature mode: first
-        the white image (mean 1), then a (cos, sin) pair per frequency. The white image is shared by
-        every frequency, whose bounce gains differ; it gets the finest period's (~0): its bounce
-        light is then `offset x alpha`, what the mixed frames need wherever the image is opaque
-        (sl/fringe_basis.py), and the finest fringe (the depth) matches the render mode's also in the
-        image's faded outer half texel, where the coarse ones differ by (g_K - g_fine) x the fade."""
+        the fringes across the width, then the row code's over the height. Quadrature mode, per
+        call (`quad_groups`): the white image, then a (cos, sin) pair per frequency. A white image
+        is shared by frequencies whose bounce gains differ: it gets gain 0 (its bounce light is
+        `alpha`, the image's mean times its opacity), what the mixed frames need wherever the image
+        is opaque (sl/fringe_basis.py), and the finest fringe (gain ~0: the depth) matches the render
+        mode's also in the image's faded outer half texel, where the coarse ones differ by gain x
+        the fade (up to 1% of the peak on 6 of 4800 pixels of a mirror scene, measured)."""
         Wp, Hp = self.proj_size
         g = lambda K, length: indirect_gain(K, length, self.indirect_blur_px)  # noqa: E731
-        quad = self.fringe_mode == "quadrature"
-        n = 2 if quad else self.steps
-        out = [(g(max(self.periods), Wp), 1.0)] if quad else []
-        out += [(g(K, Wp), 0.5) for K in self.periods for _ in range(n)]
+        if self.fringe_mode == "quadrature":
+            out = []
+            for per, rows, _ in self.quad_groups():
+                out += [(0.0, 1.0)] + [(g(K, Wp), 0.5) for K in per for _ in range(2)]
+                out += [(g(K, Hp), 0.5) for K in rows for _ in range(2)]
+            return out
+        out = [(g(K, Wp), 0.5) for K in self.periods for _ in range(self.steps)]
         if self.row_code:
-            out += [(g(K, Hp), 0.5) for K in sl.scanner.ROW_PERIODS for _ in range(n)]
+            out += [(g(K, Hp), 0.5) for K in sl.scanner.ROW_PERIODS for _ in range(self.steps)]
         return out
 
     def wants_rows(self) -> bool:
@@ -224,8 +245,6 @@ class StructuredLightCamera:
         linear radiance, frequency-major, followed by the row code's N images when `rows` (default
         `wants_rows()`); wall seconds of the call, and in fast mode of the synthesis). `T_world_cam`
         (fast mode: the pose P_proj is made from) defaults to the camera's current pose."""
-        from . import compat
-
         ss = int(self.supersample)
         if self.flat is not None:
             if T_world_cam is None:
@@ -244,13 +263,20 @@ class StructuredLightCamera:
         if rows and not self.row_code:
             raise ValueError("render_fringes(rows=True) without a row code (structured_light.reflection_filter "
                              "'auto' or 'global' in render mode builds one)")
-        quad = self.fringe_mode == "quadrature"
-        n_fringe = sl.basis_size(len(self.periods)) if quad else len(self.periods) * self.steps
+        if self.fringe_mode == "quadrature":
+            return self._render_quadrature(render_dir, seed, rows)
+        n_fringe = len(self.periods) * self.steps
         names = self.layer_names if rows else self.layer_names[:n_fringe]
-        what = (f"{n_fringe} quadrature layers (white + cos, sin of {len(self.periods)} periods)" if quad else
-                f"{n_fringe} fringe layers ({len(self.periods)} periods x {self.steps} steps)")
+        what = f"{n_fringe} fringe layers ({len(self.periods)} periods x {self.steps} steps)"
         if rows:
             what += f" + {len(names) - n_fringe} row-code layers"
+        return self._render_layers(names, render_dir, seed, ss, what)
+
+    def _render_layers(self, names, render_dir, seed: int, ss: int, what: str) -> tuple[np.ndarray, float]:
+        """Layers `names` in one isolated Cycles call at `ss` x the camera grid, block-averaged to
+        the camera resolution -> ((len(names), H, W) float32, wall seconds)."""
+        from . import compat
+
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
                                   filter_width=self.filter_width, what=what)
@@ -259,11 +285,27 @@ class StructuredLightCamera:
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
             F, h, w = stack.shape
             stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
-        if quad:           # every phase step from white, cos and sin (linear light, same paths)
-            t0 = time.perf_counter()
-            stack = sl.frames_from_basis(stack, self.steps)
-            seconds += time.perf_counter() - t0
         return stack, seconds
+
+    def _render_quadrature(self, render_dir, seed: int, rows: bool) -> tuple[np.ndarray, float]:
+        """Quadrature mode: each call of `quad_groups` (its row-code pair only with `rows`), every
+        phase step mixed from its white, cos and sin images (same seed: same paths) -> the render
+        mode's stack layout (periods in config order, then the row code)."""
+        frames, seconds, i = {}, 0.0, 0
+        for per, rper, ss in self.quad_groups():
+            n = sl.basis_size(len(per), rows=bool(rper))
+            names = self.layer_names[i:i + n] if rows or not rper else self.layer_names[i:i + n - 2]
+            i += n
+            what = f"{len(names)} quadrature layers (white + cos, sin of {len(per)} periods" + \
+                   (" + the row code)" if len(names) == n and rper else ")")
+            stack, sec = self._render_layers(names, render_dir, seed, ss, what)
+            t0 = time.perf_counter()
+            mixed = sl.frames_from_basis(stack, self.steps)
+            seconds += sec + time.perf_counter() - t0
+            keys = [("x", K) for K in per] + ([("y", K) for K in rper] if len(names) == n else [])
+            frames.update({k: mixed[j * self.steps:(j + 1) * self.steps] for j, k in enumerate(keys)})
+        order = [("x", K) for K in self.periods] + ([("y", K) for K in sl.scanner.ROW_PERIODS] if rows else [])
+        return np.concatenate([frames[k] for k in order]), seconds
 
     def process(self, rdir: Path, seed: int, T_world_cam) -> tuple[dict[str, Path], dict]:
         """Render the fringes, scan them, write the maps; returns ({kind: written file}, the render's
