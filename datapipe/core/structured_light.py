@@ -88,8 +88,8 @@ OUTPUT_NODE = "datapipe_sl_file_output"
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
 GLOSSY_NODE = "datapipe_sl_glossy_switch"
 SHINY_ROUGHNESS = 0.45           # a visible surface rougher than this scatters like a diffuse one (see module doc)
-QUAD_COARSE_SUPERSAMPLE = 1      # quadrature mode: the coarse periods + row code at the camera grid (1 path
-                                 # per pixel at the pixel centre) in a second call; = FRINGE_SUPERSAMPLE: one call
+QUAD_COARSE_SUPERSAMPLE = 2      # quadrature mode: = FRINGE_SUPERSAMPLE: one call, render mode's paths; 1: the
+                                 # coarse periods at the camera grid in a second call (quad_groups)
 
 
 class StructuredLightCamera:
@@ -180,17 +180,18 @@ class StructuredLightCamera:
 
     def quad_groups(self) -> list[tuple[tuple, tuple, int]]:
         """Quadrature mode's Cycles calls: (periods, row periods, supersample) each, one white image
-        + a (cos, sin) pair per period in each. The finest period (the depth) on the render mode's
-        2x2 point grid; the coarse ones (fringe orders only) and the row code (the reflection
-        filter) at `coarse_supersample` (1: one path per camera pixel at its centre, a quarter of
-        the paths; benchmarks/results/sl_glossy_modes.md), or all in one call when it equals
-        `supersample` (then the same paths as render mode: the same frames, float rounding aside)."""
+        + a (cos, sin) pair per period in each. All in one call on the render mode's 2x2 point grid
+        when `coarse_supersample` equals `supersample` (the shipped default: the same paths as
+        render mode, so the same frames, float rounding aside); else the finest period (the depth)
+        and the row code (the reflection filter) there, and the coarse periods (fringe orders only)
+        in a second call at `coarse_supersample` (1: one path per camera pixel at its centre, a
+        quarter of the paths; measured in benchmarks/results/sl_glossy_modes.md)."""
         rows = tuple(sl.scanner.ROW_PERIODS) if self.row_code else ()
         if int(self.coarse_supersample) == int(self.supersample) or len(self.periods) == 1:
             return [(tuple(self.periods), rows, int(self.supersample))]
         fine = max(self.periods)
-        return [((fine,), (), int(self.supersample)),
-                (tuple(K for K in self.periods if K != fine), rows, int(self.coarse_supersample))]
+        return [((fine,), rows, int(self.supersample)),
+                (tuple(K for K in self.periods if K != fine), (), int(self.coarse_supersample))]
 
     def _light_gains(self) -> list[tuple[float, float]]:
         """(modulation a bounce keeps, the image's mean) of each pattern light (`regularize_indirect`):
