@@ -8,8 +8,13 @@ Only built when `cfg.structured_light.enabled`; with it off, none of this exists
 Fringe render (its own Cycles call)
 -----------------------------------
 `structured_light.fringe_mode` "render" path-traces every pattern as described here (the
-reference); "fast" renders once with the projector showing white and synthesises every pattern's
-direct light from it (core/fringe_fast.py, sl/fringe_synth.py), on the same point-sample grid.
+reference); "quadrature" path-traces, the same way and in the same call, a white image and a
+cos and a sin image per period instead (1 + 2F lights and layers instead of F x N, + 2 instead of
+N for the row code) and mixes every phase step from them (sl/fringe_basis.py: light is linear in
+the projected image; one seed, so the render mode's very paths: the same frames up to float
+rounding, mirror images included; `quad_groups`, `_light_gains`); "fast" renders once with the
+projector showing white and synthesises every pattern's direct light from it
+(core/fringe_fast.py, sl/fringe_synth.py), on the same point-sample grid.
 
 The fringe view layers (`sl_00` ...) are rendered in a second `render.render` call right after the
 Renderer's native one, with the native layer switched off and the Renderer's File Output node muted;
@@ -57,7 +62,8 @@ sensor model, the decoder, the local reflection (multipath) filter (reason MULTI
 global reflection filter (reason REFLECTION = 10), the projector-border and edge/speckle filters
 (reason FILTERED = 7), and the maps written per render. This module only renders the fringes,
 and for the global reflection filter a row code (8 periods of row fringes, `steps` images, built
-as more pattern lights and view layers in render mode) on the renders that need it:
+as more pattern lights and view layers in render mode, a cos and a sin one in quadrature mode)
+on the renders that need it:
 `structured_light.reflection_filter` "global", or "auto" when the render has sharp glossy fringes
 (a shiny surface: the only renders that can show mirror ghosts). Its view layers are left out of
 the Cycles call on the other renders, so they cost nothing there.
