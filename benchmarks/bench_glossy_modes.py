@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import tempfile
 import time
@@ -93,45 +94,48 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
     cfg.render.samples, cfg.render.outputs, cfg.render.denoise = d.samples, list(d.outputs), d.denoise
     cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, float(h)]) for h in heights]
     tmp = Path(tempfile.mkdtemp(prefix="glossy_"))
-    world = BlenderWorld(cfg, tmp / "world")
-    world.setup()
-    world.start_scene(0, cfg.scene.seed, scene_rng(cfg.scene.seed, 0), 1)
-    scene = world.blend.scene
-    natives = {}
-    for k, h in enumerate(heights):
-        T = world.camera.set_pose(k)
-        out, c, w = cpu(lambda: world.renderer.render(tmp / "native", S.SEED))
-        natives[h] = (T, out, c, w)
-        np.savez_compressed(cache / f"{size}_{material}_h{h:.2f}_truth.npz", depth=out.depth, mask=out.mask, T=T,
-                            K=world.camera.K)
-        log(f"  native {size} {material} {h}: {c:.1f} CPU s, {w:.1f} s wall")
-    world.sl.teardown()
-    for mode, css in [("render", None), ("quadrature", 2), ("quadrature", 1)]:
-        vs = [v for v in variants if VARIANTS[v][0] == mode and VARIANTS[v][2] == css
-              and any(key(size, material, h, v) not in meta for h in heights)]
-        if not vs:
-            continue
-        cfg2 = cfg.copy()
-        cfg2.structured_light.fringe_mode = mode
-        slc = SLM.StructuredLightCamera(cfg2, scene, world.camera, world.renderer)
-        if css is not None:
-            slc.coarse_supersample = css
-        slc.setup()
+    try:
+        world = BlenderWorld(cfg, tmp / "world")
+        world.setup()
+        world.start_scene(0, cfg.scene.seed, scene_rng(cfg.scene.seed, 0), 1)
+        scene = world.blend.scene
+        natives = {}
         for k, h in enumerate(heights):
-            T, _, nat_c, nat_w = natives[h]
-            world.camera.set_pose(k)
-            slc.set_sharp_glossy(SLM.has_shiny_surface(scene))        # as process() does
-            for v in vs:
-                rows = slc.wants_rows()
-                (stack, _), c, w = cpu(lambda: slc.render_fringes(tmp / "fringes", S.SEED + VARIANTS[v][1], T,
-                                                                 rows=rows))
-                kk = key(size, material, h, v)
-                np.savez_compressed(cache / f"{kk}.npz", rad=stack)
-                meta[kk] = {"size": size, "material": material, "height": h, "variant": v, "fringe_cpu_s": c,
-                            "fringe_wall_s": w, "native_cpu_s": nat_c, "native_wall_s": nat_w, "rows": rows}
-                meta_path.write_text(json.dumps(meta, indent=1))
-                log(f"  {kk}: {c:.1f} CPU s, {w:.1f} s wall ({c / nat_c:.2f}x native)")
-        slc.teardown()
+            T = world.camera.set_pose(k)
+            out, c, w = cpu(lambda: world.renderer.render(tmp / "native", S.SEED))
+            natives[h] = (T, out, c, w)
+            np.savez_compressed(cache / f"{size}_{material}_h{h:.2f}_truth.npz", depth=out.depth, mask=out.mask, T=T,
+                                K=world.camera.K)
+            log(f"  native {size} {material} {h}: {c:.1f} CPU s, {w:.1f} s wall")
+        world.sl.teardown()
+        for mode, css in [("render", None), ("quadrature", 2), ("quadrature", 1)]:
+            vs = [v for v in variants if VARIANTS[v][0] == mode and VARIANTS[v][2] == css
+                  and any(key(size, material, h, v) not in meta for h in heights)]
+            if not vs:
+                continue
+            cfg2 = cfg.copy()
+            cfg2.structured_light.fringe_mode = mode
+            slc = SLM.StructuredLightCamera(cfg2, scene, world.camera, world.renderer)
+            if css is not None:
+                slc.coarse_supersample = css
+            slc.setup()
+            for k, h in enumerate(heights):
+                T, _, nat_c, nat_w = natives[h]
+                world.camera.set_pose(k)
+                slc.set_sharp_glossy(SLM.has_shiny_surface(scene))        # as process() does
+                for v in vs:
+                    rows = slc.wants_rows()
+                    (stack, _), c, w = cpu(lambda: slc.render_fringes(tmp / "fringes", S.SEED + VARIANTS[v][1], T,
+                                                                     rows=rows))
+                    kk = key(size, material, h, v)
+                    np.savez_compressed(cache / f"{kk}.npz", rad=stack)
+                    meta[kk] = {"size": size, "material": material, "height": h, "variant": v, "fringe_cpu_s": c,
+                                "fringe_wall_s": w, "native_cpu_s": nat_c, "native_wall_s": nat_w, "rows": rows}
+                    meta_path.write_text(json.dumps(meta, indent=1))
+                    log(f"  {kk}: {c:.1f} CPU s, {w:.1f} s wall ({c / nat_c:.2f}x native)")
+            slc.teardown()
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)      # the world's scratch renders
 
 
 def decode(meta: dict, cache: Path) -> list[dict]:
@@ -193,7 +197,7 @@ def compare(rows) -> list[str]:
     render seed shows what Cycles noise alone gives)."""
     ref = {(r["size"], r["material"], r["height"]): r for r in rows if r["variant"] == "render"}
     out = ["| size | material | height | variant | cost vs render | frames differ | valid | median | p99 | > 5 mm px "
-           "| REFLECTION px | within 5% |", "|" + "---|" * 12]
+           "| REFLECTION px | valid, median, p99 within 5% |", "|" + "---|" * 12]
     for r in rows:
         b = ref.get((r["size"], r["material"], r["height"]))
         if b is None or r is b:
@@ -201,7 +205,8 @@ def compare(rows) -> list[str]:
         d = {k: rel(r[k], b[k]) for k in ("valid", "median_mm", "p99_mm")}
         ok = all(abs(x) <= WITHIN for x in d.values())
         out.append(f"| {r['size']} | {r['material']} | {r['height']:.2f} | {r['variant']} | "
-                   f"{r['fringe_cpu_s'] / b['fringe_cpu_s']:.2f}x | {r['frames_differ']:.2%} | {d['valid']:+.1%} | {d['median_mm']:+.1%} | "
+                   f"{r['fringe_cpu_s'] / b['fringe_cpu_s']:.2f}x | {r['frames_differ']:.2%} | {d['valid']:+.1%} | "
+                   f"{d['median_mm']:+.1%} | "
                    f"{d['p99_mm']:+.1%} | {r['out5_px']} vs {b['out5_px']} | {r['reflection_px']} vs "
                    f"{b['reflection_px']} | {'yes' if ok else 'no'} |")
     return out
@@ -215,7 +220,8 @@ def report(rows, render_wall: float):
              "Generated by `benchmarks/bench_glossy_modes.py` (hand-written findings at the end). Default rig, "
              "shipped structured-light defaults (periods 1, 8, 64, 4 steps, 4 paths per camera pixel, auto "
              "exposure, reflection_filter auto -> global with the row code on these shiny scenes), `industrial` "
-             "sensor; process CPU seconds on this shared 2-core machine, each cost ratio over the native render timed in the same process. "
+             "sensor; process CPU seconds on this shared 2-core machine, each cost ratio over the native render "
+             "timed in the same process. "
              f"Renders {render_wall / 60:.1f} min wall in all (cached).", "",
              "`native_cpu_s`: the default preset's native render (16 samples, denoised) of the same pose; "
              "`fringe_over_native`: the fringe call(s) (+ the mixing) over it; `sl_over_native`: with the decode. "

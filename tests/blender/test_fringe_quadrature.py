@@ -31,7 +31,8 @@ def mirror_scene(mode, coarse_supersample=None, kind="across"):
     cfg.structured_light.fringe_mode = mode
 
     def add(scene):
-        corners = [tuple(C_PLATE + su * HALF * u_ax + sv * HALF * v_ax) for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        corners = [tuple(C_PLATE + su * HALF * u_ax + sv * HALF * v_ax)
+                   for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
         me = bpy.data.meshes.new("plate")
         me.from_pydata(corners, [], [(0, 1, 2, 3)])
         plate = bpy.data.objects.new("plate", me)
