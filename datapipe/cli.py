@@ -208,7 +208,17 @@ def _sl_plan(cfg) -> list[str]:
     rows = config_mod.builds_row_code(s, mode)
     images = f"{n} fringe images" + (f" (+{s.steps} row code{' on shiny renders' if s.reflection_filter == 'auto' else ''})"
                                       if rows else "")
-    why = " (a configured material is shiny)" if s.fringe_mode == "auto" and mode == "render" else ""
+    if mode == "quadrature":
+        images += (f", mixed from {1 + 2 * len(s.periods)} rendered images (white + cos, sin per period"
+                   f"{'; +2 for the row code' if rows else ''})")
+    why = ""
+    if s.fringe_mode == "auto":
+        shiny = "a configured material is shiny" if s.reflection_filter != "global" else \
+            "reflection_filter global needs a path-traced row code"
+        why = {"quadrature": f" (auto: {shiny}; quadrature path-traces every light path at 1 + 2F images, "
+                             "as render does at F x N)",
+               "render": f" (auto: {shiny}, and projector_gamma {s.projector_gamma:g} rules out quadrature)",
+               "fast": " (auto: every configured material is diffuse)"}[mode]
     hdr = f", HDR {s.hdr}" if s.hdr else ""
     return [f"fringe mode {mode}{why}", images, f"exposure {s.exposure}{hdr}",
             f"reflection filter {s.reflection_filter}"]

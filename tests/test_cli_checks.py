@@ -21,8 +21,13 @@ def test_validate_ok_and_bad(tmp_path):
     C.save(shiny, tmp_path / "shiny.json")
     r = _run("validate", str(tmp_path / "shiny.json"))
     assert r.returncode == 0, r.stderr
-    assert "fringe mode render (a configured material is shiny)" in r.stdout
-    assert "12 fringe images (+4 row code on shiny renders)" in r.stdout
+    assert "fringe mode quadrature (auto: a configured material is shiny;" in r.stdout
+    assert "12 fringe images (+4 row code on shiny renders), mixed from 7 rendered images" in r.stdout
+    shiny.structured_light.projector_gamma = 2.2         # not a mix of cos and sin: every pattern path-traced
+    C.save(shiny, tmp_path / "gamma.json")
+    r = _run("validate", str(tmp_path / "gamma.json"))
+    assert r.returncode == 0, r.stderr
+    assert "fringe mode render (auto: a configured material is shiny, and projector_gamma 2.2" in r.stdout
     assert "bin_view sampler" in r.stdout and "camera poses," not in r.stdout
     bad = C.Config().to_dict()
     bad["scene"]["num_renders"] = 0

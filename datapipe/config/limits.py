@@ -14,8 +14,9 @@ COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE"
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap
 SAMPLER_KINDS = ("pool", "bin_view")
-FRINGE_MODES = ("auto", "fast", "render")   # structured_light.fringe_mode (core/fringe_fast.py);
-                                            # auto: render when a configured material is shiny, else fast
+FRINGE_MODES = ("auto", "fast", "quadrature", "render")   # structured_light.fringe_mode (core/fringe_fast.py,
+                                            # sl/fringe_basis.py); auto: quadrature when a configured material
+                                            # is shiny (render with a projector gamma), else fast
 REFLECTION_FILTERS = ("auto", "local", "global", "off")
 OTHER_OBJECTS = ("auto", "hide", "keep")   # scene.other_objects (core/scene.py)   # structured_light.reflection_filter (sl/filters.py)
 MAX_RESOLUTION = 8192

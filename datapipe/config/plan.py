@@ -15,9 +15,9 @@ FRINGE_SUPERSAMPLE = 2             # fringe render at this factor x the camera r
 
 def builds_row_code(sl: "StructuredLightConfig", fringe_mode: str) -> bool:
     """Whether the structured-light camera builds the global reflection filter's row code: the
-    patterns are path-traced (`fringe_mode`, resolved) and reflection_filter is "auto" (rendered on
-    shiny renders) or "global" (every render)."""
-    return fringe_mode == "render" and sl.reflection_filter in ("auto", "global")
+    patterns carry every light path (`fringe_mode`, resolved: "render" or "quadrature") and
+    reflection_filter is "auto" (rendered on shiny renders) or "global" (every render)."""
+    return fringe_mode in ("render", "quadrature") and sl.reflection_filter in ("auto", "global")
 
 
 def _fringe_frames(cfg: Config) -> int:

@@ -128,8 +128,11 @@ class StructuredLightConfig:
     samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples)
     fringe_mode: str = "auto"          # "fast": one flat-lit render (+ coarse bounce layers), patterns
                                        # synthesised (core/fringe_fast.py); "render": every pattern
-                                       # path-traced (the reference; sl_fringe_modes.md); "auto": render
-                                       # when a configured material is shiny (mirrored fringes), else fast
+                                       # path-traced (the reference; sl_fringe_modes.md); "quadrature":
+                                       # white + cos, sin per period path-traced, every step mixed from
+                                       # them (sl/fringe_basis.py: exact, render's paths, sl_glossy_modes.md);
+                                       # "auto": quadrature when a configured material is shiny (mirrored
+                                       # fringes; render with a projector gamma), else fast
     sensor: str = "industrial"         # datapipe.sl.sensor preset
     exposure: float | str = "auto"     # scale on linear radiance before the sensor model, or "auto":
                                        # metered per render from the fringes (datapipe.sl.exposure)

@@ -52,7 +52,11 @@ def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None
     if sl.reflection_filter == "global" and sl.fringe_mode == "fast":
         ck.add("structured_light.reflection_filter", "'global' checks a path-traced row code, and fast mode "
                "synthesises the patterns (no mirrored light to find)", "set structured_light.fringe_mode to "
-               "'render' or 'auto', or reflection_filter to 'local'")
+               "'quadrature', 'render' or 'auto', or reflection_filter to 'local'")
+    if sl.fringe_mode == "quadrature" and sl.projector_gamma != 1.0:
+        ck.add("structured_light.fringe_mode", f"'quadrature' mixes every phase step from a cos and a sin image, "
+               f"which a projector gamma ({sl.projector_gamma!r}) makes non-linear",
+               "set structured_light.fringe_mode to 'render' or 'auto', or projector_gamma to 1.0")
     if not (0.2 <= sl.projector_gamma <= 5.0):
         ck.add("structured_light.projector_gamma", f"must be a number in [0.2, 5], got {sl.projector_gamma!r}",
                "use 1.0 for a linear projector, ~2.2 for a typical DLP/LCD response")

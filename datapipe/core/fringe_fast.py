@@ -37,7 +37,9 @@ the flat render's paths each.
 
 Glossy bounces: the fine fringe's bounce light is offset only here, also where a shiny part
 mirrors it sharply (the render mode with sharp glossy bounces shows those reflections as a biased
-phase; the fast mode only as lower contrast): the fast mode is optimistic on shiny parts.
+phase; the fast mode only as lower contrast): the fast mode is optimistic on shiny parts, which
+`fringe_mode` "auto" therefore renders in quadrature mode (sl/fringe_basis.py: every light path,
+white + cos + sin per period).
 """
 from __future__ import annotations
 

@@ -8,8 +8,13 @@ Only built when `cfg.structured_light.enabled`; with it off, none of this exists
 Fringe render (its own Cycles call)
 -----------------------------------
 `structured_light.fringe_mode` "render" path-traces every pattern as described here (the
-reference); "fast" renders once with the projector showing white and synthesises every pattern's
-direct light from it (core/fringe_fast.py, sl/fringe_synth.py), on the same point-sample grid.
+reference); "quadrature" path-traces, the same way and in the same call, a white image and a
+cos and a sin image per period instead (1 + 2F lights and layers instead of F x N, + 2 instead of
+N for the row code) and mixes every phase step from them (sl/fringe_basis.py: light is linear in
+the projected image; one seed, so the render mode's very paths: the same frames up to float
+rounding, mirror images included; `quad_groups`, `_light_gains`); "fast" renders once with the
+projector showing white and synthesises every pattern's direct light from it
+(core/fringe_fast.py, sl/fringe_synth.py), on the same point-sample grid.
 
 The fringe view layers (`sl_00` ...) are rendered in a second `render.render` call right after the
 Renderer's native one, with the native layer switched off and the Renderer's File Output node muted;
@@ -57,7 +62,8 @@ sensor model, the decoder, the local reflection (multipath) filter (reason MULTI
 global reflection filter (reason REFLECTION = 10), the projector-border and edge/speckle filters
 (reason FILTERED = 7), and the maps written per render. This module only renders the fringes,
 and for the global reflection filter a row code (8 periods of row fringes, `steps` images, built
-as more pattern lights and view layers in render mode) on the renders that need it:
+as more pattern lights and view layers in render mode, a cos and a sin one in quadrature mode)
+on the renders that need it:
 `structured_light.reflection_filter` "global", or "auto" when the render has sharp glossy fringes
 (a shiny surface: the only renders that can show mirror ghosts). Its view layers are left out of
 the Cycles call on the other renders, so they cost nothing there.
@@ -88,6 +94,8 @@ OUTPUT_NODE = "datapipe_sl_file_output"
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
 GLOSSY_NODE = "datapipe_sl_glossy_switch"
 SHINY_ROUGHNESS = 0.45           # a visible surface rougher than this scatters like a diffuse one (see module doc)
+QUAD_COARSE_SUPERSAMPLE = 2      # quadrature mode: = FRINGE_SUPERSAMPLE: one call, render mode's paths; 1: the
+                                 # coarse periods at the camera grid in a second call (quad_groups)
 
 
 class StructuredLightCamera:
@@ -107,6 +115,7 @@ class StructuredLightCamera:
         self.scanner = sl.Scanner.from_config(cfg)   # refuses an ambiguous period set before any render
         self.filter_width = FRINGE_FILTER_WIDTH
         self.supersample = FRINGE_SUPERSAMPLE
+        self.coarse_supersample = QUAD_COARSE_SUPERSAMPLE   # quadrature mode: the coarse periods' grid
         self.indirect_blur_px = INDIRECT_BLUR_PX
         self.sharp_glossy = False
         self.samples = int(s.samples)
@@ -138,13 +147,19 @@ class StructuredLightCamera:
             return
         Wp, Hp = self.proj_size
         gamma = self.cfg.structured_light.projector_gamma
-        patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps, gamma=gamma)
-        if self.row_code:                  # the global reflection filter's row code (sl.Scanner.scan)
-            patterns = np.concatenate([patterns, self.scanner.row_patterns(gamma)])
+        if self.fringe_mode == "quadrature":     # white + (cos, sin) per frequency: sl/fringe_basis.py
+            if gamma != 1.0:
+                raise ValueError("fringe_mode 'quadrature' needs a linear projector (projector_gamma 1)")
+            patterns = np.concatenate([sl.quadrature_basis(Wp, Hp, per, row_periods=rows)
+                                       for per, rows, _ in self.quad_groups()])
+        else:
+            patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps, gamma=gamma)
+            if self.row_code:              # the global reflection filter's row code (sl.Scanner.scan)
+                patterns = np.concatenate([patterns, self.scanner.row_patterns(gamma)])
         self.projector = Projector(self.cfg, self.scene, self.camera.obj)
         self.projector.build(patterns)
-        for ob, (K, length) in zip(self.projector.lights, self._light_frequencies()):
-            regularize_indirect(ob.data.node_tree, indirect_gain(K, length, self.indirect_blur_px))
+        for ob, (gain, offset) in zip(self.projector.lights, self._light_gains()):
+            regularize_indirect(ob.data.node_tree, gain, offset)
         self.layers = self.projector.make_view_layers(exclude=[LIGHTS_COLLECTION])
         self.layer_names = [vl.name for vl in self.layers]
         tree = self.renderer.tree
@@ -166,16 +181,44 @@ class StructuredLightCamera:
         self.indirect_blur_px = float(blur_px)
         if self.flat is not None:            # fast mode: bounced light is offset only, nothing to blur
             return
-        for ob, (K, length) in zip(self.projector.lights, self._light_frequencies()):
-            _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE], indirect_gain(K, length, self.indirect_blur_px))
+        for ob, (gain, offset) in zip(self.projector.lights, self._light_gains()):
+            _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE], gain, offset)
 
-    def _light_frequencies(self) -> list[tuple[float, int]]:
-        """(periods, projector px they span) of each pattern light: the fringes across the width,
-        then the row code's over the height."""
+    def quad_groups(self) -> list[tuple[tuple, tuple, int]]:
+        """Quadrature mode's Cycles calls: (periods, row periods, supersample) each, one white image
+        + a (cos, sin) pair per period in each. All in one call on the render mode's 2x2 point grid
+        when `coarse_supersample` equals `supersample` (the shipped default: the same paths as
+        render mode, so the same frames, float rounding aside); else the finest period (the depth)
+        and the row code (the reflection filter) there, and the coarse periods (fringe orders only)
+        in a second call at `coarse_supersample` (1: one path per camera pixel at its centre, a
+        quarter of the paths; measured in benchmarks/results/sl_glossy_modes.md)."""
+        rows = tuple(sl.scanner.ROW_PERIODS) if self.row_code else ()
+        if int(self.coarse_supersample) == int(self.supersample) or len(self.periods) == 1:
+            return [(tuple(self.periods), rows, int(self.supersample))]
+        fine = max(self.periods)
+        return [((fine,), rows, int(self.supersample)),
+                (tuple(K for K in self.periods if K != fine), (), int(self.coarse_supersample))]
+
+    def _light_gains(self) -> list[tuple[float, float]]:
+        """(modulation a bounce keeps, the image's mean) of each pattern light (`regularize_indirect`):
+        the fringes across the width, then the row code's over the height. Quadrature mode, per
+        call (`quad_groups`): the white image, then a (cos, sin) pair per frequency. A white image
+        is shared by frequencies whose bounce gains differ: it gets gain 0 (its bounce light is
+        `alpha`, the image's mean times its opacity), what the mixed frames need wherever the image
+        is opaque (sl/fringe_basis.py), and the finest fringe (gain ~0: the depth) matches the render
+        mode's also in the image's faded outer half texel, where the coarse ones differ by gain x
+        the fade (up to 1% of the peak on 6 of 4800 pixels of a mirror scene, measured)."""
         Wp, Hp = self.proj_size
-        out = [(float(K), Wp) for K in self.periods for _ in range(self.steps)]
+        g = lambda K, length: indirect_gain(K, length, self.indirect_blur_px)  # noqa: E731
+        if self.fringe_mode == "quadrature":
+            out = []
+            for per, rows, _ in self.quad_groups():
+                out += [(0.0, 1.0)] + [(g(K, Wp), 0.5) for K in per for _ in range(2)]
+                out += [(g(K, Hp), 0.5) for K in rows for _ in range(2)]
+            return out
+        out = [(g(K, Wp), 0.5) for K in self.periods for _ in range(self.steps)]
         if self.row_code:
-            out += [(float(K), Hp) for K in sl.scanner.ROW_PERIODS for _ in range(self.steps)]
+            out += [(g(K, Hp), 0.5) for K in sl.scanner.ROW_PERIODS for _ in range(self.steps)]
         return out
 
     def wants_rows(self) -> bool:
@@ -209,8 +252,6 @@ class StructuredLightCamera:
         linear radiance, frequency-major, followed by the row code's N images when `rows` (default
         `wants_rows()`); wall seconds of the call, and in fast mode of the synthesis). `T_world_cam`
         (fast mode: the pose P_proj is made from) defaults to the camera's current pose."""
-        from . import compat
-
         ss = int(self.supersample)
         if self.flat is not None:
             if T_world_cam is None:
@@ -229,10 +270,20 @@ class StructuredLightCamera:
         if rows and not self.row_code:
             raise ValueError("render_fringes(rows=True) without a row code (structured_light.reflection_filter "
                              "'auto' or 'global' in render mode builds one)")
-        names = self.layer_names if rows else self.layer_names[:len(self.periods) * self.steps]
-        what = f"{len(self.periods) * self.steps} fringe layers ({len(self.periods)} periods x {self.steps} steps)"
+        if self.fringe_mode == "quadrature":
+            return self._render_quadrature(render_dir, seed, rows)
+        n_fringe = len(self.periods) * self.steps
+        names = self.layer_names if rows else self.layer_names[:n_fringe]
+        what = f"{n_fringe} fringe layers ({len(self.periods)} periods x {self.steps} steps)"
         if rows:
-            what += f" + {len(names) - len(self.periods) * self.steps} row-code layers"
+            what += f" + {len(names) - n_fringe} row-code layers"
+        return self._render_layers(names, render_dir, seed, ss, what)
+
+    def _render_layers(self, names, render_dir, seed: int, ss: int, what: str) -> tuple[np.ndarray, float]:
+        """Layers `names` in one isolated Cycles call at `ss` x the camera grid, block-averaged to
+        the camera resolution -> ((len(names), H, W) float32, wall seconds)."""
+        from . import compat
+
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
                                   filter_width=self.filter_width, what=what)
@@ -242,6 +293,26 @@ class StructuredLightCamera:
             F, h, w = stack.shape
             stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
         return stack, seconds
+
+    def _render_quadrature(self, render_dir, seed: int, rows: bool) -> tuple[np.ndarray, float]:
+        """Quadrature mode: each call of `quad_groups` (its row-code pair only with `rows`), every
+        phase step mixed from its white, cos and sin images (same seed: same paths) -> the render
+        mode's stack layout (periods in config order, then the row code)."""
+        frames, seconds, i = {}, 0.0, 0
+        for per, rper, ss in self.quad_groups():
+            n = sl.basis_size(len(per), rows=bool(rper))
+            names = self.layer_names[i:i + n] if rows or not rper else self.layer_names[i:i + n - 2]
+            i += n
+            what = f"{len(names)} quadrature layers (white + cos, sin of {len(per)} periods" + \
+                   (" + the row code)" if len(names) == n and rper else ")")
+            stack, sec = self._render_layers(names, render_dir, seed, ss, what)
+            t0 = time.perf_counter()
+            mixed = sl.frames_from_basis(stack, self.steps)
+            seconds += sec + time.perf_counter() - t0
+            keys = [("x", K) for K in per] + ([("y", K) for K in rper] if len(names) == n else [])
+            frames.update({k: mixed[j * self.steps:(j + 1) * self.steps] for j, k in enumerate(keys)})
+        order = [("x", K) for K in self.periods] + ([("y", K) for K in sl.scanner.ROW_PERIODS] if rows else [])
+        return np.concatenate([frames[k] for k in order]), seconds
 
     def process(self, rdir: Path, seed: int, T_world_cam) -> tuple[dict[str, Path], dict]:
         """Render the fringes, scan them, write the maps; returns ({kind: written file}, the render's
@@ -285,19 +356,24 @@ class StructuredLightCamera:
 
 
 def resolve_fringe_mode(cfg) -> str:
-    """`structured_light.fringe_mode` with "auto" decided from the configured materials: "render"
-    when any of them (bin, or any choice of any object entry) has roughness below SHINY_ROUGHNESS,
-    since only path-traced patterns carry the fringes that shiny parts mirror (ghosts, holes);
-    "fast" otherwise, where the two modes agree (sl_fringe_modes.md); "render" as well for
-    reflection_filter "global" (a path-traced row code). Materials that come from the
-    mesh file ("file") count as diffuse: set "render" for meshes that carry shiny materials."""
+    """`structured_light.fringe_mode` with "auto" decided from the configured materials:
+    "quadrature" when any of them (bin, or any choice of any object entry) has roughness below
+    SHINY_ROUGHNESS, since only path-traced light carries the fringes that shiny parts mirror
+    (ghosts, holes) and the quadrature basis path-traces all of it at 1 + 2F instead of F x N
+    images (sl/fringe_basis.py: the same frames as "render", path for path;
+    benchmarks/results/sl_glossy_modes.md); "render" instead with a projector gamma (its patterns
+    are no mix of cos and sin); "fast" otherwise, where fast and render agree (sl_fringe_modes.md).
+    reflection_filter "global" needs a path-traced row code: never "fast". Materials that come
+    from the mesh file ("file") count as diffuse: set "quadrature" for meshes that carry shiny
+    materials."""
     from . import materials
 
     mode = cfg.structured_light.fringe_mode
     if mode != "auto":
         return mode
+    traced = "quadrature" if float(cfg.structured_light.projector_gamma) == 1.0 else "render"
     if cfg.structured_light.reflection_filter == "global":   # its row code must be path-traced
-        return "render"
+        return traced
     b = cfg.scene.bin_material
     specs = list(b) if isinstance(b, list) else [b]
     for entry in cfg.objects:
@@ -305,7 +381,7 @@ def resolve_fringe_mode(cfg) -> str:
         specs.extend(m if isinstance(m, list) else [m])
     shiny = any(spec != materials.FILE and float(materials.values(spec)["roughness"]) < SHINY_ROUGHNESS
                 for spec in specs)
-    return "render" if shiny else "fast"
+    return traced if shiny else "fast"
 
 
 def has_shiny_surface(bpy_scene) -> bool:

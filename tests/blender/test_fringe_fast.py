@@ -77,8 +77,9 @@ def test_fast_mode_builds_its_lights_and_cleans_up(tmp_path):
 
 
 def test_auto_mode_renders_the_fringes_only_where_a_material_is_shiny():
-    """'auto' = fast for diffuse scenes (where the modes agree) and render as soon as any configured
-    material is shiny enough to mirror the fringes; explicit modes are kept as given."""
+    """'auto' = fast for diffuse scenes (where the modes agree) and quadrature (every light path
+    path-traced, as render: test_fringe_quadrature.py) as soon as any configured material is shiny
+    enough to mirror the fringes, render with a projector gamma; explicit modes are kept as given."""
     from datapipe.config import default_config
 
     cfg = default_config()
@@ -87,14 +88,17 @@ def test_auto_mode_renders_the_fringes_only_where_a_material_is_shiny():
     cfg.objects[0].material = ["matte_plastic", "rubber"]
     assert SLM.resolve_fringe_mode(cfg) == "fast"                    # roughness 0.6, 0.85
     cfg.objects[-1].material = ["rubber", "steel"]                   # one shiny choice is enough
+    assert SLM.resolve_fringe_mode(cfg) == "quadrature"
+    cfg.structured_light.projector_gamma = 2.2                      # no mix of cos and sin any more
     assert SLM.resolve_fringe_mode(cfg) == "render"
+    cfg.structured_light.projector_gamma = 1.0
     cfg.objects[-1].material = "file"
     cfg.scene.bin_material = {"base_color": [0.5, 0.5, 0.5], "roughness": 0.1}
-    assert SLM.resolve_fringe_mode(cfg) == "render"
+    assert SLM.resolve_fringe_mode(cfg) == "quadrature"
     cfg.scene.bin_material = {"base_color": [0.5, 0.5, 0.5], "roughness": SLM.SHINY_ROUGHNESS}
     assert SLM.resolve_fringe_mode(cfg) == "fast"                    # the threshold itself is diffuse
     cfg.structured_light.reflection_filter = "global"               # its row code is path-traced
-    assert SLM.resolve_fringe_mode(cfg) == "render"
+    assert SLM.resolve_fringe_mode(cfg) == "quadrature"
     cfg.structured_light.reflection_filter = "auto"
     cfg.structured_light.fringe_mode = "fast"
     cfg.scene.bin_material = "steel"

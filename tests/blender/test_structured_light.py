@@ -160,12 +160,12 @@ def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path, mode):
     assert info["valid_fraction"] == pytest.approx(valid.mean())
 
 
-@pytest.mark.parametrize("mode", ["render", "fast"])
+@pytest.mark.parametrize("mode", ["render", "fast", "quadrature"])
 def test_box_shadow_invalid_and_few_outliers(tmp_path, mode):
     """A 10x8x8 cm box on the plane. Its projector shadow (floor points whose segment to the
     projector centre crosses the box, computed analytically) has no SL depth but z-buffer depth;
     valid pixels elsewhere are trustworthy: at most 0.5% off by more than 5 mm (the flying pixels
-    at the box edges are what the edge filter removes; measured ~0.1%). Both fringe modes."""
+    at the box edges are what the edge filter removes; measured ~0.1%). Every fringe mode."""
     cfg = plane_config()
     cfg.structured_light.fringe_mode = mode
     blend, cam, ren, slc, T = build(tmp_path, cfg, box=True)
