@@ -17,7 +17,7 @@ whole process's wall, CPU (os.wait4: user + system) and peak resident memory (ru
 machine's load average before and after (timings are noisy on a shared machine). Each finished
 cell is appended to production.csv at once, so an interrupted run keeps what it measured and
 `--resume` skips those cells. Writes benchmarks/results/production.md, production.csv and
-production.png.
+production.png; with `--gpu` (Cycles on the GPU, where there is one) production_gpu.*.
 """
 from __future__ import annotations
 
@@ -52,7 +52,6 @@ STAGE_LABELS = {"placement": "placing", "simulation": "simulation", "render": "n
                 "write": "writing", "fringes": "fringe renders", "decode": "decode",
                 "maps": "SL maps", "annotate": "annotations"}
 SCENE_STAGES = ("placement", "simulation")      # once per scene, shared by its renders
-CSV_PATH = RESULTS / "production.csv"
 
 
 def cell_key(res: str, parts: int, material: str, mode: str) -> str:
@@ -85,7 +84,8 @@ def parse_cell(text: str) -> tuple:
     return cell
 
 
-def preset(res: str, parts: int, material: str, mode: str, samples: int | None, seed: int) -> dict:
+def preset(res: str, parts: int, material: str, mode: str, samples: int | None, seed: int,
+           gpu: bool = False) -> dict:
     """bin_picking.json with one render, `parts` parts split over its three meshes, one material, the
     fringe mode forced, at `res` (the device's lens; `full`: binning 1)."""
     p = json.loads(BASE_PRESET.read_text())
@@ -102,6 +102,8 @@ def preset(res: str, parts: int, material: str, mode: str, samples: int | None, 
     p["structured_light"]["fringe_mode"] = mode
     if samples is not None:
         p["render"]["samples"] = samples
+    if gpu:
+        p["render"]["device"] = "GPU"
     p["output"].update(overview=False)
     return p
 
@@ -110,7 +112,7 @@ def run_cell(cell: tuple, args) -> dict:
     res, parts, material, mode = cell
     with tempfile.TemporaryDirectory(prefix="bench_production_") as d:
         pf, out = Path(d) / "preset.json", Path(d) / "out"
-        pf.write_text(json.dumps(preset(res, parts, material, mode, args.samples, args.seed), indent=1))
+        pf.write_text(json.dumps(preset(res, parts, material, mode, args.samples, args.seed, args.gpu), indent=1))
         cmd = [sys.executable, "-m", "datapipe", "run", str(pf), "--out", str(out), "--quiet"]
         load0 = os.getloadavg()
         t0 = time.perf_counter()
@@ -166,12 +168,13 @@ def read_rows(path: Path) -> list[dict]:
 
 
 def append_row(path: Path, row: dict) -> None:
-    new = not path.is_file()
-    with open(path, "a", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(row.keys()))
-        if new:
-            w.writeheader()
-        w.writerow(row)
+    """Add one cell to the CSV (rewritten with the union of the columns when they differ)."""
+    rows = read_rows(path)
+    fields = list(dict.fromkeys([*(rows[0].keys() if rows else ()), *row.keys()]))
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields, restval="")
+        w.writeheader()
+        w.writerows([*rows, row])
 
 
 # -- scaling ---------------------------------------------------------------------------------------
@@ -191,8 +194,8 @@ def scaling(rows: list[dict], along: str, fixed: tuple[str, ...]) -> dict:
     for r in rows:
         groups.setdefault(tuple(r[k] for k in fixed), []).append(r)
     out: dict[str, list] = {}
-    for stage in (*STAGES, "render_cpu_total"):
-        col = f"{stage}_cpu_s" if stage != "render_cpu_total" else "render_cpu_total_s"
+    for stage in (*STAGES, "render_cpu_total", "peak_rss"):
+        col = {"render_cpu_total": "render_cpu_total_s", "peak_rss": "peak_rss_mib"}.get(stage, f"{stage}_cpu_s")
         for g, rs in sorted(groups.items(), key=lambda kv: str(kv[0])):
             s = slope([r[along] for r in rs], [r[col] for r in rs])
             if s is not None:
@@ -202,12 +205,15 @@ def scaling(rows: list[dict], along: str, fixed: tuple[str, ...]) -> dict:
 
 def extrapolate_full(rows: list[dict], pix_slopes: dict) -> list[dict]:
     """Full-resolution cells not measured, stage by stage from the largest measured resolution of
-    the same parts/material/mode: scene stages unchanged, pixel stages x (pixels ratio)^(median
-    measured slope of that stage). Marked derived."""
+    the same parts/material/mode: scene stages unchanged, pixel stages x (pixels ratio)^(the median
+    measured slope of that stage in the same fringe mode, else in any mode, else 1). Marked derived."""
     full_px = 2448 * 2048
     have = {r["cell"] for r in rows}
     derived = []
-    med = {st: float(np.median([s for _, s, _ in v])) for st, v in pix_slopes.items()}
+    def exponent(st: str, mode: str) -> float:
+        same = [s for g, s, _ in pix_slopes.get(st, []) if g[2] == mode]
+        anym = [s for _, s, _ in pix_slopes.get(st, [])]
+        return float(np.median(same or anym)) if (same or anym) else 1.0
     for (res, n, m, f) in full_grid():
         if res != FULL or cell_key(res, n, m, f) in have:
             continue
@@ -218,7 +224,7 @@ def extrapolate_full(rows: list[dict], pix_slopes: dict) -> list[dict]:
         ratio = full_px / b["pixels"]
         d = {"cell": cell_key(res, n, m, f), "from": b["cell"]}
         for st in STAGES:
-            e = 0.0 if st in SCENE_STAGES else med.get(st, 1.0)
+            e = 0.0 if st in SCENE_STAGES else exponent(st, f)
             d[f"{st}_cpu_s"] = b[f"{st}_cpu_s"] * ratio ** e
         d["render_cpu_total_s"] = sum(d[f"{st}_cpu_s"] for st in STAGES)
         derived.append(d)
@@ -251,13 +257,15 @@ def fmt(v, nd=1) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
-def write_report(rows: list[dict], command: str) -> None:
+def write_report(rows: list[dict], command: str, stem: str = "production", gpu: bool = False) -> None:
     rows = sorted(rows, key=lambda r: (r["pixels"], r["parts"], r["material"], r["mode"]))
+    measured_by = sorted({r.get("command") or "not recorded" for r in rows})
     L = ["# Production benchmark: one render of a dense bin, stage by stage", "",
-         f"Generated by `{command}` (`benchmarks/bench_production.py`; the full grid of "
-         f"{len(full_grid())} cells is its default). Machine: {machine()}. No GPU was lent to this "
-         "task: every number is Cycles on the CPU; the same table on a GPU is still to be made "
-         "(`render.device: GPU` in the preset copy).", "",
+         f"Cells measured by {', '.join(f'`{c}`' for c in measured_by)} (`benchmarks/bench_production.py`; the full grid of "
+         f"{len(full_grid())} cells is its default). Machine: {machine()}. "
+         + ("Cycles on the GPU (`render.device: GPU`; the decode and the simulation stay on the CPU)."
+            if gpu else "Cycles on the CPU. No GPU was lent when this was made: the same table on a GPU "
+            "is `--gpu` (writes production_gpu.md)."), "",
          "Each cell is one `python -m datapipe run` of `presets/bin_picking.json` (Zivid 2+ M60 lens, "
          "projector, HDR auto, reflection filter auto, sensor model) with one render, fixed part counts "
          "(split over peg, nut, bracket) instead of `scene.fill`, every part `matte_plastic` (diffuse) or "
@@ -295,7 +303,7 @@ def write_report(rows: list[dict], command: str) -> None:
     pix = scaling(rows, "pixels", ("parts", "material", "mode"))
     par = scaling(rows, "parts_kept", ("res", "material", "mode"))
     L += ["", "## How each stage grows", "",
-          "Log-log slope of CPU seconds (cost ~ x^slope: 1 = linear, 0 = flat), fitted over the measured "
+          "Log-log slope of CPU seconds (peak memory in the last row) (cost ~ x^slope: 1 = linear, 0 = flat), fitted over the measured "
           "cells that differ only in pixels (at fixed parts, material, mode) or only in parts kept (at "
           "fixed resolution, material, mode); median over such groups, with the range and the number "
           "of groups.", "",
@@ -307,39 +315,43 @@ def write_report(rows: list[dict], command: str) -> None:
             return "not measured"
         s = [x for _, x, _ in v]
         return f"{np.median(s):.2f} ({min(s):.2f} to {max(s):.2f}, {len(s)})"
-    for st in (*STAGES, "render_cpu_total"):
-        L.append(f"| {STAGE_LABELS.get(st, 'per render (sum)')} | {cellfmt(pix.get(st))} | {cellfmt(par.get(st))} |")
+    for st in (*STAGES, "render_cpu_total", "peak_rss"):
+        label = STAGE_LABELS.get(st) or {"render_cpu_total": "per render (sum)", "peak_rss": "peak RSS (memory)"}[st]
+        L.append(f"| {label} | {cellfmt(pix.get(st))} | {cellfmt(par.get(st))} |")
     derived = extrapolate_full(rows, pix)
     if derived:
         L += ["", "## Derived, not measured: the device's full resolution (2448 x 2048)", "",
               "Stage by stage from the largest measured resolution of the same parts, material and mode: "
               "placement and simulation unchanged, every other stage times (pixel ratio)^(its median "
-              "measured slope above). Estimates only.", "",
+              "measured slope against pixels in the same fringe mode). Estimates only: the exponents come "
+              "from few groups, and a 640 x 480 source extrapolates 16x in pixels.", "",
               "| cell | from | " + " | ".join(STAGE_LABELS[s] for s in STAGES) + " | per render CPU s | renders/h/core |",
               "|" + "---|" * (2 + len(STAGES) + 2)]
         for d in derived:
             L.append(f"| {d['cell']} | {d['from']} | " + " | ".join(fmt(d[f'{s}_cpu_s']) for s in STAGES)
                      + f" | {d['render_cpu_total_s']:.0f} | {3600 / d['render_cpu_total_s']:.0f} |")
     from report_util import write_with_notes
-    write_with_notes(RESULTS / "production.md", L)
+    write_with_notes(RESULTS / f"{stem}.md", L)
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    """CPU seconds per render against pixels (log x), one line per parts/material/mode group."""
+    """CPU seconds per render against pixels (log-log), one line per parts/material/mode group."""
     import cv2
     if not rows:
         return
     W, H, m = 860, 520, 70
-    ys = [r["render_cpu_total_s"] for r in rows]
+    ys = [np.log10(r["render_cpu_total_s"]) for r in rows]
     xs = [np.log10(r["pixels"]) for r in rows]
     x0, x1 = min(xs) - 0.15, max(xs) + 0.15
-    y0, y1 = 0.0, max(ys) * 1.1
+    y0, y1 = min(ys) - 0.1, max(ys) + 0.1
     img, px = log_x_frame((W, H), m, (x0, x1), (y0, y1), (3e5, 1e6, 3e6, 1e7))
     font = cv2.FONT_HERSHEY_SIMPLEX
-    for v in np.linspace(y0, y1, 6):
-        p = px(x0, v)
-        cv2.putText(img, f"{v:.0f}", (m - 45, p[1] + 4), font, 0.4, (0, 0, 0), 1)
-    cv2.putText(img, "CPU s per render (all stages) against camera pixels (log); one render of a dense bin",
+    for v in (10, 20, 50, 100, 200, 500, 1000, 2000, 5000):
+        if y0 <= np.log10(v) <= y1:
+            p = px(x0, np.log10(v))
+            cv2.line(img, (m, p[1]), (W - m, p[1]), (225, 225, 225), 1)
+            cv2.putText(img, f"{v}", (m - 45, p[1] + 4), font, 0.4, (0, 0, 0), 1)
+    cv2.putText(img, "CPU s per render (all stages, log) against camera pixels (log); one render of a dense bin",
                 (m, m - 40), font, 0.5, (0, 0, 0), 1)
     cv2.putText(img, "colour: parts 10 blue, 40 green, 120 red; circles diffuse, squares shiny; "
                 "filled render mode, open fast", (m, m - 20), font, 0.4, (0, 0, 0), 1)
@@ -349,7 +361,8 @@ def plot(rows: list[dict], path: Path) -> None:
         groups.setdefault((r["parts"], r["material"], r["mode"]), []).append(r)
     for (n, mat, mode), rs in groups.items():
         col = colours.get(n, (90, 90, 90))
-        pts = [px(np.log10(r["pixels"]), r["render_cpu_total_s"]) for r in sorted(rs, key=lambda r: r["pixels"])]
+        pts = [px(np.log10(r["pixels"]), np.log10(r["render_cpu_total_s"]))
+               for r in sorted(rs, key=lambda r: r["pixels"])]
         for a, b in zip(pts, pts[1:]):
             cv2.line(img, a, b, col, 1)
         fill = -1 if mode == "render" else 2
@@ -370,27 +383,30 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--resume", action="store_true", help="keep production.csv's cells and run the others")
     ap.add_argument("--report", action="store_true", help="only write the report from production.csv")
+    ap.add_argument("--gpu", action="store_true", help="Cycles on the GPU; results in production_gpu.*")
     args = ap.parse_args(argv)
     command = "python benchmarks/bench_production.py" + "".join(
         f" {a}" for a in (argv if argv is not None else sys.argv[1:]))
     RESULTS.mkdir(parents=True, exist_ok=True)
+    stem = "production_gpu" if args.gpu else "production"
+    csv_path = RESULTS / f"{stem}.csv"
     if not args.report:
         cells = [parse_cell(c) for c in args.cells] if args.cells else (quick_grid() if args.quick else full_grid())
-        done = {r["cell"] for r in read_rows(CSV_PATH)} if args.resume else set()
-        if not args.resume and CSV_PATH.is_file():
-            CSV_PATH.unlink()
+        done = {r["cell"] for r in read_rows(csv_path)} if args.resume else set()
+        if not args.resume and csv_path.is_file():
+            csv_path.unlink()
         for cell in cells:
             if cell_key(*cell) in done:
                 continue
             print(f"cell {cell_key(*cell)} (load {os.getloadavg()[0]:.1f}) ...", file=sys.stderr, flush=True)
-            row = run_cell(cell, args)
-            append_row(CSV_PATH, row)
-            write_report(read_rows(CSV_PATH), command)      # what is measured so far, readable at once
+            row = {**run_cell(cell, args), "command": command}
+            append_row(csv_path, row)
+            write_report(read_rows(csv_path), command, stem, args.gpu)     # what is measured so far
             print(f"  {row['render_cpu_total_s']:.0f} CPU s per render, {row['process_wall_s']:.0f} s wall, "
                   f"{row['peak_rss_mib'] / 1024:.2f} GiB", file=sys.stderr, flush=True)
-    rows = read_rows(CSV_PATH)
-    write_report(rows, command)
-    plot(rows, RESULTS / "production.png")
+    rows = read_rows(csv_path)
+    write_report(rows, command, stem, args.gpu)
+    plot(rows, RESULTS / f"{stem}.png")
     return 0
 
 
