@@ -37,7 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from report_util import log_x_frame  # noqa: E402
+from report_util import log_x_frame, write_with_notes  # noqa: E402
 
 BASE_PRESET = ROOT / "datapipe" / "presets" / "bin_picking.json"
 DEVICE = "zivid2plus_m60"
@@ -330,7 +330,6 @@ def write_report(rows: list[dict], command: str, stem: str = "production", gpu: 
         for d in derived:
             L.append(f"| {d['cell']} | {d['from']} | " + " | ".join(fmt(d[f'{s}_cpu_s']) for s in STAGES)
                      + f" | {d['render_cpu_total_s']:.0f} | {3600 / d['render_cpu_total_s']:.0f} |")
-    from report_util import write_with_notes
     write_with_notes(RESULTS / f"{stem}.md", L)
 
 
