@@ -2,6 +2,7 @@
 fake clock, and the step events of a run on the fake world (tests/fake_world.py), whose renders
 report their steps as the Blender world does."""
 import json
+import time
 
 import numpy as np
 import pytest
@@ -78,11 +79,18 @@ class SteppingWorld(BoxWorld):
 
     def render(self, *a, **kw):
         progress.begin("render", "rgb, depth")
+        c0 = time.process_time()
+        while time.process_time() - c0 < BUSY_S:          # a Cycles call: CPU-bound
+            pass
         progress.advance(16, 16, "sample")
         progress.begin("write", "native files")
         view = super().render(*a, **kw)
         progress.begin("decode", "12 images")
+        time.sleep(IDLE_S)                                  # waiting: wall time
         return view
+
+
+BUSY_S, IDLE_S = 0.05, 0.1
 
 
 def test_step_events_of_a_run_on_the_fake_world(tmp_path):
@@ -99,7 +107,7 @@ def test_step_events_of_a_run_on_the_fake_world(tmp_path):
     kinds = [p.step for p in steps]
     first = kinds.index("render")
     assert kinds[:first] == ["placement", "simulation"]
-    assert kinds[first:first + 3] == ["render", "write", "decode"]
+    assert kinds[first:first + 4] == ["render", "write", "decode", "annotate"]
     assert all(p.scene is not None for p in steps)
     renders = [p for p in steps if p.step == "render" and p.count is None]
     assert [p.done for p in renders] == [0, 1, 2]
@@ -115,6 +123,34 @@ def test_step_events_of_a_run_on_the_fake_world(tmp_path):
                 for r in json.loads(sj.read_text())["renders"])
     assert vf["instances"] == parts and sum(vf["deciles"]) == parts
     assert 0.0 <= vf["p10"] <= vf["median"] <= vf["p90"] <= 1.0
+    # run.json times each step, wall and CPU (the whole process's, every thread), over the run
+    st = rec["stats"]["steps"]
+    n_scenes = len(pipe.plan)
+    assert {k: v["n"] for k, v in st.items()} == {"setup": 1, "placement": n_scenes, "simulation": n_scenes,
+                                                  "render": 3, "write": 3 + n_scenes, "decode": 3, "annotate": 3}
+    assert st["render"]["cpu_s"] >= 3 * BUSY_S - 1e-3 and st["render"]["wall_s"] >= st["render"]["cpu_s"] * 0.5
+    # (no upper bound on a sleeping step's CPU: the process's other threads, e.g. BLAS workers spinning
+    # after a call, count too, as they do in a real run)
+    assert st["decode"]["wall_s"] >= 3 * IDLE_S - 1e-3
+    assert sum(v["wall_s"] for v in st.values()) <= events[-1].elapsed
+
+
+def test_step_times_without_progress_lines_and_over_a_resume(tmp_path):
+    """--quiet still times the steps; a resumed run adds its steps to the earlier calls'."""
+    cfg = fx.default_config(num_renders=3, min_per_scene=1, max_per_scene=1, resolution=(32, 24),
+                            formats=("native",), mesh_dir=tmp_path / "meshes")
+    cfg.output.overview = False
+    out = tmp_path / "out"
+    pipe = Pipeline(cfg, out, world=SteppingWorld.factory())
+    for ev in pipe.run():
+        if ev.stage == "scene_done":
+            pipe.cancel()                     # stop after the first scene
+    first = json.loads((out / "run.json").read_text())["stats"]["steps"]
+    assert first["render"]["n"] == 1 and first["setup"]["n"] == 1
+    list(Pipeline(cfg, out, world=SteppingWorld.factory(), resume=True).run())
+    st = json.loads((out / "run.json").read_text())["stats"]["steps"]
+    assert st["render"]["n"] == 3 and st["placement"]["n"] == 3 and st["setup"]["n"] == 2
+    assert st["render"]["cpu_s"] >= 3 * BUSY_S - 1e-3
 
 
 def test_visib_stats_median_within_a_bin():

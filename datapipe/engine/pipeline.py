@@ -75,6 +75,7 @@ class Pipeline:
         self.stats: dict = {"imports": 0, "seconds": {k: 0.0 for k in STAGES}}
         self.stats["seconds"]["setup"] = 0.0
         self._earlier_stats: dict = {}
+        self._setup_step: dict = {}                 # the world's setup, as stats.steps counts a step
         self._simulations: dict[str, dict] = {}     # scene name -> its `simulation` record
         self._scenes_visib: dict[str, dict] = {}    # scene name -> its record (renders' visib_fract)
         self._models: dict = {}
@@ -185,8 +186,10 @@ class Pipeline:
             return
         yield Progress("setup", done, self.total, message="setting up Blender scene")
         world = self._build_world()
+        # the tracker also times the steps for run.json (wall and CPU), so it runs without a sink too
+        self.tracker = Tracker(self.on_step or _no_lines, self.heartbeat_s)
         if self.on_step is not None:
-            self.tracker = Tracker(self.on_step, self.heartbeat_s).start()
+            self.tracker.start()
         progress.activate(self.tracker)
         try:
             for note in world.setup_notes:
@@ -209,7 +212,7 @@ class Pipeline:
                                                  f"{totals_line(self.run_stats()['physics'])}")
 
     def _build_world(self) -> World:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         world = self.make_world(self.cfg, self.out)
         try:
             world.setup()
@@ -219,6 +222,7 @@ class Pipeline:
             world.close()
             raise
         self.stats["seconds"]["setup"] = time.perf_counter() - t0
+        self._setup_step = {"wall_s": self.stats["seconds"]["setup"], "cpu_s": time.process_time() - c0, "n": 1}
         self.stats["imports"] = world.import_count
         # the models in mm, for the visible fractions (datapipe/visibility.py)
         self._models = {k: (np.asarray(m[0], dtype=np.float64) * 1000.0, m[1]) for k, m in meshes.items()}
@@ -247,8 +251,7 @@ class Pipeline:
             rdir.mkdir(parents=True, exist_ok=True)
             self._track(done, i, r)
             view = world.render(rdir, pose_index, seed, scene_id=i, render_id=r, base_seed=base)
-            if self.tracker is not None:
-                self.tracker.render_done()
+            progress.begin("annotate", f"{len(start.parts)} parts")
             scene["renders"].append(native.render_record(r, int(self.first_image_id[i] + r), pose_index, seed,
                                                          view, start.parts, sdir))
             visible_fractions(scene["renders"][-1]["objects"], view.mask, view.K, self._models, *view.resolution)
@@ -259,18 +262,22 @@ class Pipeline:
             rate = (time.perf_counter() - self._t_loop) / self._made
             secs = {**start.seconds, **view.seconds} if r == 0 else view.seconds
             warnings = self._quality_gate(i, r, view, scene, scene["renders"][-1])
+            if self.tracker is not None:
+                self.tracker.render_done()
             yield Progress("render", done, self.total, scene=i, render=r,
                            elapsed=time.perf_counter() - self._t_start, eta=rate * (self.total - done),
                            seconds=secs, message="rendered" + "".join(f" [warning: {w}]" for w in warnings))
             if self._cancel:
                 break
         t0 = time.perf_counter()
+        progress.begin("write", "scene files")
         scene["complete"] = complete = len(scene["renders"]) == self.plan[i]
         if complete:
             writers.add_scene(sdir, scene)
         else:
             native.write_scene(sdir, scene)     # the record of a cancelled scene (not complete)
         world.finish_scene()
+        progress.end()
         self.stats["seconds"]["write"] += time.perf_counter() - t0
         self.manifest.update()
         if complete:
@@ -345,7 +352,9 @@ class Pipeline:
     def run_stats(self) -> dict:
         """run.json's stats, for the whole run however many calls (--resume) made it: `frames` and
         `physics` from the simulation of every scene made so far (a scene made again counts once),
-        `imports` and `seconds` this call's work plus what the earlier calls' run.json recorded."""
+        `imports`, `seconds` and `steps` (wall and CPU seconds and count of each step of
+        datapipe/engine/progress.py, and the world's `setup`) this call's work plus what the earlier calls'
+        run.json recorded."""
         def number(v) -> float:
             return v if isinstance(v, (int, float)) and not isinstance(v, bool) else 0
         earlier = self._earlier_stats
@@ -356,8 +365,23 @@ class Pipeline:
         return {"imports": int(number(earlier.get("imports"))) + self.stats["imports"],
                 "frames": {n: self._simulations[n].get("frames") for n in sorted(self._simulations)},
                 "seconds": {k: float(number(earlier_s.get(k))) + v for k, v in self.stats["seconds"].items()},
+                "steps": self._step_stats(number),
                 "physics": physics,
                 "visib_fract": VisibStats.of_scenes(self._scenes_visib[n] for n in sorted(self._scenes_visib)).summary()}
+
+    def _step_stats(self, number) -> dict:
+        earlier = self._earlier_stats.get("steps")
+        steps = {k: {f: number(v.get(f)) for f in ("wall_s", "cpu_s", "n")}
+                 for k, v in (earlier.items() if isinstance(earlier, dict) else ()) if isinstance(v, dict)}
+        now = dict(self.tracker.totals()) if self.tracker is not None else {}
+        if self._setup_step:
+            now["setup"] = self._setup_step
+        for k, v in now.items():
+            tot = steps.setdefault(k, {"wall_s": 0.0, "cpu_s": 0.0, "n": 0})
+            for f in ("wall_s", "cpu_s", "n"):
+                tot[f] += v[f]
+        return {k: {"wall_s": round(float(v["wall_s"]), 4), "cpu_s": round(float(v["cpu_s"]), 4), "n": int(v["n"])}
+                for k, v in steps.items()}
 
     def _mark_scene_done(self, i: int) -> None:
         rec = self._run_record()
@@ -366,6 +390,10 @@ class Pipeline:
         rec["scenes_done"] = sorted(done)
         rec["stats"] = self.run_stats()
         write_json_atomic(self.out / layout.RUN_FILE, rec)
+
+
+def _no_lines(_: Progress) -> None:
+    """The step sink of a run without progress lines (the tracker still times the steps)."""
 
 
 def _files_present(sdir: Path, scene: dict) -> bool:

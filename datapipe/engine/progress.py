@@ -30,10 +30,10 @@ from ..io import layout
 
 STEP = "step"                # Progress.stage of a line inside a scene
 # the steps of a render, in order (placement and simulation only in a scene's first render)
-STEPS = ("placement", "simulation", "render", "write", "fringes", "decode", "maps")
+STEPS = ("placement", "simulation", "render", "write", "fringes", "decode", "maps", "annotate")
 STEP_LABELS = {"placement": "placing parts", "simulation": "simulating", "render": "rendering (Cycles)",
                "write": "writing", "fringes": "structured light (Cycles)", "decode": "decoding",
-               "maps": "writing structured-light maps"}
+               "maps": "writing structured-light maps", "annotate": "annotating"}
 SCENE_STEPS = ("placement", "simulation")
 HEARTBEAT_S = 30.0
 
@@ -122,8 +122,9 @@ class Tracker:
     """The run's step lines (module doc). `emit(Progress)` may be called from the heartbeat thread."""
 
     def __init__(self, emit: Callable[[Progress], None], heartbeat_s: float = HEARTBEAT_S,
-                 clock: Callable[[], float] = time.perf_counter):
-        self.emit_fn, self.heartbeat_s, self.clock = emit, float(heartbeat_s), clock
+                 clock: Callable[[], float] = time.perf_counter, cpu_clock: Callable[[], float] = time.process_time):
+        # cpu_clock: the whole process's CPU time, every thread (Cycles' and numpy's included)
+        self.emit_fn, self.heartbeat_s, self.clock, self.cpu_clock = emit, float(heartbeat_s), clock, cpu_clock
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -137,8 +138,9 @@ class Tracker:
         self.count: tuple | None = None
         self.cycles_status = ""
         self._frac: float | None = None             # a Cycles call's fraction done over its tiles
-        self._t_step = self._t_emit = 0.0
+        self._t_step = self._t_emit = self._c_step = 0.0
         self._t0 = clock()
+        self._totals: dict[str, dict] = {}          # step -> {"wall_s", "cpu_s", "n"} over the whole run
         self._sums: dict[str, list[float]] = {}     # step -> its seconds in each render that had it
         self._this: dict[str, float] = {}           # step -> seconds in the render in progress
 
@@ -166,7 +168,7 @@ class Tracker:
         with self._lock:
             self._close_step()
             self.step, self.what, self.count, self.cycles_status, self._frac = step, what, None, "", None
-            self._t_step = self.clock()
+            self._t_step, self._c_step = self.clock(), self.cpu_clock()
             self._emit()
 
     def advance(self, n: int, of: int | None, unit: str = "frame") -> None:
@@ -179,10 +181,26 @@ class Tracker:
         with self._lock:
             self._emit(message)
 
+    def end(self) -> None:
+        """The step in progress is over (none follows before the next `at` or `begin`)."""
+        with self._lock:
+            self._close_step()
+
     def _close_step(self) -> None:
         if self.step is not None:
-            self._this[self.step] = self._this.get(self.step, 0.0) + self.clock() - self._t_step
+            wall, cpu = self.clock() - self._t_step, self.cpu_clock() - self._c_step
+            self._this[self.step] = self._this.get(self.step, 0.0) + wall
+            tot = self._totals.setdefault(self.step, {"wall_s": 0.0, "cpu_s": 0.0, "n": 0})
+            tot["wall_s"] += wall
+            tot["cpu_s"] += cpu
+            tot["n"] += 1
         self.step, self.count = None, None
+
+    def totals(self) -> dict[str, dict]:
+        """Wall and CPU seconds of each step over the run so far, and how many times it ran
+        (run.json's `stats.steps`; a step open now is not in it yet)."""
+        with self._lock:
+            return {k: dict(v) for k, v in self._totals.items()}
 
     def fraction(self) -> float | None:
         if self._frac is not None:
@@ -266,6 +284,11 @@ def begin(step: str, what: str = "") -> None:
 def advance(n: int, of: int | None, unit: str = "frame") -> None:
     if _active is not None:
         _active.advance(n, of, unit)
+
+
+def end() -> None:
+    if _active is not None:
+        _active.end()
 
 
 def note(message: str) -> None:

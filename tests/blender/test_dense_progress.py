@@ -95,8 +95,8 @@ def test_progress_lines_name_each_step_and_what_renders_in_order(tmp_path):
         if not starts or (p.step, p.render) != (starts[-1].step, starts[-1].render):
             starts.append(p)
     seq = [p.step for p in starts]
-    per_render = ["render", "write", "fringes", "decode", "maps"]
-    assert seq == ["placement", "simulation", *per_render, *per_render], seq
+    per_render = ["render", "write", "fringes", "decode", "maps", "annotate"]
+    assert seq == ["placement", "simulation", *per_render, *per_render, "write"], seq    # + the scene's files
     native, fringes = starts[2], starts[4]
     assert "rgb" in native.what and "96 x 72" in native.what and "8 samples" in native.what
     assert "12 fringe layers (3 periods x 4 steps)" in fringes.what and "192 x 144" in fringes.what  # 2x supersampled

@@ -186,6 +186,13 @@ def test_killed_run_resumes_to_the_same_dataset(tmp_path):
     stats = [json.loads((d / "run.json").read_text())["stats"] for d in (full, part)]
     assert stats[0]["frames"] == stats[1]["frames"] and stats[0]["physics"] == stats[1]["physics"]
     assert stats[1]["imports"] == 2 * stats[0]["imports"]          # two calls read the mesh files
+    # per-step wall and CPU seconds (--quiet too), the killed call's scene counted with the resumed ones
+    for st in stats:
+        steps = st["steps"]
+        assert {k: steps[k]["n"] for k in ("placement", "simulation", "render", "annotate")} == \
+            {"placement": 3, "simulation": 3, "render": 3, "annotate": 3}
+        assert steps["render"]["cpu_s"] > 0 and steps["render"]["wall_s"] > 0
+    assert stats[0]["steps"]["setup"]["n"] == 1 and stats[1]["steps"]["setup"]["n"] == 2
 
 
 def test_shards_make_the_same_scenes(tmp_path):
