@@ -116,6 +116,15 @@ def test_step_events_of_a_run_on_the_fake_world(tmp_path):
     assert renders[0].eta is None or renders[0].eta_lower
     last = [p for p in steps if p.done == 2 and p.step == "decode"][-1]
     assert last.eta is not None and not last.eta_lower
+    # the scene's own file writing comes after its renders: it counts them done, has no render in
+    # progress, and its ETA holds only the renders still to come (none after the last scene's)
+    scene_writes = [p for p in steps if p.step == "write" and p.render is None]
+    assert len(scene_writes) == len(pipe.plan)
+    ends = [sum(pipe.plan[:k + 1]) for k in range(len(pipe.plan))]
+    assert [p.done for p in scene_writes] == ends
+    last_write = scene_writes[-1]
+    assert last_write.done == last_write.total == 3 and "[3/3]" in last_write.line()
+    assert last_write.eta is not None and last_write.eta < 1.0       # write history only: no decode/render time
     assert progress._active is None                     # the run's tracker is gone with the run
     rec = json.loads((tmp_path / "out" / "run.json").read_text())
     vf = rec["stats"]["visib_fract"]

@@ -270,6 +270,10 @@ class Pipeline:
             if self._cancel:
                 break
         t0 = time.perf_counter()
+        if self.tracker is not None:        # the scene's renders are done: [done/total], no render in progress
+            self.tracker.at(done=done, total=self.total, scene=i, render=None,
+                            per_render=(time.perf_counter() - self._t_loop) / self._made if self._made else None,
+                            renders_after=self.total - done)
         progress.begin("write", "scene files")
         scene["complete"] = complete = len(scene["renders"]) == self.plan[i]
         if complete:

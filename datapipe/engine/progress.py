@@ -91,10 +91,13 @@ def fmt_s(s: float) -> str:
 
 
 def estimate_eta(step: str, step_elapsed: float, fraction: float | None, history: dict[str, float],
-                 per_render: float | None, renders_after: int) -> tuple[float | None, bool]:
+                 per_render: float | None, renders_after: int, *, render_follows: bool = True
+                 ) -> tuple[float | None, bool]:
     """(seconds left in the run, lower bound?) while `step` of a render runs (module doc).
     `history`: mean seconds per render of each step seen so far; `per_render`: the run's measured
-    seconds per render (scenes' drops included), None before the first render finished."""
+    seconds per render (scenes' drops included), None before the first render finished.
+    `render_follows=False`: the step is the scene's own file writing after its renders, so no step
+    of the render in progress follows it (only `renders_after` whole renders)."""
     lower = False
     if fraction is not None and fraction > 0:
         rest = step_elapsed * (1.0 - min(fraction, 1.0)) / min(fraction, 1.0)
@@ -102,7 +105,7 @@ def estimate_eta(step: str, step_elapsed: float, fraction: float | None, history
         rest = max(0.0, history[step] - step_elapsed)
     else:
         rest, lower = 0.0, True
-    later = STEPS[STEPS.index(step) + 1:] if step in STEPS else ()
+    later = STEPS[STEPS.index(step) + 1:] if step in STEPS and render_follows else ()
     for s in later:              # (after a render step no scene step follows)
         if s in history:
             rest += history[s]
@@ -216,7 +219,8 @@ class Tracker:
         eta, lower = (None, False)
         if self.step is not None:
             eta, lower = estimate_eta(self.step, elapsed, self.fraction(), self.history(), self.per_render,
-                                      self.renders_after)
+                                      self.renders_after,
+                                      render_follows=not (self.step == "write" and self.render is None))
         return Progress(STEP, self.done, self.total, scene=self.scene, render=self.render,
                         elapsed=now - self._t0, eta=eta, eta_lower=lower, message=message or self.cycles_status,
                         step=self.step, what=self.what, count=self.count, step_elapsed=elapsed)
