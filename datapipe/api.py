@@ -72,7 +72,7 @@ def validate(cfg: Config, *, blender: bool = False, check_files: bool = True) ->
     problems = cfg.problems(check_files=check_files)
     if problems or not blender:
         return problems
-    from .cli import check_config
+    from .engine.session import check_config
     try:
         check_config(cfg)
     except ConfigError as e:
@@ -127,7 +127,7 @@ def run(cfg: Config, out: str | os.PathLike | None = None, *, on_progress: Calla
     resume / force / seed / shard / strict: as `--resume`, `--force`, `--seed`, `--shard i/n`,
     `--strict`. Ctrl-C stops after the render in progress (the returned run says "cancelled";
     `resume=True` continues), a second Ctrl-C ends the process at once (exit status 130)."""
-    from .cli import check_run_input, run_pipeline
+    from .engine.session import check_run_input, run_pipeline
     cfg = _checked_types(cfg)              # (a copy: the caller's config is not changed)
     check_run_input(cfg, out, seed)
     with _printing_to_terminal(on_progress) as callback:

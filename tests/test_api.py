@@ -142,7 +142,7 @@ def test_run_refuses_a_bad_config_before_writing(tmp_path):
 
 
 def test_run_takes_the_command_lines_path():
-    """api.run and `python -m datapipe run` are one code path (cli.run_pipeline), not two copies."""
+    """api.run and `python -m datapipe run` are one code path (engine/session.py run_pipeline), not two copies."""
     import inspect
     from datapipe import cli
     assert "run_pipeline(" in inspect.getsource(cli._run) and "run_pipeline(" in inspect.getsource(dp.run)

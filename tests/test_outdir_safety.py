@@ -464,7 +464,7 @@ def test_ctrl_c_while_blender_starts_is_one_line_and_130():
     the CLI leaves at once instead: nothing is written before the run takes its lock."""
     import subprocess
     import sys
-    code = ("import os, signal, time\nfrom datapipe import cli\nwith cli._leave_on_interrupt():\n"
+    code = ("import os, signal, time\nfrom datapipe.engine import session\nwith session.leave_on_interrupt():\n"
             "    os.kill(os.getpid(), signal.SIGINT)\n    time.sleep(5)\nprint('not reached')")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
