@@ -127,7 +127,20 @@ def test_shards_merge_into_the_one_run(reference, tmp_path):
     summary = merge_shards(shards, merged)
     assert summary["scenes"] == len(json.loads((ref / layout.RUN_FILE).read_text())["plan"])
     assert annotations(merged) == annotations(ref)
-    assert json.loads((merged / layout.RUN_FILE).read_text())["status"] == "complete"
+    run_rec = json.loads((merged / layout.RUN_FILE).read_text())
+    assert run_rec["status"] == "complete"
+    # the merged run's stats, as one process writes them: what the scenes record (frames, physics,
+    # visible fractions) equals the one process's; the shards' step times and counts add up
+    one, st = json.loads((ref / layout.RUN_FILE).read_text())["stats"], run_rec["stats"]
+    for k in ("frames", "physics", "visib_fract"):
+        assert st[k] == one[k], k
+    assert st["visib_fract"]["instances"] > 0
+    shard_stats = [m["stats"] for m in run_rec["merged_from"]]
+    assert st["imports"] == sum(x["imports"] for x in shard_stats)
+    for step, tot in st["steps"].items():
+        assert tot["n"] == sum(x["steps"].get(step, {}).get("n", 0) for x in shard_stats) > 0
+        assert tot["cpu_s"] == pytest.approx(sum(x["steps"].get(step, {}).get("cpu_s", 0.0) for x in shard_stats))
+    assert set(st["steps"]) == set(one["steps"]) and "write" in st["steps"]     # the scene files step at least
 
 
 def test_resume_catches_up_writers_without_building_a_world(reference):
