@@ -36,14 +36,13 @@ from typing import Callable, ContextManager, Iterable, Sequence
 from .. import config as config_mod
 from ..io import outdir
 from ..checks import gate
-from ..checks.physics_check import add_to_totals
 from ..errors import DataPipeError
 from ..io import layout
 from ..io.files import copy_atomic, read_json, write_json_atomic
 from ..io.layout import config_identity, scene_name
 from ..io.writers import open_writers
 from ..draws.seeds import plan_scenes, shard_scenes
-from ..visibility import VisibStats
+from . import stats
 
 SHARDS_DIR = "_shards"
 SHARD_PRESET = "preset.json"
@@ -206,28 +205,12 @@ def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.Path
 
 def merged_stats(shard_stats: list, scenes: list[dict]) -> dict:
     """run.json's stats of the merged run, as one process would have written them: `imports`,
-    `seconds` and `steps` (wall, CPU, count per step) summed over the shards; `frames`, `physics`
-    and `visib_fract` from the merged scenes' own records (scene.json), so they count each scene once."""
-    def number(v) -> float:
-        return v if isinstance(v, (int, float)) and not isinstance(v, bool) else 0
-    imports, seconds, steps = 0, {}, {}
+    `seconds` and `steps` summed over the shards; `frames`, `physics` and `visib_fract` from the
+    merged scenes' own records (scene.json), so they count each scene once."""
+    measured: dict = {}
     for st in shard_stats:
-        st = st if isinstance(st, dict) else {}
-        imports += int(number(st.get("imports")))
-        for k, v in (st.get("seconds") if isinstance(st.get("seconds"), dict) else {}).items():
-            seconds[k] = seconds.get(k, 0.0) + float(number(v))
-        for k, v in (st.get("steps") if isinstance(st.get("steps"), dict) else {}).items():
-            if isinstance(v, dict):
-                tot = steps.setdefault(k, {"wall_s": 0.0, "cpu_s": 0.0, "n": 0})
-                tot["wall_s"] += float(number(v.get("wall_s")))
-                tot["cpu_s"] += float(number(v.get("cpu_s")))
-                tot["n"] += int(number(v.get("n")))
-    physics: dict = {}
-    sims = {sc["name"]: sc["simulation"] for sc in scenes if isinstance(sc.get("simulation"), dict)}
-    for name in sorted(sims):
-        add_to_totals(physics, sims[name])
-    return {"imports": imports, "frames": {n: sims[n].get("frames") for n in sorted(sims)}, "seconds": seconds,
-            "steps": steps, "physics": physics, "visib_fract": VisibStats.of_scenes(scenes).summary()}
+        stats.add_measured(measured, st)
+    return {**stats.rounded(measured), **stats.scene_stats(scenes)}
 
 
 def _shard_runs(shard_dirs: list[Path]) -> list[dict]:

@@ -22,8 +22,8 @@ from ..io import outdir
 from ..checks import gate
 from ..config import Config
 from ..errors import DataPipeError
-from . import progress
-from ..checks.physics_check import add_to_totals, physics_line, totals_line
+from . import progress, stats
+from ..checks.physics_check import physics_line, totals_line
 from .progress import Progress, Tracker, fmt_s
 from ..checks.quality import render_warnings
 from ..io import layout, native
@@ -32,7 +32,7 @@ from ..io.bop_models import models_symmetries
 from ..io.models import write_models
 from ..io.legacy import LegacyPickleWriter
 from ..io.writers import Writers, open_writers
-from ..visibility import VisibStats, visible_fractions
+from ..visibility import visible_fractions
 from ..draws.seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from ..core.world import BlenderWorld
 from .world import World
@@ -76,8 +76,7 @@ class Pipeline:
         self.stats["seconds"]["setup"] = 0.0
         self._earlier_stats: dict = {}
         self._setup_step: dict = {}                 # the world's setup, as stats.steps counts a step
-        self._simulations: dict[str, dict] = {}     # scene name -> its `simulation` record
-        self._scenes_visib: dict[str, dict] = {}    # scene name -> its record (renders' visib_fract)
+        self._scenes: dict[str, dict] = {}          # scene name -> its record (simulation, renders' visib_fract)
         self._models: dict = {}
 
     # -- the plan: drawn on first use (check() refuses bad bounds before run() draws it) --------------
@@ -102,8 +101,8 @@ class Pipeline:
 
     # -- checks before any Blender work ----------------------------------------------------------
     def check(self, blender_session: Callable[[], ContextManager] | None = None) -> gate.CheckReport:
-        """The gate (datapipe/checks/gate.py): config rules, the mesh preflight (with the Blender
-        world), part fit, device, memory, then this run's output folder. Raises ConfigError /
+        """The gate (datapipe/checks/gate.py): config rules, this run's output folder, the mesh
+        preflight (with the Blender world), part fit, device, memory. Raises ConfigError /
         DataPipeError; writes nothing. The first pass checks everything; later ones (under the
         run's lock, at run()) only the rules and the folder, which may have changed meanwhile.
         `blender_session`: the context the mesh preflight runs in (gate.run_checks; the CLI's log)."""
@@ -116,7 +115,7 @@ class Pipeline:
         return report
 
     def _check_folder(self, cfg: Config) -> None:
-        """The gate's last step: the output folder's refusals (datapipe/io/outdir.py)."""
+        """The gate's folder step: the output folder's refusals (datapipe/io/outdir.py)."""
         self.cfg = cfg                                # validated, one entry per object of a BOP folder
         if self.out.exists() and not self.out.is_dir():
             raise DataPipeError(f"output: {self.out} exists and is not a folder (fix: choose a folder path)")
@@ -158,8 +157,8 @@ class Pipeline:
             outdir.check_force(self.out).remove_listed()      # only the earlier run's own files
         self.out.mkdir(parents=True, exist_ok=True)
         if self.resume:
-            stats = self._run_record().get("stats")
-            self._earlier_stats = stats if isinstance(stats, dict) else {}
+            earlier = self._run_record().get("stats")
+            self._earlier_stats = earlier if isinstance(earlier, dict) else {}
         self.manifest = outdir.Manifest.start(self.out, resume=self.resume)
         self._write_run_file(status="running")
         self.manifest.update()
@@ -171,9 +170,7 @@ class Pipeline:
             scene = layout.read_scene(sdir) if self.resume else None
             if scene is not None and scene.get("complete", False) and _files_present(sdir, scene):
                 done += self.plan[i]
-                if isinstance(scene.get("simulation"), dict):
-                    self._simulations[scene["name"]] = scene["simulation"]
-                self._scenes_visib[scene["name"]] = scene
+                self._scenes[scene["name"]] = scene
                 # the commit protocol: scene.json is written first; a crash before the other outputs and
                 # run.json's scenes_done leaves them to be repaired here
                 writers.catch_up(sdir, scene)
@@ -243,8 +240,7 @@ class Pipeline:
         for k, v in start.seconds.items():
             self.stats["seconds"][k] += v
         scene = native.scene_record(i, scene_seed(base, i), start)
-        self._simulations[scene["name"]] = start.simulation
-        self._scenes_visib[scene["name"]] = scene      # filled below; a scene made again replaces its record
+        self._scenes[scene["name"]] = scene            # filled below; a scene made again replaces its record
         for r, pose_index in enumerate(start.pose_indices):
             seed = render_seed(base, i, r)
             rdir = sdir / layout.render_name(r)
@@ -354,38 +350,19 @@ class Pipeline:
         write_json_atomic(self.out / layout.RUN_FILE, rec)
 
     def run_stats(self) -> dict:
-        """run.json's stats, for the whole run however many calls (--resume) made it: `frames` and
-        `physics` from the simulation of every scene made so far (a scene made again counts once),
-        `imports`, `seconds` and `steps` (wall and CPU seconds and count of each step of
-        datapipe/engine/progress.py, and the world's `setup`) this call's work plus what the earlier calls'
-        run.json recorded."""
-        def number(v) -> float:
-            return v if isinstance(v, (int, float)) and not isinstance(v, bool) else 0
-        earlier = self._earlier_stats
-        earlier_s = earlier.get("seconds") if isinstance(earlier.get("seconds"), dict) else {}
-        physics: dict = {}
-        for name in sorted(self._simulations):
-            add_to_totals(physics, self._simulations[name])
-        return {"imports": int(number(earlier.get("imports"))) + self.stats["imports"],
-                "frames": {n: self._simulations[n].get("frames") for n in sorted(self._simulations)},
-                "seconds": {k: float(number(earlier_s.get(k))) + v for k, v in self.stats["seconds"].items()},
-                "steps": self._step_stats(number),
-                "physics": physics,
-                "visib_fract": VisibStats.of_scenes(self._scenes_visib[n] for n in sorted(self._scenes_visib)).summary()}
-
-    def _step_stats(self, number) -> dict:
-        earlier = self._earlier_stats.get("steps")
-        steps = {k: {f: number(v.get(f)) for f in ("wall_s", "cpu_s", "n")}
-                 for k, v in (earlier.items() if isinstance(earlier, dict) else ()) if isinstance(v, dict)}
-        now = dict(self.tracker.totals()) if self.tracker is not None else {}
+        """run.json's stats, for the whole run however many calls (--resume) made it: `frames`,
+        `physics` and `visib_fract` from the records of every scene made so far (a scene made again
+        counts once); `imports`, `seconds` and `steps` (wall and CPU seconds and count of each step
+        of datapipe/engine/progress.py, and the world's `setup`) this call's work plus what the earlier
+        calls' run.json recorded."""
+        steps = dict(self.tracker.totals()) if self.tracker is not None else {}
         if self._setup_step:
-            now["setup"] = self._setup_step
-        for k, v in now.items():
-            tot = steps.setdefault(k, {"wall_s": 0.0, "cpu_s": 0.0, "n": 0})
-            for f in ("wall_s", "cpu_s", "n"):
-                tot[f] += v[f]
-        return {k: {"wall_s": round(float(v["wall_s"]), 4), "cpu_s": round(float(v["cpu_s"]), 4), "n": int(v["n"])}
-                for k, v in steps.items()}
+            steps["setup"] = self._setup_step
+        measured = stats.add_measured({}, self._earlier_stats)
+        stats.add_measured(measured, {"imports": self.stats["imports"], "seconds": self.stats["seconds"],
+                                      "steps": steps})
+        measured["seconds"] = {k: measured["seconds"][k] for k in self.stats["seconds"]}   # this run's stages
+        return {**stats.rounded(measured), **stats.scene_stats(self._scenes[n] for n in sorted(self._scenes))}
 
     def _mark_scene_done(self, i: int) -> None:
         rec = self._run_record()
