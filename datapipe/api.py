@@ -100,10 +100,10 @@ def _checked_types(cfg) -> Config:
 
 def preset_warnings(cfg: Config) -> list[str]:
     """What `python -m datapipe validate` warns about a valid config without refusing it: a part
-    that does not fit the drop zone, a bin outside a device's working distance or view."""
-    from .checks.device_checks import device_warnings
-    from .checks.part_fit import part_fit_warnings
-    return part_fit_warnings(cfg) + device_warnings(cfg)
+    that does not fit the drop zone, a bin outside a device's working distance or view, fringe work
+    larger than this machine's memory (the gate's warnings, without Blender)."""
+    from .checks import gate
+    return gate.run_checks(cfg, blender=False).warnings
 
 
 # -- running ---------------------------------------------------------------------------------------

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ..errors import DataPipeError, OutputStateError
-from .exr import read_exr
+from .exr import read_depth, read_exr, read_mask, read_normals
 from . import layout
 from .files import read_json
 
@@ -58,9 +58,9 @@ class Render:
             raise OSError(errno.EIO, "not a readable PNG (truncated or corrupt; was the disk full?)", str(p))
         return img
 
-    def _channel(self, kind: str, channel: str) -> np.ndarray | None:
+    def _read(self, kind: str, reader) -> np.ndarray | None:
         p = self._file(kind)
-        return read_exr(p)[channel] if p is not None else None
+        return reader(p) if p is not None else None
 
     @property
     def rgb(self) -> np.ndarray | None:
@@ -71,12 +71,12 @@ class Render:
     @property
     def depth(self) -> np.ndarray | None:
         """(H, W) float32 z-buffer depth: planar, along the camera z axis, m; NaN where no surface."""
-        return self._channel("depth", "Z")
+        return self._read("depth", read_depth)
 
     @property
     def sl_depth(self) -> np.ndarray | None:
         """(H, W) float32 structured-light (scanner) depth, m; NaN where the scanner gives no data."""
-        return self._channel("sl_depth", "Z")
+        return self._read("sl_depth", read_depth)
 
     @property
     def sl_valid(self) -> np.ndarray | None:
@@ -87,31 +87,22 @@ class Render:
     @property
     def sl_debug(self) -> dict[str, np.ndarray] | None:
         """The decoder's channels (`structured_light.debug`): confidence, reason, phase, sigma_z, ..."""
-        p = self._file("sl_debug")
-        return read_exr(p) if p is not None else None
+        return self._read("sl_debug", read_exr)
 
     @property
     def mask(self) -> np.ndarray | None:
         """(H, W) int32 instance mask: an object's `mask_index`, 0 = background."""
-        m = self._channel("mask", "Y")
-        return None if m is None else np.rint(m).astype(np.int32)
+        return self._read("mask", read_mask)
 
     @property
     def normals(self) -> np.ndarray | None:
         """(H, W, 3) float32 unit normals in the OpenCV camera frame."""
-        return self._xyz("normals")
+        return self._read("normals", read_normals)
 
     @property
     def object_coords(self) -> np.ndarray | None:
         """(H, W, 3) float32 model coordinates (m) of the part at each pixel; NaN off parts."""
-        return self._xyz("object_coords")
-
-    def _xyz(self, kind: str) -> np.ndarray | None:
-        p = self._file(kind)
-        if p is None:
-            return None
-        ch = read_exr(p)
-        return np.stack([ch["X"], ch["Y"], ch["Z"]], axis=-1)
+        return self._read("object_coords", read_normals)      # the same X, Y, Z channels
 
 
 @dataclass
