@@ -50,10 +50,13 @@ from datapipe import sl  # noqa: E402
 MATERIALS = ("steel", "aluminium")
 HEIGHTS = (0.6, 0.8)
 SIZES = {"320": (320, 240), "640": (640, 512), "1280": (1280, 1024)}
-# variant -> (fringe mode, Cycles seed offset, quadrature mode's coarse_supersample)
-VARIANTS = {"render": ("render", 0, None), "render_seed2": ("render", 1, None),
-            "quadrature": ("quadrature", 0, 2),              # one call: the render mode's paths
-            "quadrature_split": ("quadrature", 0, 1)}        # coarse periods + row code at 1 path per pixel
+# a coloured metal (not a preset): what packing does where light of different colours mixes
+COLOURED = {"copper": {"name": "copper", "base_color": [0.95, 0.64, 0.54], "metallic": 1.0, "roughness": 0.25}}
+# variant -> (fringe mode, Cycles seed offset, quadrature mode's coarse_supersample, three images per layer)
+VARIANTS = {"render": ("render", 0, None, None), "render_seed2": ("render", 1, None, None),
+            "quadrature_packed": ("quadrature", 0, 2, True),     # as shipped for grey materials: 4 layers
+            "quadrature_unpacked": ("quadrature", 0, 2, False),  # one image per layer (coloured materials): 9
+            "quadrature_split": ("quadrature", 0, 1, True)}      # coarse periods at 1 path per pixel, packed
 WITHIN = 0.05          # the acceptance: quadrature within 5% of render
 
 
@@ -62,9 +65,10 @@ def plan(quick: bool, sizes):
     if quick:
         return [("320", "steel", (0.8,), tuple(VARIANTS))]
     out = [("320", m, HEIGHTS, tuple(VARIANTS)) for m in MATERIALS]
+    out.append(("320", "copper", (0.8,), ("render", "render_seed2", "quadrature_packed", "quadrature_unpacked")))
     for s in sizes:
         if s != "320":                 # cost at a real size: one shiny case, no second seed
-            out.append((s, "steel", (0.8,), ("render", "quadrature", "quadrature_split")))
+            out.append((s, "steel", (0.8,), ("render", "quadrature_packed", "quadrature_unpacked")))
     return out
 
 
@@ -89,7 +93,10 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
     if not todo:
         return
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    cfg = S.case_config("default", heights[0], material, res=SIZES[size])
+    cfg = S.case_config("default", heights[0], None if material in COLOURED else material, res=SIZES[size])
+    if material in COLOURED:
+        for o in cfg.objects:
+            o.material = dict(COLOURED[material])
     d = C.default_config().render                       # the native render a user gets
     cfg.render.samples, cfg.render.outputs, cfg.render.denoise = d.samples, list(d.outputs), d.denoise
     cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, float(h)]) for h in heights]
@@ -108,8 +115,9 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
                                 K=world.camera.K)
             log(f"  native {size} {material} {h}: {c:.1f} CPU s, {w:.1f} s wall")
         world.sl.teardown()
-        for mode, css in [("render", None), ("quadrature", 2), ("quadrature", 1)]:
-            vs = [v for v in variants if VARIANTS[v][0] == mode and VARIANTS[v][2] == css
+        for mode, css, pack in [("render", None, None), ("quadrature", 2, True), ("quadrature", 2, False),
+                                ("quadrature", 1, True)]:
+            vs = [v for v in variants if VARIANTS[v][0] == mode and VARIANTS[v][2:] == (css, pack)
                   and any(key(size, material, h, v) not in meta for h in heights)]
             if not vs:
                 continue
@@ -118,6 +126,8 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
             slc = SLM.StructuredLightCamera(cfg2, scene, world.camera, world.renderer)
             if css is not None:
                 slc.coarse_supersample = css
+            if pack is not None:
+                slc.pack_channels = pack          # forced: copper would not pack as shipped (grey_materials)
             slc.setup()
             for k, h in enumerate(heights):
                 T, _, nat_c, nat_w = natives[h]
@@ -143,7 +153,7 @@ def decode(meta: dict, cache: Path) -> list[dict]:
     for kk, m in meta.items():
         size, material, h = m["size"], m["material"], m["height"]
         truth = np.load(cache / f"{size}_{material}_h{h:.2f}_truth.npz")
-        cfg = S.case_config("default", h, material, res=SIZES[size])
+        cfg = S.case_config("default", h, None if material in COLOURED else material, res=SIZES[size])
         scanner = sl.Scanner.from_config(cfg)
         rad = np.load(cache / f"{kk}.npz")["rad"]
         ref_key = key(size, material, h, "render")

@@ -182,7 +182,9 @@ def _refuse_links_in_run_dir(args, folder: str) -> None:
 def _sl_plan(cfg) -> list[str]:
     """What the structured-light camera will do, as `validate` tells it: the fringe mode "auto"
     resolves to, the images per render, exposure and the reflection filter."""
-    from .core.structured_light import resolve_fringe_mode
+    from .core.structured_light import grey_materials, resolve_fringe_mode
+    from .sl.fringe_basis import packed_layout as sl_layout
+    from .sl.scanner import ROW_PERIODS
     s = cfg.structured_light
     mode = resolve_fringe_mode(cfg)
     n = len(s.periods) * s.steps
@@ -192,6 +194,9 @@ def _sl_plan(cfg) -> list[str]:
     if mode == "quadrature":
         images += (f", mixed from {1 + 2 * len(s.periods)} rendered images (white + cos, sin per period"
                    f"{'; +2 for the row code' if rows else ''})")
+        packed = len(sl_layout(len(s.periods), len(ROW_PERIODS) if rows else 0))
+        images += (f", three per Cycles layer: {packed} layers (every material is grey)" if grey_materials(cfg)
+                   else ", one per Cycles layer (a material has a colour: three per layer would mix it in)")
     why = ""
     if s.fringe_mode == "auto":
         shiny = "a configured material is shiny" if s.reflection_filter != "global" else \

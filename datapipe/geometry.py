@@ -255,26 +255,28 @@ def spot_size(cfg, margin: float = SPOT_MARGIN) -> float:
 
 
 def pattern_pixels(pattern: np.ndarray) -> np.ndarray:
-    """(H, W) pattern, row 0 = top of the projected image -> flat RGBA float32 for Image.pixels.
+    """(H, W) pattern (or (H, W, 3): one image per colour channel, sl.pack_basis), row 0 = top of
+    the projected image -> flat RGBA float32 for Image.pixels.
 
     Blender images are stored bottom-up, so the rows are flipped; R = G = B = value, A = 1."""
     p = np.asarray(pattern, dtype=np.float32)
-    h, w = p.shape
+    h, w = p.shape[:2]
     rgba = np.empty((h, w, 4), dtype=np.float32)
-    rgba[..., :3] = p[::-1, :, None]
+    rgba[..., :3] = p[::-1, :, None] if p.ndim == 2 else p[::-1]
     rgba[..., 3] = 1.0
     return rgba.ravel()
 
 
 def check_patterns(cfg, patterns) -> np.ndarray:
-    """Validate a (P, H, W) stack against the projector resolution; returns float32 array."""
+    """Validate a (P, H, W) stack (or (P, H, W, 3): an image per colour channel, sl.pack_basis)
+    against the projector resolution; returns float32 array."""
     arr = np.asarray(patterns, dtype=np.float32)
     w, h = projector_resolution(cfg)
     if arr.ndim == 2:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (h, w):
+    if arr.ndim not in (3, 4) or arr.shape[1:3] != (h, w) or (arr.ndim == 4 and arr.shape[3] != 3):
         raise DataPipeError(f"fringe patterns have shape {np.shape(patterns)}, the projector needs (P, {h}, {w}) "
-                            "(fix: make the patterns at projector.resolution [width, height])")
+                            f"or (P, {h}, {w}, 3) (fix: make the patterns at projector.resolution [width, height])")
     if arr.shape[0] < 1 or arr.shape[0] > 100:
         raise DataPipeError(f"{arr.shape[0]} fringe patterns: one view layer each, 1..100 supported "
                             "(fix: use fewer periods or steps)")

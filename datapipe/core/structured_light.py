@@ -93,9 +93,13 @@ FRINGE_BASENAME = "_sl_fringes"  # the fringe call's multilayer EXR in the rende
 OUTPUT_NODE = "datapipe_sl_file_output"
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
 GLOSSY_NODE = "datapipe_sl_glossy_switch"
+GREY_CHROMA = 0.1                # (max - min) / max of a base colour that still packs (grey_materials)
+GREY_SUFFIX = "_grey"            # a packed white layer's grey value, written beside its R, G, B
 SHINY_ROUGHNESS = 0.45           # a visible surface rougher than this scatters like a diffuse one (see module doc)
 QUAD_COARSE_SUPERSAMPLE = 2      # quadrature mode: = FRINGE_SUPERSAMPLE: one call, render mode's paths; 1: the
                                  # coarse periods at the camera grid in a second call (quad_groups)
+QUAD_PACK_CHANNELS = True        # quadrature mode: three basis images per layer, one per colour channel
+                                 # (sl.pack_basis; False: one per layer, for benchmarks/results/sl_glossy_modes.md)
 
 
 class StructuredLightCamera:
@@ -116,6 +120,7 @@ class StructuredLightCamera:
         self.filter_width = FRINGE_FILTER_WIDTH
         self.supersample = FRINGE_SUPERSAMPLE
         self.coarse_supersample = QUAD_COARSE_SUPERSAMPLE   # quadrature mode: the coarse periods' grid
+        self.pack_channels = QUAD_PACK_CHANNELS and grey_materials(cfg)   # quadrature: an image per colour channel
         self.indirect_blur_px = INDIRECT_BLUR_PX
         self.sharp_glossy = False
         self.samples = int(s.samples)
@@ -150,8 +155,11 @@ class StructuredLightCamera:
         if self.fringe_mode == "quadrature":     # white + (cos, sin) per frequency: sl/fringe_basis.py
             if gamma != 1.0:
                 raise ValueError("fringe_mode 'quadrature' needs a linear projector (projector_gamma 1)")
-            patterns = np.concatenate([sl.quadrature_basis(Wp, Hp, per, row_periods=rows)
-                                       for per, rows, _ in self.quad_groups()])
+            patterns = [sl.quadrature_basis(Wp, Hp, per, row_periods=rows) for per, rows, _ in self.quad_groups()]
+            if self.pack_channels:
+                patterns = [sl.pack_basis(b, self._layout(per, rows))
+                            for b, (per, rows, _) in zip(patterns, self.quad_groups())]
+            patterns = np.concatenate(patterns)
         else:
             patterns = sl.fringe_patterns(Wp, Hp, self.periods, self.steps, gamma=gamma)
             if self.row_code:              # the global reflection filter's row code (sl.Scanner.scan)
@@ -165,12 +173,19 @@ class StructuredLightCamera:
         tree = self.renderer.tree
         self.file_output = compat.new_file_output(tree, bpy.app.tempdir or "/tmp", FRINGE_BASENAME,
                                                   name=OUTPUT_NODE)
+        packed = self.fringe_mode == "quadrature" and self.pack_channels
+        whites = set(self._white_layers()) if packed else set()
         for i, vl in enumerate(self.layers):
             vl.use = False                   # rendered only by render_fringes(), not by the native call
             rl = compat.render_layers_node(tree, self.scene, vl.name, name=f"{OUTPUT_NODE}_rl_{i:02d}")
             rl.location = (-700, -300 * i)
-            tree.links.new(compat.rl_socket(rl, "image"),
-                           compat.file_output_add_input(self.file_output, vl.name, "FLOAT"))
+            image = compat.rl_socket(rl, "image")
+            # a grey layer is written as the compositor's grey value (its luminance), the frame a
+            # monochrome camera takes; a packed one as R, G, B, and its white layer also as grey
+            tree.links.new(image, compat.file_output_add_input(self.file_output, vl.name,
+                                                               "RGBA" if packed else "FLOAT"))
+            if i in whites:
+                tree.links.new(image, compat.file_output_add_input(self.file_output, vl.name + GREY_SUFFIX, "FLOAT"))
             self._rl_nodes.append(rl)
         self.file_output.format.exr_codec = "NONE"     # a scratch file: no time spent compressing
         self.file_output.mute = True
@@ -199,6 +214,19 @@ class StructuredLightCamera:
         return [((fine,), rows, int(self.supersample)),
                 (tuple(K for K in self.periods if K != fine), (), int(self.coarse_supersample))]
 
+    @staticmethod
+    def _layout(per, rows) -> list[tuple]:
+        """A quadrature call's packed layers (sl.packed_layout): the basis image in each channel."""
+        return sl.packed_layout(len(per), len(rows))
+
+    def _white_layers(self) -> list[int]:
+        """Indices (in `layers`) of each quadrature call's white layer, the first of its layers."""
+        out, i = [], 0
+        for per, rows, _ in self.quad_groups():
+            out.append(i)
+            i += len(self._layout(per, rows)) if self.pack_channels else sl.basis_size(len(per), rows=bool(rows))
+        return out
+
     def _light_gains(self) -> list[tuple[float, float]]:
         """(modulation a bounce keeps, the image's mean) of each pattern light (`regularize_indirect`):
         the fringes across the width, then the row code's over the height. Quadrature mode, per
@@ -213,8 +241,14 @@ class StructuredLightCamera:
         if self.fringe_mode == "quadrature":
             out = []
             for per, rows, _ in self.quad_groups():
-                out += [(0.0, 1.0)] + [(g(K, Wp), 0.5) for K in per for _ in range(2)]
-                out += [(g(K, Hp), 0.5) for K in rows for _ in range(2)]
+                images = [(0.0, 1.0)] + [(g(K, Wp), 0.5) for K in per for _ in range(2)]
+                images += [(g(K, Hp), 0.5) for K in rows for _ in range(2)]
+                if not self.pack_channels:
+                    out += images
+                    continue
+                for chans in self._layout(per, rows):      # per channel; an unused one emits nothing
+                    pairs = [images[j] if j is not None else (0.0, 0.0) for j in chans]
+                    out.append((tuple(p[0] for p in pairs), tuple(p[1] for p in pairs)))
             return out
         out = [(g(K, Wp), 0.5) for K in self.periods for _ in range(self.steps)]
         if self.row_code:
@@ -295,24 +329,58 @@ class StructuredLightCamera:
         return stack, seconds
 
     def _render_quadrature(self, render_dir, seed: int, rows: bool) -> tuple[np.ndarray, float]:
-        """Quadrature mode: each call of `quad_groups` (its row-code pair only with `rows`), every
+        """Quadrature mode: each call of `quad_groups` (its row-code images only with `rows`), every
         phase step mixed from its white, cos and sin images (same seed: same paths) -> the render
-        mode's stack layout (periods in config order, then the row code)."""
+        mode's stack layout (periods in config order, then the row code). Packed (`pack_channels`):
+        three images per layer, taken back per point sample before the block mean
+        (sl.unpack_basis: over one path the ratio to the white image is exact, whatever its colour)."""
         frames, seconds, i = {}, 0.0, 0
         for per, rper, ss in self.quad_groups():
-            n = sl.basis_size(len(per), rows=bool(rper))
-            names = self.layer_names[i:i + n] if rows or not rper else self.layer_names[i:i + n - 2]
-            i += n
-            what = f"{len(names)} quadrature layers (white + cos, sin of {len(per)} periods" + \
-                   (" + the row code)" if len(names) == n and rper else ")")
-            stack, sec = self._render_layers(names, render_dir, seed, ss, what)
+            with_rows = rows and bool(rper)
+            if self.pack_channels:       # the row code's layers come last: left out without `rows`
+                layout = self._layout(per, rper)
+                total, keep = len(layout), len(layout if with_rows else self._layout(per, ()))
+            else:
+                total, keep = sl.basis_size(len(per), rows=bool(rper)), sl.basis_size(len(per), rows=with_rows)
+            names = self.layer_names[i:i + keep]
+            i += total
+            n_images = sl.basis_size(len(per), rows=with_rows)
+            what = (f"{len(names)} quadrature layers ({n_images} images: white + cos, sin of {len(per)} periods"
+                    + (" + the row code" if with_rows else "")
+                    + (", three per layer in R, G, B)" if self.pack_channels else ")"))
+            if self.pack_channels:
+                stack, sec = self._render_packed(names, layout, render_dir, seed, ss, what)
+            else:
+                stack, sec = self._render_layers(names, render_dir, seed, ss, what)
             t0 = time.perf_counter()
             mixed = sl.frames_from_basis(stack, self.steps)
             seconds += sec + time.perf_counter() - t0
-            keys = [("x", K) for K in per] + ([("y", K) for K in rper] if len(names) == n else [])
+            keys = [("x", K) for K in per] + ([("y", K) for K in rper] if with_rows else [])
             frames.update({k: mixed[j * self.steps:(j + 1) * self.steps] for j, k in enumerate(keys)})
         order = [("x", K) for K in self.periods] + ([("y", K) for K in sl.scanner.ROW_PERIODS] if rows else [])
         return np.concatenate([frames[k] for k in order]), seconds
+
+    def _render_packed(self, names, layout, render_dir, seed: int, ss: int, what: str
+                       ) -> tuple[np.ndarray, float]:
+        """Packed quadrature layers `names` (white first) in one isolated Cycles call -> (the basis
+        radiance (n, H, W) float32 at the camera resolution, grey as if each image were rendered
+        alone: sl.unpack_basis per point sample, then the block mean; wall seconds)."""
+        from . import compat
+
+        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
+                                  render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
+                                  filter_width=self.filter_width, what=what)
+        t0 = time.perf_counter()
+        grey_name = names[0] + GREY_SUFFIX
+        expect = [f"{n}.{c}" for n in names for c in "RGB"] + [f"{grey_name}.V"]
+        ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe", expect=expect)
+        rgb = np.stack([np.stack([ch.pop(f"{n}.{c}") for c in "RGB"], axis=-1) for n in names])
+        basis = sl.unpack_basis(rgb, ch.pop(f"{grey_name}.V"), layout)
+        del rgb, ch
+        if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
+            F, h, w = basis.shape
+            basis = basis.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
+        return basis, seconds + time.perf_counter() - t0
 
     def process(self, rdir: Path, seed: int, T_world_cam) -> tuple[dict[str, Path], dict]:
         """Render the fringes, scan them, write the maps; returns ({kind: written file}, the render's
@@ -374,14 +442,43 @@ def resolve_fringe_mode(cfg) -> str:
     traced = "quadrature" if float(cfg.structured_light.projector_gamma) == 1.0 else "render"
     if cfg.structured_light.reflection_filter == "global":   # its row code must be path-traced
         return traced
+    shiny = any(spec != materials.FILE and float(materials.values(spec)["roughness"]) < SHINY_ROUGHNESS
+                for spec in configured_materials(cfg))
+    return traced if shiny else "fast"
+
+
+def configured_materials(cfg) -> list:
+    """Every material a config can put in a scene: the bin's, and each choice of each object entry."""
     b = cfg.scene.bin_material
     specs = list(b) if isinstance(b, list) else [b]
     for entry in cfg.objects:
         m = entry.material
         specs.extend(m if isinstance(m, list) else [m])
-    shiny = any(spec != materials.FILE and float(materials.values(spec)["roughness"]) < SHINY_ROUGHNESS
-                for spec in specs)
-    return traced if shiny else "fast"
+    return specs
+
+
+def grey_materials(cfg) -> bool:
+    """Whether quadrature mode may pack three basis images per layer (sl.pack_basis): every
+    configured material's base colour within GREY_CHROMA of grey ((max - min) / max of its R, G,
+    B; `variation` scales all three alike). Packing takes an image back from one colour channel by
+    its ratio to the white image in that channel; where light of different colours mixes in a
+    pixel that ratio is weighted by colour, not by grey (sl/fringe_basis.py). Measured on a mirror
+    plate beside a lit wall (tests/blender/test_fringe_quadrature.py): steel's tint (0.075) moves
+    the frames by at most 0.2% of the peak, a copper or red part (0.43, 0.94) by up to 9%. Mesh
+    file materials ("file") may carry any colour: not packed (the bin's "file" is grey)."""
+    from . import materials
+
+    b = cfg.scene.bin_material
+    bin_specs = list(b) if isinstance(b, list) else [b]
+    for i, spec in enumerate(configured_materials(cfg)):
+        if spec == materials.FILE:
+            if i < len(bin_specs):         # the bin's "file" is the built-in grey (core/scene.py)
+                continue
+            return False
+        rgb = [float(c) for c in materials.values(spec)["base_color"][:3]]
+        if max(rgb) > 0 and (max(rgb) - min(rgb)) / max(rgb) > GREY_CHROMA:
+            return False
+    return True
 
 
 def has_shiny_surface(bpy_scene) -> bool:
@@ -407,12 +504,14 @@ def has_shiny_surface(bpy_scene) -> bool:
     return False
 
 
-def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
+def regularize_indirect(nt, gain, offset=0.5) -> None:
     """Make a projector light's node tree emit, for light on paths with a bounce (Light Path
     Diffuse Depth + g * Glossy Depth > 0.5; direct light has both 0, measured; g = 0 when the
     scene has shiny surfaces, `set_sharp_glossy`), the pattern blurred by INDIRECT_BLUR_PX:
     offset + gain * (pattern - offset), times the image's alpha (no light outside the projector
-    image). Direct light, and with g = 0 mirror images, see the sharp pattern.
+    image). Direct light, and with g = 0 mirror images, see the sharp pattern. `gain` and `offset`
+    are numbers (a grey pattern) or one per colour channel (R, G, B: a packed quadrature layer,
+    a different image in each channel, sl.pack_basis).
 
     Why: with a few paths per pixel the inter-reflected part of a fine fringe is Monte-Carlo noise
     (each path picks up the pattern at one random point of another surface), while physically a
@@ -426,18 +525,21 @@ def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
     tex = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeTexImage")
     em = next(n for n in nt.nodes if n.bl_idname == "ShaderNodeEmission")
     N, L = nt.nodes, nt.links
+    # per channel: vector maths on the colour (a grey pattern keeps the scalar nodes it always had,
+    # so the render mode's lights are unchanged to the last bit)
+    math = "ShaderNodeVectorMath" if np.ndim(gain) else "ShaderNodeMath"
     lp = N.new("ShaderNodeLightPath")
     bounces = N.new("ShaderNodeMath"); bounces.operation = "MULTIPLY_ADD"  # glossy * g + diffuse depth
     bounces.name = GLOSSY_NODE
     bounces.inputs[1].default_value = 1.0             # g = 1: glossy bounces blurred too (set_sharp_glossy)
     ind = N.new("ShaderNodeMath"); ind.operation = "GREATER_THAN"
     ind.inputs[1].default_value = 0.5                 # direct light: both depths 0 (measured)
-    blur = N.new("ShaderNodeMath"); blur.operation = "MULTIPLY_ADD"       # tex * gain + offset (1 - gain)
+    blur = N.new(math); blur.operation = "MULTIPLY_ADD"       # tex * gain + offset (1 - gain)
     blur.name = INDIRECT_NODE
     _set_gain(blur, gain, offset)
-    clip = N.new("ShaderNodeMath"); clip.operation = "MULTIPLY"           # x alpha: dark outside the image
-    diff = N.new("ShaderNodeMath"); diff.operation = "SUBTRACT"           # blurred - sharp
-    out = N.new("ShaderNodeMath"); out.operation = "MULTIPLY_ADD"         # ind * diff + sharp
+    clip = N.new(math); clip.operation = "MULTIPLY"           # x alpha: dark outside the image
+    diff = N.new(math); diff.operation = "SUBTRACT"           # blurred - sharp
+    out = N.new(math); out.operation = "MULTIPLY_ADD"         # ind * diff + sharp
     L.new(lp.outputs["Glossy Depth"], bounces.inputs[0])
     L.new(lp.outputs["Diffuse Depth"], bounces.inputs[2])
     L.new(bounces.outputs[0], ind.inputs[0])
@@ -452,7 +554,12 @@ def regularize_indirect(nt, gain: float, offset: float = 0.5) -> None:
     L.new(out.outputs[0], em.inputs["Color"])
 
 
-def _set_gain(node, gain: float, offset: float = 0.5) -> None:
+def _set_gain(node, gain, offset=0.5) -> None:
+    if np.ndim(gain):
+        g, o = np.asarray(gain, float), np.broadcast_to(np.asarray(offset, float), (3,))
+        node.inputs[1].default_value = tuple(g)
+        node.inputs[2].default_value = tuple(o * (1.0 - g))
+        return
     node.inputs[1].default_value = float(gain)
     node.inputs[2].default_value = float(offset * (1.0 - gain))
 

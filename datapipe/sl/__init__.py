@@ -4,7 +4,7 @@ from .decode import decode
 from .decode_result import NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason
 from .decode_setup import modulation_floor_factor
 from .filters import edge_speckle_filter, multipath_filter, reflection_filter
-from .fringe_basis import basis_size, frames_from_basis, quadrature_basis
+from .fringe_basis import basis_size, frames_from_basis, pack_basis, packed_layout, quadrature_basis, unpack_basis
 from .fringe_synth import (bounce_modulation, indirect_gain, pattern_profiles, projector_columns, quadrature_profiles,
                            synthesize_fringes)
 from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, theoretical_depth_sigma,
@@ -31,5 +31,5 @@ __all__ = [
     "pixel_depth_sigma", "edge_speckle_filter", "multipath_filter", "reflection_filter",
     "Scanner", "Scan",
     "synthesize_fringes", "pattern_profiles", "projector_columns", "quadrature_profiles", "bounce_modulation",
-    "indirect_gain", "quadrature_basis", "frames_from_basis", "basis_size",
+    "indirect_gain", "quadrature_basis", "frames_from_basis", "basis_size", "packed_layout", "pack_basis", "unpack_basis",
 ]
