@@ -5,14 +5,17 @@
 
 Scenes: the steel and aluminium cases of bench_sl_materials.py (sl_bench_scenes.case_config: the
 demo's parts dropped into its bin, seed 0, scene 0, camera straight down, default rig, every part
-in the material), at 0.6 and 0.8 m, 320x240. Per case, in one process and one Blender scene:
-the native render at the default preset's settings (16 samples, denoised, rgb/depth/normals/mask;
-its z-buffer is the truth), the render mode's fringes (Cycles seed SEED and SEED + 1: the second
-is the yardstick of what Cycles noise alone changes), the quadrature mode's as shipped (one call,
-seed SEED: `quadrature`) and its cheaper split (`quadrature_split`: coarse_supersample 1, the
-1- and 8-period images at one path per camera pixel in a second call), all with the row code the
-product renders on shiny scenes (reflection_filter "auto" -> global).
-Each is decoded by the product's scanner (auto exposure, global reflection filter).
+in the material), at 0.6 and 0.8 m, 320x240, and a coloured metal (copper, not a preset) at 0.8 m.
+Per case, in one process and one Blender scene: the native render at the default preset's
+settings (16 samples, denoised, rgb/depth/normals/mask; its z-buffer is the truth), the render
+mode's fringes (Cycles seed SEED and SEED + 1: the second is the yardstick of what Cycles noise
+alone changes), the quadrature mode with three images per layer (`quadrature_packed`: what ships
+for grey materials; forced on copper, which ships unpacked), with one image per layer
+(`quadrature_unpacked`: what ships for coloured materials) and its cheaper split
+(`quadrature_split`: coarse_supersample 1, the 1- and 8-period images at one path per camera
+pixel in a second call), all with the row code the product renders on shiny scenes
+(reflection_filter "auto" -> global). Each is decoded by the product's scanner (auto exposure,
+global reflection filter).
 
 Metrics against the z-buffer: valid fraction (all pixels, part pixels), median / p99 |error|,
 pixels > 5 mm, pixels removed by the global reflection filter (reason REFLECTION). Cost: process
@@ -20,7 +23,7 @@ CPU seconds of the fringe call(s) (+ the mixing) and of the decode, over the nat
 seconds (this machine is shared: CPU seconds, all in one process, side by side).
 
 Sizes (`--sizes`): the accuracy cases at 320x240; steel at 0.8 m also at 640x512 and 1280x1024
-(the issue's size) when asked (render, quadrature, split; no second seed).
+(the issue's size) when asked (render, packed, unpacked; no second seed).
 
 Writes benchmarks/results/sl_glossy_modes.md and sl_glossy_modes.csv.
 """

@@ -130,7 +130,9 @@ class StructuredLightConfig:
                                        # synthesised (core/fringe_fast.py); "render": every pattern
                                        # path-traced (the reference; sl_fringe_modes.md); "quadrature":
                                        # white + cos, sin per period path-traced, every step mixed from
-                                       # them (sl/fringe_basis.py: exact, render's paths, sl_glossy_modes.md);
+                                       # them (sl/fringe_basis.py: exact, render's paths, sl_glossy_modes.md;
+                                       # three images per Cycles layer, one per colour, when every
+                                       # material is grey: 4 layers instead of 9);
                                        # "auto": quadrature when a configured material is shiny (mirrored
                                        # fringes; render with a projector gamma), else fast
     sensor: str = "industrial"         # datapipe.sl.sensor preset

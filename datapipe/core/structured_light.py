@@ -9,10 +9,14 @@ Fringe render (its own Cycles call)
 -----------------------------------
 `structured_light.fringe_mode` "render" path-traces every pattern as described here (the
 reference); "quadrature" path-traces, the same way and in the same call, a white image and a
-cos and a sin image per period instead (1 + 2F lights and layers instead of F x N, + 2 instead of
-N for the row code) and mixes every phase step from them (sl/fringe_basis.py: light is linear in
-the projected image; one seed, so the render mode's very paths: the same frames up to float
-rounding, mirror images included; `quad_groups`, `_light_gains`); "fast" renders once with the
+cos and a sin image per period instead (1 + 2F images instead of F x N, + 2 instead of N for the
+row code) and mixes every phase step from them (sl/fringe_basis.py: light is linear in the
+projected image; one seed, so the render mode's very paths: the same frames up to float
+rounding, mirror images included; `quad_groups`, `_light_gains`). Where every configured
+material is grey (`grey_materials`) the images travel three to a light, one per colour channel
+(`pack_channels`: the white layer, then 3 images per layer; 4 layers instead of 9 with the
+default periods and the row code, sl.pack_basis); a layer costs its paths whatever it emits, so
+the fringe call costs ~4/9 of the unpacked one (benchmarks/results/sl_glossy_modes.md). "fast" renders once with the
 projector showing white and synthesises every pattern's direct light from it
 (core/fringe_fast.py, sl/fringe_synth.py), on the same point-sample grid.
 

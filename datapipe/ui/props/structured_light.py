@@ -57,7 +57,7 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
                               "every fringe image synthesised from it (exact direct light, bounce light as offset); "
                               "render: every fringe image path-traced (the reference, needed for mirrored fringes on shiny parts); "
                               "quadrature: a white, a cosine and a sine image per period path-traced, every phase step mixed "
-                              "from them (the same light as render, 7 images instead of 12); "
+                              "from them (the same light as render, 7 images instead of 12, three per rendered layer when every material is grey); "
                               "auto: quadrature when a configured material is shiny (render with a projector gamma), else fast",
                               items=enum_choices(C.FRINGE_MODES), default=default(_L, "fringe_mode"))
     samples: IntProperty(name="Samples", description="Render paths per camera pixel for each fringe image (point-sampled at 2x2 per pixel; 4 is enough once bounce light is blurred, see README)",
