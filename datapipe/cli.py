@@ -182,7 +182,7 @@ def _refuse_links_in_run_dir(args, folder: str) -> None:
 def _sl_plan(cfg) -> list[str]:
     """What the structured-light camera will do, as `validate` tells it: the fringe mode "auto"
     resolves to, the images per render, exposure and the reflection filter."""
-    from .core.structured_light import grey_materials, resolve_fringe_mode
+    from .config.plan import grey_materials, resolve_fringe_mode
     from .sl.fringe_basis import packed_layout as sl_layout
     from .sl.scanner import ROW_PERIODS
     s = cfg.structured_light

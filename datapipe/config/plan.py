@@ -1,16 +1,22 @@
 """What a config will do at run time, derived from its fields: the camera distances, the fringe
-images and their memory, the finest fringe on the camera sensor. Read by the validation rules and
+images and their memory, the finest fringe on the camera sensor, the fringe mode `auto` picks and
+whether quadrature mode packs three images per layer. Read by the validation rules and
 by the run (core/structured_light.py, core/preflight.py, cli). No bpy here."""
 from __future__ import annotations
 
 import math
 from typing import TYPE_CHECKING
 
+from ..materials_spec import FILE, values as material_values
+
 if TYPE_CHECKING:                 # annotations only: Config's methods call the rules, not the other way
     from .schema import Config, StructuredLightConfig
 
 FRINGE_SUPERSAMPLE = 2             # fringe render at this factor x the camera resolution, block-averaged
                                    # (core/structured_light.py renders at it; fringe_memory_bytes counts it)
+SHINY_ROUGHNESS = 0.45             # a visible surface rougher than this scatters like a diffuse one
+                                   # (core/structured_light.py: sharp glossy fringes below it)
+GREY_CHROMA = 0.1                  # (max - min) / max of a base colour that still packs (grey_materials)
 
 
 def builds_row_code(sl: "StructuredLightConfig", fringe_mode: str) -> bool:
@@ -66,3 +72,57 @@ def camera_distances(cfg: Config) -> list[float]:
     if c.sampler.kind == "bin_view":
         return [float(d) for d in c.sampler.distance]
     return [math.dist(p.location, cfg.scene.drop_zone_loc) for p in c.poses] or [1.0]
+
+
+def resolve_fringe_mode(cfg) -> str:
+    """`structured_light.fringe_mode` with "auto" decided from the configured materials:
+    "quadrature" when any of them (bin, or any choice of any object entry) has roughness below
+    SHINY_ROUGHNESS, since only path-traced light carries the fringes that shiny parts mirror
+    (ghosts, holes) and the quadrature basis path-traces all of it at 1 + 2F instead of F x N
+    images (sl/fringe_basis.py: the same frames as "render", path for path;
+    benchmarks/results/sl_glossy_modes.md); "render" instead with a projector gamma (its patterns
+    are no mix of cos and sin); "fast" otherwise, where fast and render agree (sl_fringe_modes.md).
+    reflection_filter "global" needs a path-traced row code: never "fast". Materials that come
+    from the mesh file ("file") count as diffuse: set "quadrature" for meshes that carry shiny
+    materials."""
+    mode = cfg.structured_light.fringe_mode
+    if mode != "auto":
+        return mode
+    traced = "quadrature" if float(cfg.structured_light.projector_gamma) == 1.0 else "render"
+    if cfg.structured_light.reflection_filter == "global":   # its row code must be path-traced
+        return traced
+    shiny = any(spec != FILE and float(material_values(spec)["roughness"]) < SHINY_ROUGHNESS
+                for spec in configured_materials(cfg))
+    return traced if shiny else "fast"
+
+
+def configured_materials(cfg) -> list:
+    """Every material a config can put in a scene: the bin's, and each choice of each object entry."""
+    b = cfg.scene.bin_material
+    specs = list(b) if isinstance(b, list) else [b]
+    for entry in cfg.objects:
+        m = entry.material
+        specs.extend(m if isinstance(m, list) else [m])
+    return specs
+
+
+def grey_materials(cfg) -> bool:
+    """Whether quadrature mode may pack three basis images per layer (sl.pack_basis): every
+    configured material's base colour within GREY_CHROMA of grey ((max - min) / max of its R, G,
+    B; `variation` scales all three alike). Packing takes an image back from one colour channel by
+    its ratio to the white image in that channel; where light of different colours mixes in a
+    pixel that ratio is weighted by colour, not by grey (sl/fringe_basis.py). Measured on a mirror
+    plate beside a lit wall (tests/blender/test_fringe_quadrature.py): steel's tint (0.075) moves
+    the frames by at most 0.2% of the peak, a copper or red part (0.43, 0.94) by up to 9%. Mesh
+    file materials ("file") may carry any colour: not packed (the bin's "file" is grey)."""
+    b = cfg.scene.bin_material
+    bin_specs = list(b) if isinstance(b, list) else [b]
+    for i, spec in enumerate(configured_materials(cfg)):
+        if spec == FILE:
+            if i < len(bin_specs):         # the bin's "file" is the built-in grey (core/scene.py)
+                continue
+            return False
+        rgb = [float(c) for c in material_values(spec)["base_color"][:3]]
+        if max(rgb) > 0 and (max(rgb) - min(rgb)) / max(rgb) > GREY_CHROMA:
+            return False
+    return True

@@ -86,6 +86,7 @@ import numpy as np
 from .. import sl
 from ..engine import progress
 from ..config.plan import FRINGE_SUPERSAMPLE, builds_row_code   # FRINGE_SUPERSAMPLE: the memory check counts it
+from ..config.plan import SHINY_ROUGHNESS, grey_materials, resolve_fringe_mode  # noqa: F401 (the camera's rules)
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
 from ..io.native import write_render_maps
 from . import projector as _pj
@@ -97,9 +98,7 @@ FRINGE_BASENAME = "_sl_fringes"  # the fringe call's multilayer EXR in the rende
 OUTPUT_NODE = "datapipe_sl_file_output"
 INDIRECT_NODE = "datapipe_sl_indirect_blur"
 GLOSSY_NODE = "datapipe_sl_glossy_switch"
-GREY_CHROMA = 0.1                # (max - min) / max of a base colour that still packs (grey_materials)
 GREY_SUFFIX = "_grey"            # a packed white layer's grey value, written beside its R, G, B
-SHINY_ROUGHNESS = 0.45           # a visible surface rougher than this scatters like a diffuse one (see module doc)
 QUAD_COARSE_SUPERSAMPLE = 2      # quadrature mode: = FRINGE_SUPERSAMPLE: one call, render mode's paths; 1: the
                                  # coarse periods at the camera grid in a second call (quad_groups)
 QUAD_PACK_CHANNELS = True        # quadrature mode: three basis images per layer, one per colour channel
@@ -425,64 +424,6 @@ class StructuredLightCamera:
             return
         self.projector.teardown()
         self.layers, self.layer_names = [], []
-
-
-def resolve_fringe_mode(cfg) -> str:
-    """`structured_light.fringe_mode` with "auto" decided from the configured materials:
-    "quadrature" when any of them (bin, or any choice of any object entry) has roughness below
-    SHINY_ROUGHNESS, since only path-traced light carries the fringes that shiny parts mirror
-    (ghosts, holes) and the quadrature basis path-traces all of it at 1 + 2F instead of F x N
-    images (sl/fringe_basis.py: the same frames as "render", path for path;
-    benchmarks/results/sl_glossy_modes.md); "render" instead with a projector gamma (its patterns
-    are no mix of cos and sin); "fast" otherwise, where fast and render agree (sl_fringe_modes.md).
-    reflection_filter "global" needs a path-traced row code: never "fast". Materials that come
-    from the mesh file ("file") count as diffuse: set "quadrature" for meshes that carry shiny
-    materials."""
-    from . import materials
-
-    mode = cfg.structured_light.fringe_mode
-    if mode != "auto":
-        return mode
-    traced = "quadrature" if float(cfg.structured_light.projector_gamma) == 1.0 else "render"
-    if cfg.structured_light.reflection_filter == "global":   # its row code must be path-traced
-        return traced
-    shiny = any(spec != materials.FILE and float(materials.values(spec)["roughness"]) < SHINY_ROUGHNESS
-                for spec in configured_materials(cfg))
-    return traced if shiny else "fast"
-
-
-def configured_materials(cfg) -> list:
-    """Every material a config can put in a scene: the bin's, and each choice of each object entry."""
-    b = cfg.scene.bin_material
-    specs = list(b) if isinstance(b, list) else [b]
-    for entry in cfg.objects:
-        m = entry.material
-        specs.extend(m if isinstance(m, list) else [m])
-    return specs
-
-
-def grey_materials(cfg) -> bool:
-    """Whether quadrature mode may pack three basis images per layer (sl.pack_basis): every
-    configured material's base colour within GREY_CHROMA of grey ((max - min) / max of its R, G,
-    B; `variation` scales all three alike). Packing takes an image back from one colour channel by
-    its ratio to the white image in that channel; where light of different colours mixes in a
-    pixel that ratio is weighted by colour, not by grey (sl/fringe_basis.py). Measured on a mirror
-    plate beside a lit wall (tests/blender/test_fringe_quadrature.py): steel's tint (0.075) moves
-    the frames by at most 0.2% of the peak, a copper or red part (0.43, 0.94) by up to 9%. Mesh
-    file materials ("file") may carry any colour: not packed (the bin's "file" is grey)."""
-    from . import materials
-
-    b = cfg.scene.bin_material
-    bin_specs = list(b) if isinstance(b, list) else [b]
-    for i, spec in enumerate(configured_materials(cfg)):
-        if spec == materials.FILE:
-            if i < len(bin_specs):         # the bin's "file" is the built-in grey (core/scene.py)
-                continue
-            return False
-        rgb = [float(c) for c in materials.values(spec)["base_color"][:3]]
-        if max(rgb) > 0 and (max(rgb) - min(rgb)) / max(rgb) > GREY_CHROMA:
-            return False
-    return True
 
 
 def has_shiny_surface(bpy_scene) -> bool:
