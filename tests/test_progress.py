@@ -58,13 +58,42 @@ def test_tracker_heartbeat_on_a_fake_clock():
     t.cycles_stats("Remaining: 00:10.00 | Mem: 2M | Sample 4/16")
     p = t.progress()
     assert p.count == (4, 16, "sample")
-    assert p.eta == pytest.approx(25 * 12 / 4) and not p.eta_lower
-    assert "sample 4/16" in p.line() and "ETA 1m15s" in p.line()
+    assert p.eta == pytest.approx(10.0) and not p.eta_lower          # Cycles' own estimate
+    assert "sample 4/16" in p.line() and "ETA 10s" in p.line()
     t.cycles_stats("Mem: 2M | Rendered 1/4 Tiles, Sample 8/16")         # samples count per tile
     p = t.progress()
     assert p.count == (8, 16, "sample") and t.fraction() == pytest.approx(1.5 / 4)
     assert "sample 8/16, 25s in - tile 2/4" in p.line()
     assert p.eta == pytest.approx(25 * 2.5 / 1.5)
+
+
+def test_cycles_eta_from_its_remaining_estimate_not_from_a_stale_sample_count():
+    """What Cycles reports without tiles (measured, bpy 5.0 in the background, 1224 x 1024 at 64
+    samples): "Sample 1/64" with "Remaining: 00:12.41" 0.25 s in, then nothing until "Sample 64/64"
+    at 18.3 s. Extrapolating 1/64 gave a full-resolution render "ETA > 7m27s" 30 s into a 30 s call."""
+    now = [0.0]
+    t = Tracker(lambda p: None, heartbeat_s=30.0, clock=lambda: now[0])
+    t.at(done=0, total=1, scene=0, render=0, per_render=None, renders_after=0)
+    t.begin("render", "rgb")
+    now[0] = 12.0                                                   # scene sync, BVH: no samples yet
+    t.cycles_stats("Mem: 70M | Sample 0/64")
+    now[0] = 12.25
+    t.cycles_stats("Remaining: 00:12.41 | Mem: 70M | Sample 1/64")
+    now[0] = 20.0
+    p = t.progress()
+    assert p.eta == pytest.approx(12.41 - 7.75) and p.eta_lower    # later steps not known yet
+    now[0] = 40.0                                                   # past Cycles' estimate, still rendering
+    p = t.progress()
+    assert p.eta is None and p.eta_lower
+    # no "Remaining" (an older Blender): the rate of the samples since the first one reported
+    t.begin("fringes", "9 layers")
+    now[0] = 42.0
+    t.cycles_stats("Mem: 70M | Sample 1/16")
+    now[0] = 50.0
+    assert t.progress().eta is None                                 # one count: no rate yet, no guess
+    t.cycles_stats("Mem: 70M | Sample 5/16")
+    now[0] = 52.0
+    assert t.progress().eta == pytest.approx(2.0 * 11 - 2.0)        # 2 s per sample, 11 to go
 
 
 class SteppingWorld(BoxWorld):

@@ -377,8 +377,12 @@ class StructuredLightCamera:
         grey_name = names[0] + GREY_SUFFIX
         expect = [f"{n}.{c}" for n in names for c in "RGB"] + [f"{grey_name}.V"]
         ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe", expect=expect)
-        rgb = np.stack([np.stack([ch.pop(f"{n}.{c}") for c in "RGB"], axis=-1) for n in names])
-        basis = sl.unpack_basis(rgb, ch.pop(f"{grey_name}.V"), layout)
+        grey = ch.pop(f"{grey_name}.V")
+        rgb = np.empty((len(names), 3) + grey.shape, np.float32)      # planar, as the EXR holds them
+        for li, n in enumerate(names):
+            for c, cn in enumerate("RGB"):
+                rgb[li, c] = ch.pop(f"{n}.{cn}")
+        basis = sl.unpack_basis(rgb, grey, layout)
         del rgb, ch
         if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
             F, h, w = basis.shape

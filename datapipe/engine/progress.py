@@ -11,8 +11,10 @@ while the step lasts: from the caller when it advances (simulation frames) and f
 thread while Blender holds the main thread (a Cycles call). Cycles' own progress comes from
 `bpy.app.handlers.render_stats` ("Sample 5/16", "Rendered 2/4 Tiles"), hooked for each call.
 
-ETA (`estimate_eta`): the rest of the current step (elapsed x (1 - f) / f when the step reports
-its fraction f, else its mean duration so far minus the time spent), the mean durations of the
+ETA (`estimate_eta`): the rest of the current step (for a Cycles call its own "Remaining" estimate
+less the time since it said so, else the rate of its samples since the first one it reported;
+elapsed x (1 - f) / f when the step reports its fraction f: frames, tiles; else its mean duration
+so far minus the time spent), the mean durations of the
 render's later steps, and the renders after this one at the run's measured seconds per render.
 Whatever is not known yet (no render finished) is left out and the ETA is shown as a lower bound
 ("ETA > 3m10s").
@@ -91,15 +93,18 @@ def fmt_s(s: float) -> str:
 
 
 def estimate_eta(step: str, step_elapsed: float, fraction: float | None, history: dict[str, float],
-                 per_render: float | None, renders_after: int, *, render_follows: bool = True
-                 ) -> tuple[float | None, bool]:
+                 per_render: float | None, renders_after: int, *, render_follows: bool = True,
+                 rest: float | None = None) -> tuple[float | None, bool]:
     """(seconds left in the run, lower bound?) while `step` of a render runs (module doc).
     `history`: mean seconds per render of each step seen so far; `per_render`: the run's measured
     seconds per render (scenes' drops included), None before the first render finished.
     `render_follows=False`: the step is the scene's own file writing after its renders, so no step
-    of the render in progress follows it (only `renders_after` whole renders)."""
+    of the render in progress follows it (only `renders_after` whole renders). `rest`: the seconds
+    left in the step when the step itself says (a Cycles call: `Tracker.step_rest`)."""
     lower = False
-    if fraction is not None and fraction > 0:
+    if rest is not None:
+        rest = float(rest)
+    elif fraction is not None and fraction > 0:
         rest = step_elapsed * (1.0 - min(fraction, 1.0)) / min(fraction, 1.0)
     elif step in history:
         rest = max(0.0, history[step] - step_elapsed)
@@ -141,6 +146,9 @@ class Tracker:
         self.count: tuple | None = None
         self.cycles_status = ""
         self._frac: float | None = None             # a Cycles call's fraction done over its tiles
+        self._cyc_remaining: tuple | None = None     # (clock, seconds) of Cycles' last "Remaining: ..."
+        self._cyc_first: tuple | None = None         # (clock, sample) of the call's first sample count
+        self._cyc_last: tuple | None = None          # (clock, sample) of its latest one
         self._t_step = self._t_emit = self._c_step = 0.0
         self._t0 = clock()
         self._totals: dict[str, dict] = {}          # step -> {"wall_s", "cpu_s", "n"} over the whole run
@@ -171,6 +179,7 @@ class Tracker:
         with self._lock:
             self._close_step()
             self.step, self.what, self.count, self.cycles_status, self._frac = step, what, None, "", None
+            self._cyc_remaining = self._cyc_first = self._cyc_last = None
             self._t_step, self._c_step = self.clock(), self.cpu_clock()
             self._emit()
 
@@ -209,18 +218,42 @@ class Tracker:
         if self._frac is not None:
             return self._frac
         c = self.count
-        if c is None or not c[1] or c[2] == "frame":     # a drop stops when it settles, not at max_frames
+        # a drop stops when it settles, not at max_frames; a Cycles call's sample count says little
+        # of its time (a call without tiles reports "Sample 1/16" once, then nothing until it is
+        # done: measured; the setup before it is not sampling): `step_rest` reads it instead
+        if c is None or not c[1] or c[2] in ("frame", "sample"):
             return None
         return c[0] / c[1]
+
+    def step_rest(self) -> tuple[float | None, bool]:
+        """(seconds left in the Cycles call in progress, at least that?) from Cycles' own
+        "Remaining" (less the time since it said so; past it, 0 and a lower bound) or, without it,
+        from its sample rate since the first sample count it reported; (None, False) when neither
+        is known (the step's fraction or its history then gives the ETA)."""
+        now = self.clock()
+        if self._frac is None and self._cyc_remaining is not None:
+            t, secs = self._cyc_remaining
+            rest = secs - (now - t)
+            return (rest, False) if rest > 0 else (0.0, True)
+        c, first = self.count, self._cyc_first
+        if self._frac is None and c is not None and c[2] == "sample" and first is not None and c[0] > first[1] \
+                and self._cyc_last is not None:
+            t_last, n_last = self._cyc_last
+            per_sample = (t_last - first[0]) / (n_last - first[1])
+            return max(0.0, per_sample * (c[1] - n_last) - (now - t_last)), False
+        return None, False
 
     def progress(self, message: str = "") -> Progress:
         now = self.clock()
         elapsed = now - self._t_step if self.step else 0.0
         eta, lower = (None, False)
         if self.step is not None:
+            rest, rest_lower = self.step_rest()
             eta, lower = estimate_eta(self.step, elapsed, self.fraction(), self.history(), self.per_render,
                                       self.renders_after,
-                                      render_follows=not (self.step == "write" and self.render is None))
+                                      render_follows=not (self.step == "write" and self.render is None),
+                                      rest=rest)
+            lower = lower or rest_lower
         return Progress(STEP, self.done, self.total, scene=self.scene, render=self.render,
                         elapsed=now - self._t0, eta=eta, eta_lower=lower, message=message or self.cycles_status,
                         step=self.step, what=self.what, count=self.count, step_elapsed=elapsed)
@@ -260,6 +293,12 @@ class Tracker:
             if s is not None:
                 n, of = int(s.group(1)), int(s.group(2))
                 self.count, self.cycles_status, self._frac = (n, of, "sample"), "", None
+                now = self.clock()
+                if self._cyc_first is None and n > 0:
+                    self._cyc_first = (now, n)
+                self._cyc_last = (now, n)
+                r = _REMAINING.search(text)
+                self._cyc_remaining = (now, _seconds(r)) if r is not None else None
                 if t is not None and int(t.group(2)) > 1 and of > 0:     # samples count per tile
                     tiles, ntiles = int(t.group(1)), int(t.group(2))
                     self.cycles_status = f"tile {min(tiles + 1, ntiles)}/{ntiles}"
@@ -269,6 +308,11 @@ class Tracker:
 
 
 _SAMPLE = re.compile(r"Sample (\d+)/(\d+)")
+_REMAINING = re.compile(r"Remaining:\s*(?:(\d+):)?(\d+):(\d+(?:\.\d+)?)")   # Cycles: [hh:]mm:ss.ss
+
+
+def _seconds(m) -> float:
+    return int(m.group(1) or 0) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
 _TILES = re.compile(r"Rendered (\d+)/(\d+) Tiles")
 
 _active: Tracker | None = None

@@ -123,7 +123,8 @@ def pack_basis(basis, layout) -> np.ndarray:
 
 def unpack_basis(rgb, grey, layout, *, a: float = 0.5, min_share: float = 0.01) -> np.ndarray:
     """The basis radiance ``(n, H, W)`` float32 (grey, as if each image were rendered alone) from
-    the packed layers' radiance `rgb` ``(L, H, W, 3)`` and the white layer's grey value `grey`
+    the packed layers' radiance `rgb` ``(L, 3, H, W)`` (channels R, G, B first: planar, as an EXR
+    holds them) and the white layer's grey value `grey`
     ``(H, W)``: image j in channel c of a layer is ``grey * rgb[layer, c] / rgb[0, c]`` (module
     doc). Where a channel in use gets less than `min_share` of the grey white light (a saturated
     red part has no blue to carry a pattern), that pixel's images are ``a * grey``: no modulation,
@@ -132,9 +133,9 @@ def unpack_basis(rgb, grey, layout, *, a: float = 0.5, min_share: float = 0.01) 
     the layers given."""
     rgb = np.asarray(rgb, dtype=np.float32)
     grey = np.asarray(grey, dtype=np.float32)
-    if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.shape[1:3] != grey.shape or not 1 <= len(rgb) <= len(layout):
+    if rgb.ndim != 4 or rgb.shape[1] != 3 or rgb.shape[2:] != grey.shape or not 1 <= len(rgb) <= len(layout):
         raise bad_value("rgb", f"has shape {rgb.shape} for a white image of shape {grey.shape}",
-                        "pass (layers, H, W, 3) packed radiance, the white layer first")
+                        "pass (layers, 3, H, W) packed radiance, the white layer first")
     if tuple(layout[0]) != (0, 0, 0):
         raise bad_value("layout", f"starts with {layout[0]}", "put the white image in all channels of layer 0")
     used = sorted({c for chans in layout[1:len(rgb)] for c, j in enumerate(chans) if j is not None})
@@ -144,14 +145,14 @@ def unpack_basis(rgb, grey, layout, *, a: float = 0.5, min_share: float = 0.01) 
     scale = np.zeros((3,) + grey.shape, np.float32)      # grey / white per channel, 0 where unlit
     blind = np.zeros(grey.shape, bool)                   # a channel in use too dark to carry a pattern
     for c in range(3):
-        white_c = rgb[0, ..., c]
+        white_c = rgb[0, c]
         np.divide(grey, white_c, out=scale[c], where=white_c > 0)
         if c in used:
             blind |= (grey > 0) & (white_c < np.float32(min_share) * grey)
     for li in range(1, len(rgb)):
         for c, j in enumerate(layout[li]):
             if j is not None:
-                np.multiply(rgb[li, ..., c], scale[c], out=out[j])
+                np.multiply(rgb[li, c], scale[c], out=out[j])
     if blind.any():
         out[1:, blind] = np.float32(a) * grey[blind]
     return out

@@ -75,7 +75,7 @@ def packed_vs_alone(T_rgb, periods=(1, 8, 24), rows=(4,), n_layers=None):
     packed = sl.pack_basis(basis, layout)[:n_layers]
     rgb = render_rgb(T_rgb, packed)                                   # (L, n_pix, 3)
     grey_white = render_rgb(T_rgb, basis[:1])[0] @ LUM
-    got = sl.unpack_basis(rgb[:, :, None, :], grey_white[:, None], layout)[..., 0]
+    got = sl.unpack_basis(np.moveaxis(rgb, -1, 1)[..., None], grey_white[:, None], layout)[..., 0]
     want = render_rgb(T_rgb, basis[:len(got)]) @ LUM                   # each image alone, grey
     return got, want
 
@@ -142,8 +142,8 @@ def test_a_channel_without_light_gives_no_modulation_not_a_phase():
     layout = sl.packed_layout(3)
     rgb = render_rgb(T_rgb, sl.pack_basis(basis, layout))
     grey = render_rgb(T_rgb, basis[:1])[0] @ LUM
-    got = sl.unpack_basis(rgb[:, :, None, :], grey[:, None], layout)[..., 0]
+    got = sl.unpack_basis(np.moveaxis(rgb, -1, 1)[..., None], grey[:, None], layout)[..., 0]
     frames = frames_from_basis(got[:, :, None], 4)[..., 0]
     assert np.ptp(frames, axis=0).max() < 1e-6 * grey.max()
     with pytest.raises(ValueError, match="rgb"):
-        sl.unpack_basis(rgb[:, :, None, :2], grey[:, None], layout)
+        sl.unpack_basis(np.moveaxis(rgb, -1, 1)[:, :2, :, None], grey[:, None], layout)
