@@ -196,7 +196,8 @@ def _sl_plan(cfg) -> list[str]:
                    f"{'; +2 for the row code' if rows else ''})")
         packed = len(sl_layout(len(s.periods), len(ROW_PERIODS) if rows else 0))
         images += (f", three per Cycles layer: {packed} layers (every material is grey)" if grey_materials(cfg)
-                   else ", one per Cycles layer (a material has a colour: three per layer would mix it in)")
+                   else ", one per Cycles layer (a material has a colour or comes from its mesh file: three per layer "
+                         "would mix its colours)")
     why = ""
     if s.fringe_mode == "auto":
         shiny = "a configured material is shiny" if s.reflection_filter != "global" else \

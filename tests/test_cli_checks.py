@@ -23,6 +23,12 @@ def test_validate_ok_and_bad(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "fringe mode quadrature (auto: a configured material is shiny;" in r.stdout
     assert "12 fringe images (+4 row code on shiny renders), mixed from 7 rendered images" in r.stdout
+    assert "one per Cycles layer (a material has a colour or comes from its mesh file" in r.stdout
+    for entry in shiny.objects:                          # every material grey: three images per layer
+        entry.material = ["steel", "matte_plastic"]
+    C.save(shiny, tmp_path / "grey.json")
+    r = _run("validate", str(tmp_path / "grey.json"))
+    assert "three per Cycles layer: 4 layers (every material is grey)" in r.stdout, r.stdout
     shiny.structured_light.projector_gamma = 2.2         # not a mix of cos and sin: every pattern path-traced
     C.save(shiny, tmp_path / "gamma.json")
     r = _run("validate", str(tmp_path / "gamma.json"))
