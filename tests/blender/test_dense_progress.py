@@ -31,7 +31,9 @@ def dense_cfg(out):
     cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, 0.35], rotation=[1.0, 0.0, 0.0, 0.0])]
     cfg.structured_light.enabled = False
     cfg.render.samples, cfg.render.threads = 1, 2
-    cfg.simulation.max_frames = 300
+    cfg.simulation.max_frames = 150    # per stage; what is checked here needs no pile at rest (staged
+                                       # drops, none lost, inside the bin, visible fractions): 12 of ~70
+                                       # parts still creep at < 2 mm/s after the last stage (300: 6), 10 s less
     cfg.output.formats = ["native", "bop"]
     cfg.output.overview = False
     cfg.output.path = str(out)
