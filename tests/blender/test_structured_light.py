@@ -116,7 +116,17 @@ def one_render(cfg):
     for o in cfg.objects:
         o.min_instances = o.max_instances = 1
 
-@pytest.mark.parametrize("mode", ["render", "fast"])
+def set_mode(cfg, mode):
+    """A fringe mode; "quadrature_packed": quadrature with every configured material grey, so its
+    images travel three to a Cycles layer (config/plan.py grey_materials; the demo's parts are
+    "file" materials: one image per layer)."""
+    cfg.structured_light.fringe_mode = mode.removesuffix("_packed")
+    if mode.endswith("_packed"):
+        for entry in cfg.objects:
+            entry.material = "matte_plastic"
+
+
+@pytest.mark.parametrize("mode", ["render", "fast", "quadrature_packed"])
 def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path, mode):
     """Plane at 0.8 m, 320x240, shipped defaults (4 fringe samples per pixel).
 
@@ -124,10 +134,12 @@ def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path, mode):
     (datapipe.sl.metrics) is ~0.13 mm here; |error| of a Gaussian has median 0.674 sigma ~0.09 mm,
     so the 1 mm bound on the median holds with a >10x margin and is only broken by a systematic
     error (wrong pixel centre, wrong P_proj, sub-pixel sampling bias), not by noise. The noise
-    itself must be within 1.5x the theoretical sigma (the issue's target). Both fringe modes."""
+    itself must be within 1.5x the theoretical sigma (the issue's target). Every fringe mode (the
+    quadrature one packed three images per layer, as grey materials ship)."""
     cfg = plane_config()
-    cfg.structured_light.fringe_mode = mode
+    set_mode(cfg, mode)
     blend, cam, ren, slc, T = build(tmp_path, cfg)
+    assert slc.pack_channels is mode.endswith("_packed")
     out, info, sld = render(tmp_path, ren, slc, T)
     z = out.depth
     # analytic geometry: the z-buffer is the plane at 0.8 m
@@ -160,15 +172,16 @@ def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path, mode):
     assert info["valid_fraction"] == pytest.approx(valid.mean())
 
 
-@pytest.mark.parametrize("mode", ["render", "fast", "quadrature"])
+@pytest.mark.parametrize("mode", ["render", "fast", "quadrature", "quadrature_packed"])
 def test_box_shadow_invalid_and_few_outliers(tmp_path, mode):
     """A 10x8x8 cm box on the plane. Its projector shadow (floor points whose segment to the
     projector centre crosses the box, computed analytically) has no SL depth but z-buffer depth;
     valid pixels elsewhere are trustworthy: at most 0.5% off by more than 5 mm (the flying pixels
     at the box edges are what the edge filter removes; measured ~0.1%). Every fringe mode."""
     cfg = plane_config()
-    cfg.structured_light.fringe_mode = mode
+    set_mode(cfg, mode)
     blend, cam, ren, slc, T = build(tmp_path, cfg, box=True)
+    assert slc.pack_channels is mode.endswith("_packed")
     out, info, sld = render(tmp_path, ren, slc, T)
     z = out.depth
     Xw = pixel_points(cam.K, T, z)
