@@ -5,7 +5,8 @@
 
 Scenes: the steel and aluminium cases of bench_sl_materials.py (sl_bench_scenes.case_config: the
 demo's parts dropped into its bin, seed 0, scene 0, camera straight down, default rig, every part
-in the material), at 0.6 and 0.8 m, 320x240, and a coloured metal (copper, not a preset) at 0.8 m.
+in the material), at 0.6 and 0.8 m, 320x240, and two coloured cases at 0.8 m: copper parts
+(not a preset) and steel parts in a blue bin.
 Per case, in one process and one Blender scene: the native render at the default preset's
 settings (16 samples, denoised, rgb/depth/normals/mask; its z-buffer is the truth), the render
 mode's fringes (Cycles seed SEED and SEED + 1: the second is the yardstick of what Cycles noise
@@ -53,8 +54,10 @@ from datapipe import sl  # noqa: E402
 MATERIALS = ("steel", "aluminium")
 HEIGHTS = (0.6, 0.8)
 SIZES = {"320": (320, 240), "640": (640, 512), "1280": (1280, 1024)}
-# a coloured metal (not a preset): what packing does where light of different colours mixes
-COLOURED = {"copper": {"name": "copper", "base_color": [0.95, 0.64, 0.54], "metallic": 1.0, "roughness": 0.25}}
+# coloured cases (not presets): what packing does where light of different colours mixes
+# case -> (the parts' material, the bin's or None for the built-in grey)
+COLOURED = {"copper": ({"name": "copper", "base_color": [0.95, 0.64, 0.54], "metallic": 1.0, "roughness": 0.25}, None),
+            "steel_blue_bin": ("steel", {"name": "blue_bin", "base_color": [0.1, 0.2, 0.6], "roughness": 0.6})}
 # variant -> (fringe mode, Cycles seed offset, quadrature mode's coarse_supersample, three images per layer)
 VARIANTS = {"render": ("render", 0, None, None), "render_seed2": ("render", 1, None, None),
             "quadrature_packed": ("quadrature", 0, 2, True),     # as shipped for grey materials: 4 layers
@@ -68,7 +71,8 @@ def plan(quick: bool, sizes):
     if quick:
         return [("320", "steel", (0.8,), tuple(VARIANTS))]
     out = [("320", m, HEIGHTS, tuple(VARIANTS)) for m in MATERIALS]
-    out.append(("320", "copper", (0.8,), ("render", "render_seed2", "quadrature_packed", "quadrature_unpacked")))
+    for m in COLOURED:
+        out.append(("320", m, (0.8,), ("render", "render_seed2", "quadrature_packed", "quadrature_unpacked")))
     for s in sizes:
         if s != "320":                 # cost at a real size: one shiny case, no second seed
             out.append((s, "steel", (0.8,), ("render", "quadrature_packed", "quadrature_unpacked")))
@@ -98,8 +102,11 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cfg = S.case_config("default", heights[0], None if material in COLOURED else material, res=SIZES[size])
     if material in COLOURED:
+        parts, bin_spec = COLOURED[material]
         for o in cfg.objects:
-            o.material = dict(COLOURED[material])
+            o.material = parts if isinstance(parts, str) else dict(parts)
+        if bin_spec is not None:
+            cfg.scene.bin_material = dict(bin_spec)
     d = C.default_config().render                       # the native render a user gets
     cfg.render.samples, cfg.render.outputs, cfg.render.denoise = d.samples, list(d.outputs), d.denoise
     cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, float(h)]) for h in heights]
