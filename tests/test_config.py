@@ -328,3 +328,23 @@ def test_fringe_memory_counts_the_row_code_and_hdr():
     assert C.fringe_memory_bytes(cfg) == fast
     s.hdr = [1.0, 4.0, 16.0]
     assert C.fringe_memory_bytes(cfg) > fast
+
+
+def test_only_grey_materials_pack_three_images_per_layer():
+    """config/plan.py grey_materials: quadrature packs three images per layer only when every
+    configured material is grey (steel's tint passes); the bin's "file" is the built-in grey."""
+    from datapipe.config.plan import grey_materials
+
+    cfg = C.default_config()
+    cfg.structured_light.fringe_mode = "quadrature"
+    cfg.scene.bin_material = "file"                            # the built-in grey bin
+    for entry in cfg.objects:
+        entry.material = ["steel", "matte_plastic", "aluminium"]
+    assert grey_materials(cfg)
+    cfg.objects[0].material = {"name": "copper", "base_color": [0.95, 0.64, 0.54], "metallic": 1.0, "roughness": 0.3}
+    assert not grey_materials(cfg)
+    cfg.objects[0].material = "file"                           # a mesh file's own materials: any colour
+    assert not grey_materials(cfg)
+    cfg.objects[0].material = "steel"
+    cfg.scene.bin_material = [{"name": "blue_bin", "base_color": [0.1, 0.2, 0.6], "roughness": 0.6}]
+    assert not grey_materials(cfg)

@@ -113,8 +113,10 @@ def grey_materials(cfg) -> bool:
     its ratio to the white image in that channel; where light of different colours mixes in a
     pixel that ratio is weighted by colour, not by grey (sl/fringe_basis.py). Measured on a mirror
     plate beside a lit wall (tests/blender/test_fringe_quadrature.py): steel's tint (0.075) moves
-    the frames by at most 0.2% of the peak, a copper or red part (0.43, 0.94) by up to 9%. Mesh
-    file materials ("file") may carry any colour: not packed (the bin's "file" is grey)."""
+    the frames by at most 0.2% of the peak, a copper plate mirroring a red wall by up to 9%;
+    steel parts in a blue bin decode with median +19% and p99 +7% against render mode
+    (benchmarks/results/sl_glossy_modes.md). Mesh file materials ("file") may carry any colour:
+    not packed (the bin's "file" is grey)."""
     b = cfg.scene.bin_material
     bin_specs = list(b) if isinstance(b, list) else [b]
     for i, spec in enumerate(configured_materials(cfg)):

@@ -137,21 +137,3 @@ def test_packed_layers_on_a_tinted_mirror_stay_within_float_noise_of_one_image_p
     d = np.abs(out[True] - out[False])
     assert np.percentile(d, 99.5) < 2e-3 * scale and d.max() < 5e-3 * scale
     assert np.abs(out[True] - out[False])[:, hits].mean() < 1e-3 * out[False][:, hits].mean()
-
-
-def test_only_grey_materials_pack_three_images_per_layer():
-    from datapipe import config as C
-
-    cfg = C.default_config()
-    cfg.structured_light.fringe_mode = "quadrature"
-    cfg.scene.bin_material = "file"                            # the built-in grey bin
-    for entry in cfg.objects:
-        entry.material = ["steel", "matte_plastic", "aluminium"]
-    assert SLM.grey_materials(cfg)
-    cfg.objects[0].material = {"name": "copper", "base_color": [0.95, 0.64, 0.54], "metallic": 1.0, "roughness": 0.3}
-    assert not SLM.grey_materials(cfg)
-    cfg.objects[0].material = "file"                           # a mesh file's own materials: any colour
-    assert not SLM.grey_materials(cfg)
-    cfg.objects[0].material = "steel"
-    cfg.scene.bin_material = [{"name": "blue_bin", "base_color": [0.1, 0.2, 0.6], "roughness": 0.6}]
-    assert not SLM.grey_materials(cfg)
