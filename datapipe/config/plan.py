@@ -96,14 +96,18 @@ def resolve_fringe_mode(cfg) -> str:
     return traced if shiny else "fast"
 
 
+def _listed(spec) -> list:
+    """A material field's choices: a list draws one per scene or part, anything else is one."""
+    return list(spec) if isinstance(spec, list) else [spec]
+
+
+def _object_materials(cfg) -> list:
+    return [s for entry in cfg.objects for s in _listed(entry.material)]
+
+
 def configured_materials(cfg) -> list:
     """Every material a config can put in a scene: the bin's, and each choice of each object entry."""
-    b = cfg.scene.bin_material
-    specs = list(b) if isinstance(b, list) else [b]
-    for entry in cfg.objects:
-        m = entry.material
-        specs.extend(m if isinstance(m, list) else [m])
-    return specs
+    return _listed(cfg.scene.bin_material) + _object_materials(cfg)
 
 
 def grey_materials(cfg) -> bool:
@@ -117,12 +121,9 @@ def grey_materials(cfg) -> bool:
     steel parts in a blue bin decode with median +19% and p99 +7% against render mode
     (benchmarks/results/sl_glossy_modes.md). Mesh file materials ("file") may carry any colour:
     not packed (the bin's "file" is grey)."""
-    b = cfg.scene.bin_material
-    bin_specs = list(b) if isinstance(b, list) else [b]
-    for i, spec in enumerate(configured_materials(cfg)):
+    bin_specs = [s for s in _listed(cfg.scene.bin_material) if s != FILE]   # the bin's "file": built-in grey
+    for spec in bin_specs + _object_materials(cfg):
         if spec == FILE:
-            if i < len(bin_specs):         # the bin's "file" is the built-in grey (core/scene.py)
-                continue
             return False
         rgb = [float(c) for c in material_values(spec)["base_color"][:3]]
         if max(rgb) > 0 and (max(rgb) - min(rgb)) / max(rgb) > GREY_CHROMA:

@@ -102,14 +102,13 @@ def estimate_eta(step: str, step_elapsed: float, fraction: float | None, history
     of the render in progress follows it (only `renders_after` whole renders). `rest`: the seconds
     left in the step when the step itself says (a Cycles call: `Tracker.step_rest`)."""
     lower = False
-    if rest is not None:
-        rest = float(rest)
-    elif fraction is not None and fraction > 0:
-        rest = step_elapsed * (1.0 - min(fraction, 1.0)) / min(fraction, 1.0)
-    elif step in history:
-        rest = max(0.0, history[step] - step_elapsed)
-    else:
-        rest, lower = 0.0, True
+    if rest is None:
+        if fraction is not None and fraction > 0:
+            rest = step_elapsed * (1.0 - min(fraction, 1.0)) / min(fraction, 1.0)
+        elif step in history:
+            rest = max(0.0, history[step] - step_elapsed)
+        else:
+            rest, lower = 0.0, True
     later = STEPS[STEPS.index(step) + 1:] if step in STEPS and render_follows else ()
     for s in later:              # (after a render step no scene step follows)
         if s in history:
@@ -235,12 +234,10 @@ class Tracker:
             t, secs = self._cyc_remaining
             rest = secs - (now - t)
             return (rest, False) if rest > 0 else (0.0, True)
-        c, first = self.count, self._cyc_first
-        if self._frac is None and c is not None and c[2] == "sample" and first is not None and c[0] > first[1] \
-                and self._cyc_last is not None:
-            t_last, n_last = self._cyc_last
-            per_sample = (t_last - first[0]) / (n_last - first[1])
-            return max(0.0, per_sample * (c[1] - n_last) - (now - t_last)), False
+        first, last = self._cyc_first, self._cyc_last          # set with the count (cycles_stats)
+        if self._frac is None and first is not None and last[1] > first[1]:
+            per_sample = (last[0] - first[0]) / (last[1] - first[1])
+            return max(0.0, per_sample * (self.count[1] - last[1]) - (now - last[0])), False
         return None, False
 
     def progress(self, message: str = "") -> Progress:
