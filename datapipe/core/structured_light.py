@@ -36,6 +36,15 @@ What differs from the native call (all restored afterwards):
 - Seed: the render seed (as for the native layer): the shifted frames see the same Monte-Carlo
   paths, so render noise common to all steps cancels in the phase.
 
+Ambient light (`structured_light.ambient` "scene")
+--------------------------------------------------
+The fringe layers see the projector alone (scene lights excluded, black world). With "scene" one
+more layer, the projector-off layer (projector.AMBIENT_LAYER: every projector light excluded, the
+scene's lights and world kept), is rendered in the same call at the same grid (`ambient_image`),
+and `process` hands it to the scanner, which adds it to every frame before exposure and sensor and
+keeps a projector-off capture for the global-light filter (light is linear: exact, one layer's
+paths; docs/STRUCTURED_LIGHT.md). With "off" the layer is never made.
+
 Inter-reflected light (projector node tree, `regularize_indirect`)
 -------------------------------------------------------------------
 Light that reaches a surface on a path with a *diffuse* bounce between it and the camera (Light

@@ -18,6 +18,9 @@ Validity (what "valid" means)
    unsaturated exposure, rescaled, with its noise); `hdr="auto"` adds shorter exposures per render
    while highlights clip (`sl.exposure.auto_hdr`). `Scan.exposure` is the base exposure used, the
    summary's `hdr` the factors used.
+0'. ambient light (`scan(ambient=...)`, structured_light.ambient "scene"): the scene's own lights
+   with the projector off, added to every image before 0. (its shot noise and clipping; exposure
+   and HDR meter the sum), and taken once more as a projector-off capture that 1b'. subtracts.
 1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated. The
    noise is the sensor model's own, per pixel (shot + read + quantisation at the pixel's signal and
    exposure; with HDR the fused exposure's, rescaled), never a global estimate from the images
