@@ -180,3 +180,32 @@ def test_ambient_must_match_the_image_size(rig, plane):
     cam, proj = rig
     with pytest.raises(ValueError, match="ambient"):
         _scanner(cam, proj).scan(plane.images.astype(np.float32), 5, cam.K, cam.T, ambient=np.zeros((3, 3)))
+
+
+def test_auto_hdr_adds_shorter_exposures_where_the_hall_light_clips(rig, plane):
+    """At a fixed exposure where the hall light alone would fill 1.2x the well on the left 40
+    columns, `hdr="auto"` sees the sum and adds shorter exposures (x 1/4): those pixels decode
+    again, and the projector-off capture is read at each pixel's fused exposure, rescaled to the
+    base exposure's DN (its mean there is the ambient radiance x base exposure in DN, within 4
+    sigma of its noise over the region; its noise sigma is the chosen exposure's, rescaled)."""
+    cam, proj = rig
+    model = sl.SensorModel.preset("industrial")
+    e = 0.5
+    well = model.full_well / model.electrons_per_unit / e
+    cols = np.arange(plane.lit.shape[1])[None, :].repeat(plane.lit.shape[0], 0)
+    left = cols < 40
+    ambient = np.where(left, 1.2 * well, 0.2 * well).astype(np.float32)
+    scan = _scanner(cam, proj, exposure=e, hdr="auto").scan(plane.images.astype(np.float32), 5, cam.K, cam.T,
+                                                            ambient=ambient)
+    assert scan.summary()["hdr"][:2] == [1.0, 0.25]
+    assert scan.result.valid[plane.lit & left].mean() > 0.98
+    cap, off = scan.capture, scan.ambient
+    assert (cap.chosen[left] != 0).all() and (cap.chosen[cols >= 45] == 0).all()
+    dn = e * model.electrons_per_unit / model.gain                   # DN per unit radiance at the base exposure
+    region = left & plane.lit
+    n = region.sum()
+    assert off.signal[region].mean() == pytest.approx(1.2 * well * dn, abs=4 * off.sigma[region].mean() / np.sqrt(n))
+    k = int(np.bincount(cap.chosen[region]).argmax())
+    scale = cap.reference / cap.exposures[k]
+    expect = model.noise_sigma(1.2 * well * dn / scale) * scale
+    assert np.median(off.sigma[region & (cap.chosen == k)]) == pytest.approx(expect, rel=0.02)
