@@ -132,6 +132,8 @@ class Scan:
                   "confidence": res.confidence, "sigma_z": self.sigma_z.astype(np.float32)}
             if self.row_residual is not None:      # why a pixel is REFLECTION: its row code disagrees
                 ch["row_residual"] = self.row_residual
+            if self.ambient is not None:           # the projector-off capture (DN above black)
+                ch["ambient"] = self.ambient.signal
             for k, (w, m) in enumerate(zip(res.wrapped, res.modulation)):
                 ch[f"wrapped_{k}"], ch[f"modulation_{k}"] = w, m
             out["sl_debug"] = ch

@@ -59,13 +59,19 @@ def test_precision_follows_the_photon_noise_prediction_as_the_hall_light_grows(r
     brighter hall lowers the exposure, hence B in electrons, and adds its own shot noise: the phase
     noise grows, and stays within 10% of sqrt(2/N) sigma_I / B at every level (measured on ~15 000
     pixels, a 1% statistical uncertainty of an RMS). Every plane pixel stays valid: the hall light
-    alone costs no pixel here (B/A >= 0.12 > MIN_CONTRAST)."""
+    alone costs no pixel here (B/A >= 0.12 > MIN_CONTRAST). Measured / predicted: 0.999, 1.000,
+    0.997, 1.005. The depth error against the analytic plane follows the scanner's own per-pixel
+    `sigma_z` (the annotated precision sees the hall light too): 0.16, 0.22, 0.39, 0.73 mm RMS,
+    within 0.3% of it."""
     cam, proj = rig
     out = []
     for level in AMBIENT:
         measured, predicted, scan = _precision(cam, proj, plane, level)
         assert measured == pytest.approx(predicted, rel=0.10), (level, measured, predicted)
         assert scan.result.valid[plane.lit].mean() > 0.99
+        v = scan.result.valid & plane.lit
+        depth_rms = np.sqrt(np.mean((scan.result.depth - plane.depth)[v] ** 2))
+        assert depth_rms == pytest.approx(np.sqrt(np.mean(scan.sigma_z[v] ** 2)), rel=0.10), level
         out.append(measured)
     assert all(b > 1.15 * a for a, b in zip(out, out[1:])), out      # precision falls with the hall light
     assert out[-1] > 2.0 * out[0]
@@ -84,6 +90,7 @@ def test_no_flat_matte_pixel_is_taken_for_multipath_because_of_ambient_light(rig
     assert not scan.multipath.any()
     assert scan.result.valid[plane.lit].mean() > 0.98
     assert scan.summary()["ambient_to_projector"] == pytest.approx(2.5 / 0.5, rel=0.02)
+    assert "ambient" in scan.maps(debug=True)["sl_debug"]
     blind = _scanner(cam, proj).scan(img + ambient[None], 5, cam.K, cam.T)
     assert (blind.result.reason[plane.lit] == sl.Reason.MULTIPATH).mean() > 0.95
     assert "ambient_to_projector" not in blind.summary()
