@@ -63,6 +63,9 @@ def test_off_makes_nothing_and_scene_one_layer_in_every_fringe_mode(tmp_path):
         assert AMBIENT_LAYER not in blend.scene.view_layers and AMBIENT_LAYER not in _items(slc)
         off, _ = slc.render_fringes(tmp_path / f"{mode}{pack}off", SEED, T)
         assert slc.ambient_image is None
+        if mode == "fast":                 # the scene.json record: today's keys only
+            _, info = slc.process(tmp_path / "record_off", SEED, T)
+            assert not any(k.startswith("ambient") for k in info)
         slc.teardown()
         bpy.ops.wm.read_factory_settings(use_empty=True)
         blend, cam, slc, T = _build(_config("scene", mode), pack)
@@ -118,4 +121,6 @@ def test_plane_precision_follows_photon_noise_as_the_hall_light_grows(tmp_path):
         out.append(measured)
         ratios.append(scan.summary()["ambient_to_projector"])
     assert out[0] < out[1] < out[2]
+    _, info = slc.process(tmp_path / "record", SEED, T)       # the scene.json record says so
+    assert info["ambient"] == "scene" and info["ambient_to_projector"] == pytest.approx(ratios[-1], rel=0.02)
     assert 0.5 < ratios[0] < 1.2 and ratios[1] == pytest.approx(4 * ratios[0], rel=0.1)
