@@ -271,8 +271,8 @@ class Scanner:
             multipath |= global_light_filter(res.modulation, res.offset, direct_frequencies(res.periods, self.proj_size[0]),
                                              self.steps, cap.noise_sigma, res.valid,
                                              direct_offset=direct_offset_ratio(self.projector_gamma, self.steps),
-                                             **({} if off is None else {"ambient": off.signal,
-                                                                        "ambient_sigma": off.sigma}))
+                                             ambient=None if off is None else off.signal,
+                                             ambient_sigma=None if off is None else off.sigma)
             _remove(res, multipath, MULTIPATH)
         reflection = residual = None
         if self.row_check and cap.images.shape[0] > n:
