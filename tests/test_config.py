@@ -166,6 +166,8 @@ CASES = [
     (lambda c: setattr(c.scene, "other_objects", "delete"), "scene.other_objects", "unknown value"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "reflection_filter", "on")),
      "structured_light.reflection_filter", "unknown value"),
+    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "ambient", "hall")),
+     "structured_light.ambient", "unknown value"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "fast"),
                 setattr(c.structured_light, "reflection_filter", "global")),
      "structured_light.reflection_filter", "fast mode"),

@@ -37,11 +37,13 @@ def _fringe_frames(cfg: Config) -> int:
 def fringe_memory_bytes(cfg: Config) -> int:
     """Peak memory of one render's fringe work: every pattern as a float RGBA Blender image plus the
     rendered stack read back at FRINGE_SUPERSAMPLE x the camera resolution (float32) and its mean;
-    with `hdr`, the fused float32 stack and one exposure's sensor output besides."""
+    with `hdr`, the fused float32 stack and one exposure's sensor output besides; with ambient
+    "scene", the projector-off image read back and its mean."""
     (Wp, Hp), (W, H) = cfg.projector.resolution, cfg.camera.resolution
     ss = FRINGE_SUPERSAMPLE
     hdr = 8 * W * H if cfg.structured_light.hdr else 0
-    return _fringe_frames(cfg) * (Wp * Hp * 16 + W * H * ss * ss * 4 + W * H * 4 + hdr)
+    ambient = W * H * ss * ss * 4 + W * H * 4 if cfg.structured_light.ambient == "scene" else 0   # projector-off layer
+    return _fringe_frames(cfg) * (Wp * Hp * 16 + W * H * ss * ss * 4 + W * H * 4 + hdr) + ambient
 
 
 def fringe_period_camera_px(cfg: Config) -> float:

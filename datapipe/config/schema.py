@@ -150,6 +150,10 @@ class StructuredLightConfig:
     debug: bool = False                # also write wrapped/absolute phase, modulation, reasons
     projector_gamma: float = 1.0       # projector response exponent (emits pattern ** gamma; 1 = linear);
                                        # the decoder corrects the phase ripple it causes
+    ambient: str = "off"               # "scene": the scene's own lights (lighting section, key light, world)
+                                       # also reach the fringe images (one projector-off layer added to
+                                       # every frame: shot noise, clipping; docs/STRUCTURED_LIGHT.md);
+                                       # "off": the projector's light alone
 
 
 @dataclass

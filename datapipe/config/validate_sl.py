@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 from ..checks.text_rules import short as _short
 from .checks import _Checks, _check_field_of_view, _split_fix
-from .limits import (FRINGE_MODES, MAX_FRINGE_BYTES, MAX_PERIODS, MAX_RESOLUTION, MAX_SL_SAMPLES, MAX_STEPS,
-                     MIN_FRINGE_CAMERA_PX, REFLECTION_FILTERS, UNWRAP_METHODS)
+from .limits import (AMBIENT_MODES, FRINGE_MODES, MAX_FRINGE_BYTES, MAX_PERIODS, MAX_RESOLUTION, MAX_SL_SAMPLES,
+                     MAX_STEPS, MIN_FRINGE_CAMERA_PX, REFLECTION_FILTERS, UNWRAP_METHODS)
 from .plan import fringe_memory_bytes, fringe_period_camera_px
 
 if TYPE_CHECKING:                 # annotations only: Config's methods call the rules, not the other way
@@ -49,6 +49,7 @@ def _check_structured_light(ck: _Checks, cfg: Config, check_files: bool) -> None
     ck.choice("structured_light.unwrap", sl.unwrap, UNWRAP_METHODS)
     ck.choice("structured_light.fringe_mode", sl.fringe_mode, FRINGE_MODES)
     ck.choice("structured_light.reflection_filter", sl.reflection_filter, REFLECTION_FILTERS)
+    ck.choice("structured_light.ambient", sl.ambient, AMBIENT_MODES)
     if sl.reflection_filter == "global" and sl.fringe_mode == "fast":
         ck.add("structured_light.reflection_filter", "'global' checks a path-traced row code, and fast mode "
                "synthesises the patterns (no mirrored light to find)", "set structured_light.fringe_mode to "

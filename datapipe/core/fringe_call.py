@@ -2,14 +2,18 @@
 core/fringe_fast.py a flat-lit layer and the coarse periods' bounce layers): the isolated Cycles
 call that renders only some view layers at the point-sampled sub-pixel grid, and (from
 sl.fringe_synth, which the scanner's global-light filter reads too) the modulation a K-period
-fringe keeps when bounced light sees it blurred. Its own module so that neither mode
-imports the other."""
+fringe keeps when bounced light sees it blurred, and the projector-off layer of
+structured_light.ambient "scene" (rendered in the fringe call of either mode). Its own module so
+that neither mode imports the other."""
 from __future__ import annotations
 
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ..sl.fringe_synth import INDIRECT_BLUR_PX, indirect_gain  # noqa: F401  (the bounce model both modes render)
+from .projector import AMBIENT_LAYER
 
 
 def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *, seed: int,
@@ -60,3 +64,24 @@ def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *,
         sc.cycles.filter_width, sc.cycles.seed = saved_filter, saved_seed
         sc.render.resolution_percentage = saved_pct
         sc.cycles.use_adaptive_sampling = saved_adaptive
+
+
+def block_mean(stack: np.ndarray, ss: int) -> np.ndarray:
+    """(F, h, w) point samples -> (F, h/ss, w/ss): the ss x ss samples are symmetric about the pixel centre."""
+    if ss <= 1:
+        return stack
+    F, h, w = stack.shape
+    return stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
+
+
+def link_ambient_layer(projector, tree, bpy_scene, file_output, node_name: str, samples: int):
+    """Build the projector-off layer (Projector.make_ambient_layer) and write its combined pass as
+    the grey item AMBIENT_LAYER of `file_output` (a monochrome camera's frame: the compositor's
+    grey value, as the fringe layers'); returns its Render Layers node (for teardown)."""
+    from . import compat
+
+    vl = projector.make_ambient_layer(samples)
+    rl = compat.render_layers_node(tree, bpy_scene, vl.name, name=node_name)
+    rl.location = (-1000, 300)
+    tree.links.new(compat.rl_socket(rl, "image"), compat.file_output_add_input(file_output, AMBIENT_LAYER, "FLOAT"))
+    return rl

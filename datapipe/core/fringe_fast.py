@@ -50,8 +50,8 @@ import numpy as np
 
 from .. import sl
 from ..geometry import projector_resolution
-from .projector import LIGHTS_COLLECTION, Projector
-from .fringe_call import INDIRECT_BLUR_PX, indirect_gain, isolated_render
+from .projector import AMBIENT_LAYER, LIGHTS_COLLECTION, Projector
+from .fringe_call import INDIRECT_BLUR_PX, indirect_gain, isolated_render, link_ambient_layer
 
 BOUNCE_MIN_GAIN = 0.05     # periods whose bounce keeps at least this modulation get bounce layers
 BOUNCE_SAMPLES = 1         # paths per camera pixel of the bounce layers (camera resolution)
@@ -90,6 +90,7 @@ class FlatLitRender:
         gains = {K: indirect_gain(K, Wp, blur_px) for K in cfg.structured_light.periods}
         self.gains = {K: g for K, g in gains.items() if g >= min_gain}   # periods with bounce layers
         self.bounce_samples = BOUNCE_SAMPLES
+        self.ambient = cfg.structured_light.ambient == "scene"   # the projector-off layer in the flat call
         self.projector = None
         self.layer_names: list[str] = []      # [flat, bounce white, (cos, sin) per period in gains]
         self._nodes: list = []
@@ -123,6 +124,9 @@ class FlatLitRender:
         self._nodes = [rl]
         for item, (socket, _, stype) in PASSES.items():
             tree.links.new(rl.outputs[socket], compat.file_output_add_input(self.file_output, item, stype))
+        if self.ambient:
+            self._nodes.append(link_ambient_layer(self.projector, tree, self.scene, self.file_output,
+                                                  f"{FLAT_NODE}_ambient", 1))
         outputs = [self.file_output]
         if len(layers) > 1:
             self.bounce_output = compat.new_file_output(tree, tmp, BOUNCE_BASENAME, name=BOUNCE_NODE)
@@ -147,11 +151,17 @@ class FlatLitRender:
         vls[0].samples = int(samples)
         for vl in vls[1:]:
             vl.samples = int(self.bounce_samples)
-        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, self.layer_names[:1],
+        extra = [AMBIENT_LAYER] if self.ambient else []
+        if extra:
+            self.scene.view_layers[AMBIENT_LAYER].samples = int(samples)
+        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, self.layer_names[:1] + extra,
                                   render_dir, FLAT_BASENAME, seed=seed, supersample=supersample,
-                                  filter_width=filter_width, what="fast mode: flat-lit layer")
+                                  filter_width=filter_width, what="fast mode: flat-lit layer"
+                                  + (" + the projector-off layer" if extra else ""))
         ch = compat.take_written_exr(render_dir, FLAT_BASENAME, "flat-lit fringe", expect=[
-            f"{k}.V" for k, (_, _, t) in PASSES.items() if t == "FLOAT"] + [f"position.{c}" for c in "XYZ"])
+            f"{k}.V" for k, (_, _, t) in PASSES.items() if t == "FLOAT"] + [f"position.{c}" for c in "XYZ"]
+            + [f"{n}.V" for n in extra])
+        ambient = ch.pop(f"{AMBIENT_LAYER}.V").astype(np.float32) if extra else None
         g = {k: ch[f"{k}.V"].astype(np.float32) for k, (_, _, t) in PASSES.items() if t == "FLOAT"}
         direct = g["diff_dir"] * g["diff_col"] + g["gloss_dir"] * g["gloss_col"] + g["trans_dir"] * g["trans_col"]
         indirect = np.maximum(g["combined"] - direct, 0.0)
@@ -168,7 +178,7 @@ class FlatLitRender:
             white = b[0]
             for i, K in enumerate(self.gains):          # signed fringes: 2 x (0.5 + 0.5 cos) - 1
                 quadrature[K] = (2 * b[1 + 2 * i] - b[0], 2 * b[2 + 2 * i] - b[0])
-        return FlatLit(direct, indirect, pos, quadrature, dict(self.gains), white), seconds
+        return FlatLit(direct, indirect, pos, quadrature, dict(self.gains), white, ambient), seconds
 
     def teardown(self) -> None:
         tree = self.renderer.tree
@@ -187,13 +197,16 @@ class FlatLit:
     """One flat-lit render: (h, w) float32 `direct` and `indirect` radiance of the white image on
     the point-sample grid, (h, w, 3) world `points` (meaningless where nothing was hit, where both
     light terms are 0), and the bounce maps {K: (C_K, S_K)} (H, W) at the camera resolution with
-    their `gains` and the bounce light of the white image from the same paths (`white`)."""
+    their `gains` and the bounce light of the white image from the same paths (`white`); with
+    structured_light.ambient "scene" the projector-off layer's radiance on the point-sample grid
+    (`ambient`)."""
     direct: np.ndarray
     indirect: np.ndarray
     points: np.ndarray
     quadrature: dict
     gains: dict
     white: np.ndarray | None = None
+    ambient: np.ndarray | None = None
 
     def bounce(self, periods, steps: int, block: int, smooth_px: float = BOUNCE_SMOOTH_PX):
         """(F*N, H, W) bounce fringes of the patterns (sl.bounce_modulation), None without bounce layers."""

@@ -72,6 +72,7 @@ from ..geometry import (check_patterns, pattern_pixels, projector_cfg, projector
 LIGHTS_COLLECTION = "datapipe_lights"       # the scene's own lights (BlendScene); excluded from fringe layers
 COLLECTION_PREFIX = "datapipe_sl_"          # one collection per projector light: datapipe_sl_00, ...
 LAYER_PREFIX = "sl_"                        # one view layer per pattern: sl_00, ...
+AMBIENT_LAYER = "sl_ambient"                # the projector-off view layer (structured_light.ambient "scene")
 IMAGE_PREFIX = "datapipe_sl_pattern_"
 LIGHT_PREFIX = "datapipe_projector_"
 PROJECTOR_ENERGY_W = 10.0                   # light power (W); the pattern value * power scales it
@@ -117,6 +118,7 @@ class Projector:
         self.collections: list = []        # their collections datapipe_sl_NN
         self.images: list = []             # their pattern images
         self.layer_names: list[str] = []   # fringe view layers made by make_view_layers
+        self.ambient_layer_name: str | None = None   # the projector-off layer (make_ambient_layer)
 
     @property
     def view_layers(self) -> list:
@@ -217,17 +219,36 @@ class Projector:
             _raise_on_leaks(self.scene, layers, self.collections)
         return layers
 
+    def make_ambient_layer(self, samples: int):
+        """The projector-off view layer `AMBIENT_LAYER` (structured_light.ambient "scene"): every
+        projector collection excluded, the scene's own lights and its world kept. Everything else is
+        what a fringe layer holds (a new layer includes every collection, as make_fringe_view_layers'
+        do), so by linearity of light its image is what each fringe frame lacks of a capture in the
+        lit hall: the fringe call adds it to every frame (core/structured_light.py). Only the combined
+        pass, `samples` paths, no denoising; switched off (`use`) for every call but the fringes'."""
+        if not self.collections:
+            raise DataPipeError("Projector.make_ambient_layer() before build() (fix: build the patterns first)")
+        old = self.scene.view_layers.get(AMBIENT_LAYER)
+        if old is not None:
+            self.scene.view_layers.remove(old)
+        vl = self.scene.view_layers.new(AMBIENT_LAYER)
+        self.exclude_from(vl)
+        _combined_only(vl, samples)
+        vl.use = False
+        self.ambient_layer_name = vl.name
+        return vl
+
     # -- teardown ---------------------------------------------------------------------------------
     def teardown(self) -> None:
         """Remove every light, light datablock (and its node tree), image, collection and view layer
         this projector made, and the black world override when nothing uses it. Safe to call twice."""
         import bpy
 
-        for name in self.layer_names:
+        for name in self.layer_names + ([self.ambient_layer_name] if self.ambient_layer_name else []):
             vl = self.scene.view_layers.get(name)
             if vl is not None and len(self.scene.view_layers) > 1:
                 self.scene.view_layers.remove(vl)
-        self.layer_names = []
+        self.layer_names, self.ambient_layer_name = [], None
         for ob in self.lights:
             ld = ob.data
             bpy.data.objects.remove(ob, do_unlink=True)
@@ -277,25 +298,31 @@ def make_fringe_view_layers(bpy_scene, lights_collections: Sequence, exclude: It
             _set_exclude(vl, other, other != proj_names[i])
         for other in excl_names:
             _set_exclude(vl, other, True)
-        for attr in dir(vl):
-            if attr.startswith("use_pass_") and attr != "use_pass_combined":
-                try:
-                    setattr(vl, attr, False)
-                except (AttributeError, TypeError):
-                    pass
-        vl.use_pass_combined = True
-        vl.samples = int(samples)
-        if hasattr(vl, "cycles") and hasattr(vl.cycles, "use_denoising"):
-            vl.cycles.use_denoising = False
-        for attr in ("use_freestyle", "use_motion_blur"):
-            if hasattr(vl, attr):
-                setattr(vl, attr, False)
+        _combined_only(vl, samples)
         if black is not None:
             vl.world_override = black
         layers.append(vl)
     if strict:
         _raise_on_leaks(bpy_scene, layers, lights_collections)
     return layers
+
+
+def _combined_only(vl, samples: int) -> None:
+    """A fringe or projector-off layer's settings: the combined pass alone, `samples` paths, no
+    denoising, freestyle or motion blur."""
+    for attr in dir(vl):
+        if attr.startswith("use_pass_") and attr != "use_pass_combined":
+            try:
+                setattr(vl, attr, False)
+            except (AttributeError, TypeError):
+                pass
+    vl.use_pass_combined = True
+    vl.samples = int(samples)
+    if hasattr(vl, "cycles") and hasattr(vl.cycles, "use_denoising"):
+        vl.cycles.use_denoising = False
+    for attr in ("use_freestyle", "use_motion_blur"):
+        if hasattr(vl, attr):
+            setattr(vl, attr, False)
 
 
 def fringe_layer_leaks(bpy_scene, layers, lights_collections) -> dict[str, list[str]]:

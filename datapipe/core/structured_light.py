@@ -36,6 +36,15 @@ What differs from the native call (all restored afterwards):
 - Seed: the render seed (as for the native layer): the shifted frames see the same Monte-Carlo
   paths, so render noise common to all steps cancels in the phase.
 
+Ambient light (`structured_light.ambient` "scene")
+--------------------------------------------------
+The fringe layers see the projector alone (scene lights excluded, black world). With "scene" one
+more layer, the projector-off layer (projector.AMBIENT_LAYER: every projector light excluded, the
+scene's lights and world kept), is rendered in the same call at the same grid (`ambient_image`),
+and `process` hands it to the scanner, which adds it to every frame before exposure and sensor and
+keeps a projector-off capture for the global-light filter (light is linear: exact, one layer's
+paths; docs/STRUCTURED_LIGHT.md). With "off" the layer is never made.
+
 Inter-reflected light (projector node tree, `regularize_indirect`)
 -------------------------------------------------------------------
 Light that reaches a surface on a path with a *diffuse* bounce between it and the camera (Light
@@ -90,8 +99,8 @@ from ..config.plan import SHINY_ROUGHNESS, grey_materials, resolve_fringe_mode  
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
 from ..io.native import write_render_maps
 from . import projector as _pj
-from .fringe_call import INDIRECT_BLUR_PX, indirect_gain, isolated_render
-from .projector import LIGHTS_COLLECTION, Projector
+from .fringe_call import INDIRECT_BLUR_PX, block_mean, indirect_gain, isolated_render, link_ambient_layer
+from .projector import AMBIENT_LAYER, LIGHTS_COLLECTION, Projector
 
 FRINGE_FILTER_WIDTH = 0.01      # px, Blackman-Harris pixel filter of the fringe render (point samples)
 FRINGE_BASENAME = "_sl_fringes"  # the fringe call's multilayer EXR in the render folder (deleted)
@@ -133,6 +142,8 @@ class StructuredLightCamera:
         self._profiles = sl.pattern_profiles(self.proj_size[0], self.periods, self.steps)
         self.reflection_filter = s.reflection_filter
         self.row_code = builds_row_code(s, self.fringe_mode)
+        self.ambient = s.ambient == "scene"     # the projector-off layer, added to every frame (module doc)
+        self.ambient_image = None               # its (H, W) float32 radiance from the last fringe call
         self.layers: list = []
         self.layer_names: list[str] = []      # the fringe layers, then the row code's (when `row_code`)
         self.file_output = None
@@ -176,6 +187,9 @@ class StructuredLightCamera:
         tree = self.renderer.tree
         self.file_output = compat.new_file_output(tree, bpy.app.tempdir or "/tmp", FRINGE_BASENAME,
                                                   name=OUTPUT_NODE)
+        if self.ambient:
+            self._rl_nodes.append(link_ambient_layer(self.projector, tree, self.scene, self.file_output,
+                                                     f"{OUTPUT_NODE}_rl_ambient", self.layer_samples))
         packed = self.fringe_mode == "quadrature" and self.pack_channels
         whites = set(self._white_layers()) if packed else set()
         for i, vl in enumerate(self.layers):
@@ -281,6 +295,8 @@ class StructuredLightCamera:
         self.samples = int(samples)
         for vl in self.layers:
             vl.samples = self.layer_samples
+        if self.ambient and self.flat is None:
+            self.scene.view_layers[AMBIENT_LAYER].samples = self.layer_samples
 
     # -- once per render --------------------------------------------------------------------------
     def render_fringes(self, render_dir, seed: int, T_world_cam=None, rows: bool | None = None
@@ -288,14 +304,19 @@ class StructuredLightCamera:
         """Render the fringe layers (own Cycles call, see the module doc) -> ((F*N, H, W) float32
         linear radiance, frequency-major, followed by the row code's N images when `rows` (default
         `wants_rows()`); wall seconds of the call, and in fast mode of the synthesis). `T_world_cam`
-        (fast mode: the pose P_proj is made from) defaults to the camera's current pose."""
+        (fast mode: the pose P_proj is made from) defaults to the camera's current pose.
+        With `ambient` the same call renders the projector-off layer too: `ambient_image`, (H, W)
+        float32 at the same grid, what the scanner adds to every frame (`process`)."""
         ss = int(self.supersample)
+        self.ambient_image = None
         if self.flat is not None:
             if T_world_cam is None:
                 T_world_cam = self.camera.T_world_cam()
             lit, seconds = self.flat.render(render_dir, seed, supersample=ss, filter_width=self.filter_width,
                                             samples=self.layer_samples)
             t0 = time.perf_counter()
+            if lit.ambient is not None:
+                self.ambient_image = block_mean(lit.ambient[None], ss)[0]
             stack = sl.synthesize_fringes(lit.direct, lit.indirect, lit.points,
                                           projector_matrix(self.cfg, T_world_cam), self._profiles, block=ss)
             bounce = lit.bounce(self.periods, self.steps, ss)
@@ -314,22 +335,26 @@ class StructuredLightCamera:
         what = f"{n_fringe} fringe layers ({len(self.periods)} periods x {self.steps} steps)"
         if rows:
             what += f" + {len(names) - n_fringe} row-code layers"
-        return self._render_layers(names, render_dir, seed, ss, what)
+        return self._render_layers(names, render_dir, seed, ss, what, ambient=self.ambient)
 
-    def _render_layers(self, names, render_dir, seed: int, ss: int, what: str) -> tuple[np.ndarray, float]:
+    def _render_layers(self, names, render_dir, seed: int, ss: int, what: str, ambient: bool = False
+                       ) -> tuple[np.ndarray, float]:
         """Layers `names` in one isolated Cycles call at `ss` x the camera grid, block-averaged to
-        the camera resolution -> ((len(names), H, W) float32, wall seconds)."""
+        the camera resolution -> ((len(names), H, W) float32, wall seconds); with `ambient` the
+        projector-off layer in the same call, into `ambient_image`."""
         from . import compat
 
-        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
+        extra = [AMBIENT_LAYER] if ambient else []
+        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names + extra,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
-                                  filter_width=self.filter_width, what=what)
-        ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe", expect=[f"{n}.V" for n in names])
+                                  filter_width=self.filter_width, what=what + (" + the projector-off layer"
+                                                                               if ambient else ""))
+        ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe",
+                                     expect=[f"{n}.V" for n in names + extra])
+        if ambient:
+            self.ambient_image = block_mean(ch.pop(f"{AMBIENT_LAYER}.V")[None].astype(np.float32), ss)[0]
         stack = np.stack([ch[f"{name}.V"] for name in names]).astype(np.float32)
-        if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
-            F, h, w = stack.shape
-            stack = stack.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
-        return stack, seconds
+        return block_mean(stack, ss), seconds
 
     def _render_quadrature(self, render_dir, seed: int, rows: bool) -> tuple[np.ndarray, float]:
         """Quadrature mode: each call of `quad_groups` (its row-code images only with `rows`), every
@@ -338,7 +363,8 @@ class StructuredLightCamera:
         three images per layer, taken back per point sample before the block mean
         (sl.unpack_basis: over one path the ratio to the white image is exact, whatever its colour)."""
         frames, seconds, i = {}, 0.0, 0
-        for per, rper, ss in self.quad_groups():
+        for g, (per, rper, ss) in enumerate(self.quad_groups()):
+            ambient = self.ambient and g == 0     # the first call is at `supersample`, the fringes' grid
             with_rows = rows and bool(rper)
             if self.pack_channels:       # the row code's layers come last: left out without `rows`
                 layout = self._layout(per, rper)
@@ -352,9 +378,9 @@ class StructuredLightCamera:
                     + (" + the row code" if with_rows else "")
                     + (", three per layer in R, G, B)" if self.pack_channels else ")"))
             if self.pack_channels:
-                stack, sec = self._render_packed(names, layout, render_dir, seed, ss, what)
+                stack, sec = self._render_packed(names, layout, render_dir, seed, ss, what, ambient)
             else:
-                stack, sec = self._render_layers(names, render_dir, seed, ss, what)
+                stack, sec = self._render_layers(names, render_dir, seed, ss, what, ambient)
             t0 = time.perf_counter()
             mixed = sl.frames_from_basis(stack, self.steps)
             seconds += sec + time.perf_counter() - t0
@@ -363,20 +389,25 @@ class StructuredLightCamera:
         order = [("x", K) for K in self.periods] + ([("y", K) for K in sl.scanner.ROW_PERIODS] if rows else [])
         return np.concatenate([frames[k] for k in order]), seconds
 
-    def _render_packed(self, names, layout, render_dir, seed: int, ss: int, what: str
+    def _render_packed(self, names, layout, render_dir, seed: int, ss: int, what: str, ambient: bool = False
                        ) -> tuple[np.ndarray, float]:
         """Packed quadrature layers `names` (white first) in one isolated Cycles call -> (the basis
         radiance (n, H, W) float32 at the camera resolution, grey as if each image were rendered
-        alone: sl.unpack_basis per point sample, then the block mean; wall seconds)."""
+        alone: sl.unpack_basis per point sample, then the block mean; wall seconds); with `ambient`
+        the projector-off layer (grey) in the same call, into `ambient_image`."""
         from . import compat
 
-        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names,
+        extra = [AMBIENT_LAYER] if ambient else []
+        seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names + extra,
                                   render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
-                                  filter_width=self.filter_width, what=what)
+                                  filter_width=self.filter_width, what=what + (" + the projector-off layer"
+                                                                               if ambient else ""))
         t0 = time.perf_counter()
         grey_name = names[0] + GREY_SUFFIX
-        expect = [f"{n}.{c}" for n in names for c in "RGB"] + [f"{grey_name}.V"]
+        expect = [f"{n}.{c}" for n in names for c in "RGB"] + [f"{grey_name}.V"] + [f"{n}.V" for n in extra]
         ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe", expect=expect)
+        if ambient:
+            self.ambient_image = block_mean(ch.pop(f"{AMBIENT_LAYER}.V")[None].astype(np.float32), ss)[0]
         grey = ch.pop(f"{grey_name}.V")
         rgb = np.empty((len(names), 3) + grey.shape, np.float32)      # planar, as the EXR holds them
         for li, n in enumerate(names):
@@ -384,10 +415,7 @@ class StructuredLightCamera:
                 rgb[li, c] = ch.pop(f"{n}.{cn}")
         basis = sl.unpack_basis(rgb, grey, layout)
         del rgb, ch
-        if ss > 1:        # block mean: the ss x ss point samples are symmetric about the pixel centre
-            F, h, w = basis.shape
-            basis = basis.reshape(F, h // ss, ss, w // ss, ss).mean(axis=(2, 4), dtype=np.float32)
-        return basis, seconds + time.perf_counter() - t0
+        return block_mean(basis, ss), seconds + time.perf_counter() - t0
 
     def process(self, rdir: Path, seed: int, T_world_cam) -> tuple[dict[str, Path], dict]:
         """Render the fringes, scan them, write the maps; returns ({kind: written file}, the render's
@@ -397,12 +425,14 @@ class StructuredLightCamera:
         self.set_sharp_glossy(has_shiny_surface(self.scene))
         radiance, render_s = self.render_fringes(rdir, seed, T_world_cam)
         progress.begin("decode", f"{radiance.shape[0]} images, exposure {s.exposure}, HDR {s.hdr or 'off'}")
-        scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam)
+        scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam, ambient=self.ambient_image)
         self.last_seconds = {"render": render_s, "decode": scan.seconds}
         progress.begin("maps")
         files = write_render_maps(rdir, scan.maps(debug=s.debug))
         summary = scan.summary()
-        return files, {
+        extra = {} if self.ambient_image is None else {      # "off" keeps today's record, key for key
+            "ambient": "scene", "ambient_to_projector": summary["ambient_to_projector"]}
+        return files, {**extra,
             "periods": self.periods, "steps": self.steps, "unwrap": summary["unwrap"], "samples": int(s.samples),
             "fringe_mode": self.fringe_mode, "sensor": s.sensor, "exposure": summary["exposure"], "exposure_mode": summary["exposure_mode"],
             "hdr": summary["hdr"], "reflection_filter": summary["reflection_filter"], "glossy_fringes": ("offset" if self.flat is not None
@@ -523,7 +553,7 @@ def remove_leftovers(bpy_scene, tree=None) -> None:
 
     layer_re = re.compile(re.escape(_pj.LAYER_PREFIX) + r"\d\d$")
     for vl in list(bpy_scene.view_layers):
-        if layer_re.match(vl.name) and len(bpy_scene.view_layers) > 1:
+        if (layer_re.match(vl.name) or vl.name == _pj.AMBIENT_LAYER) and len(bpy_scene.view_layers) > 1:
             bpy_scene.view_layers.remove(vl)
     for ob in list(bpy.data.objects):
         if ob.name.startswith(_pj.LIGHT_PREFIX) and ob.type == "LIGHT":

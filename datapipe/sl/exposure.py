@@ -46,8 +46,8 @@ import numpy as np
 from ._errors import bad_value
 from .sensor import SensorModel
 
-__all__ = ["AUTO_PERCENTILE", "AUTO_TARGET", "Capture", "auto_exposure", "auto_hdr", "capture", "exposure_set",
-           "lit_pixels",
+__all__ = ["AUTO_PERCENTILE", "AUTO_TARGET", "Capture", "ProjectorOff", "auto_exposure", "auto_hdr", "capture",
+           "exposure_set", "lit_pixels", "projector_off",
            "check_exposure", "check_hdr", "exposure_problem", "hdr_problem"]
 
 AUTO_PERCENTILE = 99.0           # % of the metered (lit) pixels' peaks ...
@@ -113,17 +113,22 @@ def exposure_set(base: float, hdr: Sequence[float] | None) -> list[float]:
     return [float(base)] if not hdr else [float(base) * float(f) for f in hdr]
 
 
-def lit_pixels(radiance) -> tuple[np.ndarray, np.ndarray]:
+def lit_pixels(radiance, ambient=None) -> tuple[np.ndarray, np.ndarray]:
     """(per-pixel fringe peak, lit mask) of an (F*N, H, W) stack: the pixels the projector visibly
     modulates, not lost in the dark (module doc). One pass over the stack, shared by auto exposure
-    and auto HDR."""
+    and auto HDR. `ambient`: the (H, W) projector-off radiance already contained in `radiance`
+    (structured_light.ambient "scene"): the swing and darkness tests then compare with the
+    projector's own peak (peak - ambient), so a bright hall light does not hide the lit pixels
+    from the metering (with 4x the projector's peak in ambient light, swing / peak < LIT_SWING
+    everywhere); the metered value stays the total peak, what clips."""
     x = np.asarray(radiance)
     if x.ndim != 3 or x.shape[0] < 2:
         raise bad_value("radiance", f"has shape {x.shape}", "pass the (F*N, H, W) fringe stack")
     peak = x.max(axis=0).astype(np.float64)
     swing = peak - x.min(axis=0)
-    bright = np.percentile(peak, 99.9) if peak.size else 0.0
-    lit = np.isfinite(peak) & (peak > DARK_FRACTION * bright) & (swing >= LIT_SWING * peak) & (bright > 0)
+    own = peak if ambient is None else np.maximum(peak - np.asarray(ambient, np.float64), 0.0)
+    bright = np.percentile(own, 99.9) if own.size else 0.0
+    lit = np.isfinite(peak) & (own > DARK_FRACTION * bright) & (swing >= LIT_SWING * own) & (bright > 0)
     return peak, lit
 
 
@@ -256,3 +261,37 @@ def _fuse(x, sensor: SensorModel, exposures, seed, ref: float, steps: int | None
         fused[:, take] = vals
         chosen[take] = k
     return Capture(fused, sigma, float(sat_fused), list(exposures), ref, chosen)
+
+
+@dataclass
+class ProjectorOff:
+    """The projector-off capture (structured_light.ambient "scene"): what the camera reads with the
+    projector dark, at each pixel's exposure, in the DN units of the fringe capture's reference
+    exposure, black level removed, and its noise sigma (the sensor's, at that signal)."""
+    signal: np.ndarray          # (H, W) float32 DN above black
+    sigma: np.ndarray           # (H, W) float32 DN
+
+
+def projector_off(ambient, sensor: SensorModel, cap: Capture, seed) -> ProjectorOff:
+    """Take the projector-off capture of `ambient` ((H, W) linear radiance) as real scanners do
+    beside the fringes (one more frame: shot, read and quantisation noise of its own, from random
+    streams that no fringe capture uses), at the exposure `cap` chose for each pixel (HDR: the
+    fused one), rescaled to `cap.reference` like the fused fringes."""
+    x = np.clip(np.asarray(ambient, np.float32), 0.0, None)[None]
+    base = int(seed) if not isinstance(seed, np.random.Generator) else int(seed.integers(2 ** 63))
+    black = np.float32(sensor.black_level)
+    signal = np.zeros(x.shape[1:], np.float32)
+    sigma = np.zeros(x.shape[1:], np.float32)
+    for k, e in enumerate(cap.exposures):
+        take = np.ones(x.shape[1:], bool) if cap.chosen is None else cap.chosen == k
+        if not take.any():
+            continue
+        rng = np.random.default_rng(np.random.SeedSequence([base & 0xFFFFFFFFFFFFFFFF, OFF_STREAM, k]))
+        dn = sensor.apply(x * np.float32(e), rng)[0][0][take].astype(np.float32)
+        scale = np.float32(cap.reference / e)
+        sigma[take] = sensor.noise_sigma(dn) * scale
+        signal[take] = (dn - black) * scale
+    return ProjectorOff(signal, sigma)
+
+
+OFF_STREAM = 0x0FF           # the projector-off capture's random streams: SeedSequence([seed, OFF_STREAM, k])

@@ -110,7 +110,7 @@ def direct_offset_ratio(projector_gamma: float = 1.0, steps: int = 4) -> float:
 
 def global_light_filter(modulation, offset, direct_freqs, steps: int, noise_sigma, valid, *,
                         max_ratio: float = GLOBAL_MAX_RATIO, sigmas: float = GLOBAL_SIGMAS,
-                        direct_offset: float = 1.0) -> np.ndarray:
+                        direct_offset: float = 1.0, ambient=None, ambient_sigma=None) -> np.ndarray:
     """Pixels that receive more light over other paths (inter-reflection) than straight from the
     projector, so that the bounce decides their coarse phases and fringe order; returns the bool
     mask of pixels to remove.
@@ -129,7 +129,14 @@ def global_light_filter(modulation, offset, direct_freqs, steps: int, noise_sigm
     the correct part pixels (0.5: 3.3 points). A pixel lit *only* by bounced light has B = g_K g / 2, so g / d =
     1 / g_K - 1 >= 1 and is removed too (a projector-shadowed wall). The multipath filter's
     ratio test misses both: the wall's fine and coarse modulations differ by less than its 0.6.
-    Not a test of ambient light: fringe renders hold the projector's light only.
+
+    Ambient light (structured_light.ambient "scene": the hall's lights in every frame) raises A
+    as global light does and leaves every B alone (a constant in all N samples is the DC term of
+    the least-squares fit, sl/phase.py), so A alone cannot tell a hall light from bounced projector
+    light. Real scanners take a projector-off capture for this; `ambient` is that capture (DN
+    above black, in the offset's units: sl.exposure.projector_off) and is taken off A first, its
+    noise `ambient_sigma` added to sigma_A below. Without it (None) A is the projector's light alone,
+    as the fringe renders without ambient light hold.
 
     With a projector gamma the emitted profile's mean and first harmonic differ: direct light
     alone has A / B = `direct_offset` (`direct_offset_ratio`), and g / d = A / (direct_offset B) - 1.
@@ -138,7 +145,8 @@ def global_light_filter(modulation, offset, direct_freqs, steps: int, noise_sigm
         A - (1 + max_ratio) c B > sigmas * sqrt((1 + max_ratio)^2 c^2 sigma_B^2 + sigma_A^2),  c = direct_offset,
 
     B = max over `direct_freqs` of B_K, sigma_B = sqrt(2/N) sigma_I, sigma_A = sigma_I / sqrt(F N)
-    (dark pixels are not removed for noise alone). modulation: (F, H, W); offset: (H, W) mean A;
+    (dark pixels are not removed for noise alone; sigma_I at the full offset, ambient included,
+    and with `ambient` sigma_A^2 + ambient_sigma^2). modulation: (F, H, W); offset: (H, W) mean A;
     direct_freqs: (F,) bool (`direct_frequencies`); noise_sigma: a number, an (H, W) array or a
     callable sigma(signal) such as SensorModel.noise_sigma."""
     B = np.asarray(modulation)
@@ -148,7 +156,13 @@ def global_light_filter(modulation, offset, direct_freqs, steps: int, noise_sigm
     sig = noise_sigma(np.maximum(A, 0)) if callable(noise_sigma) else noise_sigma
     sig = np.asarray(sig, np.float64)
     k = (1.0 + float(max_ratio)) * float(direct_offset)
-    tol = sigmas * sig * np.sqrt(k * k * 2.0 / int(steps) + 1.0 / (B.shape[0] * int(steps)))
+    if ambient is None:
+        tol = sigmas * sig * np.sqrt(k * k * 2.0 / int(steps) + 1.0 / (B.shape[0] * int(steps)))
+    else:                     # the projector-off capture's own noise adds to that of A
+        A = A - np.asarray(ambient, np.float64)
+        s_off = np.asarray(ambient_sigma if ambient_sigma is not None else 0.0, np.float64)
+        tol = sigmas * np.sqrt(sig * sig * (k * k * 2.0 / int(steps) + 1.0 / (B.shape[0] * int(steps)))
+                               + s_off * s_off)
     with np.errstate(invalid="ignore"):
         return np.asarray(valid, bool) & (A - k * Bd > tol)
 

@@ -18,6 +18,9 @@ Validity (what "valid" means)
    unsaturated exposure, rescaled, with its noise); `hdr="auto"` adds shorter exposures per render
    while highlights clip (`sl.exposure.auto_hdr`). `Scan.exposure` is the base exposure used, the
    summary's `hdr` the factors used.
+0'. ambient light (`scan(ambient=...)`, structured_light.ambient "scene"): the scene's own lights
+   with the projector off, added to every image before 0. (its shot noise and clipping; exposure
+   and HDR meter the sum), and taken once more as a projector-off capture that 1b'. subtracts.
 1. decoder: modulation above the sensor-noise floor, consistent fringe orders, not saturated. The
    noise is the sensor model's own, per pixel (shot + read + quantisation at the pixel's signal and
    exposure; with HDR the fused exposure's, rescaled), never a global estimate from the images
@@ -66,7 +69,8 @@ from ..geometry import T_cam_proj, projection_matrix, projector_intrinsics
 from ._errors import bad_value
 from .decode import decode
 from .decode_result import DecodeResult, Reason
-from .exposure import Capture, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set, lit_pixels
+from .exposure import (Capture, ProjectorOff, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set,
+                       lit_pixels, projector_off)
 from .filters import (direct_frequencies, direct_offset_ratio, edge_speckle_filter, global_light_filter, multipath_filter,
                       projector_rows, reflection_filter, row_from_phase, row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
@@ -110,6 +114,7 @@ class Scan:
     multipath: np.ndarray | None = None   # bool: removed by the multipath filter
     reflection: np.ndarray | None = None  # bool: removed by the global reflection filter (None: no row code)
     row_residual: np.ndarray | None = None  # float32 projector rows, measured - predicted (row code only)
+    ambient: ProjectorOff | None = None   # the projector-off capture (scan(ambient=...) only)
 
     @property
     def exposure(self) -> float:
@@ -127,6 +132,8 @@ class Scan:
                   "confidence": res.confidence, "sigma_z": self.sigma_z.astype(np.float32)}
             if self.row_residual is not None:      # why a pixel is REFLECTION: its row code disagrees
                 ch["row_residual"] = self.row_residual
+            if self.ambient is not None:           # the projector-off capture (DN above black)
+                ch["ambient"] = self.ambient.signal
             for k, (w, m) in enumerate(zip(res.wrapped, res.modulation)):
                 ch[f"wrapped_{k}"], ch[f"modulation_{k}"] = w, m
             out["sl_debug"] = ch
@@ -137,12 +144,26 @@ class Scan:
         counts = np.bincount(res.reason.ravel(), minlength=max(REASON_NAMES) + 1)
         cap = self.capture
         factors = [e / cap.reference for e in cap.exposures] if cap is not None and len(cap.exposures) > 1 else []
-        return {"unwrap": res.method, "valid_fraction": float(res.valid.mean()),
-                "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
-                "median_sigma_z": _nanmedian(self.sigma_z), "exposure": self.exposure,
-                "exposure_mode": self.exposure_mode, "hdr": [float(f) for f in factors],
-                "reflection_filter": ("global" if self.reflection is not None
-                                      else "local" if self.multipath is not None else "off")}
+        out = {"unwrap": res.method, "valid_fraction": float(res.valid.mean()),
+               "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
+               "median_sigma_z": _nanmedian(self.sigma_z), "exposure": self.exposure,
+               "exposure_mode": self.exposure_mode, "hdr": [float(f) for f in factors],
+               "reflection_filter": ("global" if self.reflection is not None
+                                     else "local" if self.multipath is not None else "off")}
+        if self.ambient is not None:       # only with ambient light: a scan without it keeps its record
+            out["ambient_to_projector"] = self.ambient_to_projector()
+        return out
+
+    def ambient_to_projector(self) -> float | None:
+        """Median over the valid pixels of the projector-off signal over the projector's own mean
+        light (offset - black - ambient: half its peak with patterns 1/2 + 1/2 cos); None
+        without a projector-off capture or a valid pixel."""
+        if self.ambient is None:
+            return None
+        v = self.result.valid
+        own = self.result.offset[v].astype(np.float64) - self.sensor.black_level - self.ambient.signal[v]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return _nanmedian(np.where(own > 0, self.ambient.signal[v] / own, np.nan))
 
 
 class Scanner:
@@ -205,9 +226,15 @@ class Scanner:
         Wp, Hp = self.proj_size
         return fringe_patterns(Wp, Hp, ROW_PERIODS, self.steps, axis="y", gamma=gamma)
 
-    def scan(self, radiance, seed: int, K_cam, T_world_cam) -> Scan:
+    def scan(self, radiance, seed: int, K_cam, T_world_cam, ambient=None) -> Scan:
         """(F*N, H, W) linear radiance (frequency-major) seen from `T_world_cam` -> Scan. With
-        `row_images` more images after them (the row code), the global reflection filter runs."""
+        `row_images` more images after them (the row code), the global reflection filter runs.
+
+        `ambient`: (H, W) linear radiance of the scene's own lights with the projector off
+        (structured_light.ambient "scene"; None: the projector's light alone). Light is linear, so
+        it is added to every image before exposure and sensor (its shot noise, its clipping; auto
+        exposure and HDR meter the sum), and taken once more as the projector-off capture real
+        scanners take, which the global-light filter subtracts from the offset."""
         t0 = time.perf_counter()
         model = self.sensor
         radiance = np.clip(np.asarray(radiance, dtype=np.float32), 0.0, None)
@@ -216,10 +243,17 @@ class Scanner:
             raise bad_value("radiance", f"has shape {radiance.shape}",
                             f"pass the {n} fringe images (frequency-major), optionally followed by the "
                             f"{self.row_images} row-coded images")
-        lit = lit_pixels(radiance[:n]) if "auto" in (self.exposure, self.hdr) else None   # one metering pass
+        if ambient is not None:
+            ambient = np.clip(np.asarray(ambient, dtype=np.float32), 0.0, None)
+            if ambient.shape != radiance.shape[1:]:
+                raise bad_value("ambient", f"has shape {ambient.shape}",
+                                f"pass one (H, W) = {radiance.shape[1:]} projector-off image")
+            radiance += ambient[None]       # np.clip made `radiance` our own copy
+        lit = lit_pixels(radiance[:n], ambient) if "auto" in (self.exposure, self.hdr) else None   # one metering pass
         base = auto_exposure(radiance[:n], model, lit=lit) if self.exposure == "auto" else self.exposure
         factors = auto_hdr(radiance[:n], model, base, steps=self.steps, lit=lit) if self.hdr == "auto" else self.hdr
         cap = capture(radiance, model, exposure_set(base, factors), seed, reference=base, steps=self.steps)
+        off = projector_off(ambient, model, cap, seed) if ambient is not None else None
         P_cam = projection_matrix(K_cam, T_world_cam)
         P_proj = self.projector_matrix(T_world_cam)
         res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
@@ -236,7 +270,9 @@ class Scanner:
                                          res.valid)
             multipath |= global_light_filter(res.modulation, res.offset, direct_frequencies(res.periods, self.proj_size[0]),
                                              self.steps, cap.noise_sigma, res.valid,
-                                             direct_offset=direct_offset_ratio(self.projector_gamma, self.steps))
+                                             direct_offset=direct_offset_ratio(self.projector_gamma, self.steps),
+                                             ambient=None if off is None else off.signal,
+                                             ambient_sigma=None if off is None else off.sigma)
             _remove(res, multipath, MULTIPATH)
         reflection = residual = None
         if self.row_check and cap.images.shape[0] > n:
@@ -250,7 +286,7 @@ class Scanner:
             filtered = self._filter(res, sigma_z, float(np.asarray(K_cam)[0, 0]))
         sigma_z[~res.valid] = np.nan
         return Scan(res, sigma_z, filtered, P_cam, P_proj, model, time.perf_counter() - t0, cap,
-                    "auto" if self.exposure == "auto" else "fixed", multipath, reflection, residual)
+                    "auto" if self.exposure == "auto" else "fixed", multipath, reflection, residual, off)
 
     def row_code(self, res: DecodeResult, cap: Capture) -> RowCode:
         """Read the row-coded images of `cap` (after the fringe images) against the rows at which the

@@ -273,7 +273,7 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         sub = col.column()
         sub.active = not sl.auto_exposure
         sub.prop(sl, "exposure")
-        for name in ("hdr", "reflection_filter", "projector_gamma", "debug"):
+        for name in ("hdr", "reflection_filter", "ambient", "projector_gamma", "debug"):
             col.prop(sl, name)
         box = layout.box()
         box.label(text="Projector", icon="LIGHT_SPOT")

@@ -82,6 +82,10 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
                                     "row code and drop mirror ghosts (+Steps path-traced images); auto: global on "
                                     "renders with shiny surfaces, else local; off",
                                     items=enum_choices(C.REFLECTION_FILTERS), default=default(_L, "reflection_filter"))
+    ambient: EnumProperty(name="Ambient Light", description="scene: the scene's own lights (key light, world) "
+                          "also reach the fringe images, as a hall light on a real scanner (more shot noise, "
+                          "clipping, dark parts lost; one more layer in the fringe render); off: the projector alone",
+                          items=enum_choices(C.AMBIENT_MODES), default=default(_L, "ambient"))
     debug: BoolProperty(name="Debug Maps", description="Also write wrapped/absolute phase, modulation and "
                         "reason codes", default=default(_L, "debug"))
     projector_gamma: FloatProperty(name="Projector Gamma", description="Projector response exponent (it emits "
