@@ -3,6 +3,7 @@ trip, validate's warnings, `python -m datapipe sensors`, and the fringe-memory c
 resolution. The precision against the data sheets: tests/sl/test_sl_devices.py."""
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -293,3 +294,12 @@ def test_published_areas_agree_with_the_geometry():
             k, n = (K, cfg.camera.resolution[axis]) if which == "camera" else (Kp, cfg.projector.resolution[axis])
             span = n * Z / k[axis, axis] * 1000.0
             assert span == pytest.approx(area[i], rel=0.01), (name, which, span, area[i])
+
+
+def test_devices_md_lists_every_figure():
+    """docs/DEVICES.md holds one table row per figure of every device, with the JSON's value."""
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "DEVICES.md").read_text()
+    for name in devices.names():
+        section = doc.split(f"## `{name}`:")[1].split("\n## ")[0]
+        for key, fig in devices.raw(name)["figures"].items():
+            assert f"| `{key}` | {json.dumps(fig['value'])} |" in section, f"docs/DEVICES.md: {name} {key}"
