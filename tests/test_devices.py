@@ -145,7 +145,7 @@ def _warnings(name, **scene):
 
 def test_validate_warns_when_the_bin_is_outside_the_working_distance_or_the_view():
     # the demo rig: camera 0.8 m above the bin floor, a 0.3 x 0.2 m bin
-    assert _warnings("zivid2plus_m60") == []                        # 0.35-1.1 m, 0.48 x 0.40 m seen at 0.8 m
+    assert _warnings("zivid2plus_m60") == []                        # 0.3-1.1 m, 0.79 x 0.66 m seen at 0.8 m
     far = _warnings("mech_eye_nano")                               # 0.3-0.6 m
     assert len(far) == 1 and far[0].startswith("camera.poses[0, 1, 2, 3, 4, 5]: the bin floor is up to 0.800 m")
     assert "working distance (0.3-0.6 m)" in far[0] and "fix:" in far[0]
@@ -303,3 +303,22 @@ def test_devices_md_lists_every_figure():
         section = doc.split(f"## `{name}`:")[1].split("\n## ")[0]
         for key, fig in devices.raw(name)["figures"].items():
             assert f"| `{key}` | {json.dumps(fig['value'])} |" in section, f"docs/DEVICES.md: {name} {key}"
+
+
+def test_bin_picking_preset_fills_the_m60s_view():
+    """bin_picking.json on the Zivid 2+ M60 (issue #28): no device warning (bin inside the working
+    distance, every drop-zone corner inside the camera's and the projector's image at the nearest
+    distance), and the bin's rim spans most of the image: >= 75% of its height looking straight down
+    from the nearest distance (81% at 0.60 m: 0.30 m of rim at 0.45 m with f = 1240.5 px)."""
+    from datapipe.draws.camera_sampler import look_at_pose
+    cfg = C.load(C.presets_dir() / "bin_picking.json")
+    assert cfg.device == "zivid2plus_m60" and cfg.binning == 2
+    assert device_checks.device_warnings(cfg) == []
+    (x, y, z), (hx, hy, hz) = cfg.scene.drop_zone_loc, cfg.scene.drop_zone_scale
+    wall = cfg.scene.bin_wall_thickness
+    rim = np.array([[x + sx * (hx + wall), y + sy * (hy + wall), z + hz] for sx in (-1, 1) for sy in (-1, 1)])
+    T = np.linalg.inv(look_at_pose([x, y, z - hz], min(cfg.camera.sampler.distance), 0.0, 0.0, 0.0))
+    pc = rim @ T[:3, :3].T + T[:3, 3]
+    uv = pc @ device_checks.camera_K(cfg).T
+    v = uv[:, 1] / uv[:, 2]
+    assert (v.max() - v.min()) / cfg.camera.resolution[1] >= 0.75
