@@ -122,6 +122,7 @@ def test_stored_full_well_is_the_calibration(name):
 @pytest.mark.parametrize("name", UNPUBLISHED)
 def test_an_unpublished_device_uses_its_siblings_sensor(name):
     dev = devices.device(name)
+    assert "not published" in dev["noise_model"]["why"]                    # the JSON says so, and why
     assert dev["sensor"] == devices.device(dev["noise_model"]["sibling"])["sensor"]
     with pytest.raises(ValueError, match="no published precision"):
         device_checks.calibrate_full_well(name)
