@@ -3,8 +3,8 @@
 - `field_of_view_deg`, `depth_slope`: from the Config sections a device fills;
 - `predicted_precision`: the plane precision the noise propagation of docs/STRUCTURED_LIGHT.md
   ("Device presets: calibration") predicts, and `calibrate_full_well`: the effective full well that
-  makes it the data sheet's figure (stored in each preset's JSON; tests/sl/test_sl_devices.py
-  checks both against the simulated scanner);
+  makes it the published figure (stored as the `sensor.full_well` figure of each calibrated
+  preset; tests/sl/test_sl_devices.py checks both against the simulated scanner);
 - `device_warnings`: validate's lines when the bin lies outside a device's working distance or
   field of view;
 - `table`: what `python -m datapipe sensors` prints.
@@ -82,12 +82,17 @@ def predicted_precision(cfg, Z: float, full_well: float | None = None, read_nois
 
 
 def calibrate_full_well(name: str) -> float:
-    """The full well (e-) at which `predicted_precision` at the data sheet's distance equals the
-    data sheet's figure, with the device's read noise and ADC (full resolution). What DataPipe does
-    not model (the vendor's pattern engine, projector contrast and defocus, demosaicking) is folded
-    into this one number: it is an *effective* full well, not the imager's."""
+    """The full well (e-) at which `predicted_precision` at the published figure's distance equals
+    the published figure, with the device's read noise and ADC (full resolution). What DataPipe
+    does not model (the vendor's pattern engine and number of images, projector contrast and
+    defocus, demosaicking) is folded into this one number: it is an *effective* full well, not the
+    imager's. Only for a device whose noise model is calibrated (`noise_model.calibrated_to`)."""
     dev = device(name)
-    cfg, p = _build_cfg(config_sections(name)), dev["precision"]
+    p = dev["precision"]
+    if not p["published"] or "calibrated_to" not in dev["noise_model"]:
+        raise ValueError(f"{name}: no published precision figure to calibrate against "
+                         f"(its sensor is {dev['noise_model'].get('sibling')}'s)")
+    cfg = _build_cfg(config_sections(name))
     s = dev["sensor"]
     f = lambda fw: math.log(predicted_precision(cfg, p["distance"], fw, s["read_noise"], s["adc_bits"]) / p["value"])
     return float(brentq(f, 10.0, 1e8, rtol=1e-10))
@@ -209,9 +214,10 @@ def _outside_view(cfg) -> list[tuple[str, tuple[int, list[str]]]]:
 
 def table() -> str:
     """One line per device: name, label, resolution (binned), field of view (degrees, and mm at the
-    optimal distance), working distance, the data sheet precision and where it comes from."""
+    optimal distance), working distance, the published precision (or "not published" and what the
+    noise model predicts there) and where the precision figure comes from."""
     rows = [("name", "device", "resolution (binned)", "FOV deg (mm @ optimal)", "working distance m",
-             "precision (data sheet)", "source")]
+             "precision (published)", "precision source")]
     for name in names():
         dev = device(name)
         cfg = _build_cfg(config_sections(name))
@@ -220,9 +226,12 @@ def table() -> str:
         fh, fv = field_of_view_deg(cfg)
         wd, p = dev["working_distance"], dev["precision"]
         mm = [2e3 * wd["optimal"] * math.tan(math.radians(a / 2)) for a in (fh, fv)]
+        if p["published"]:
+            prec = f"{p['value'] * 1e6:.0f} um {p['metric']} @ {p['distance']:g} m"
+        else:
+            model = predicted_precision(cfg, p["distance"])
+            prec = f"not published (model: {model * 1e6:.0f} um @ {p['distance']:g} m, {dev['noise_model']['sibling']}'s sensor)"
         rows.append((name, dev["label"], f"{w}x{h} ({bins})", f"{fh:.1f} x {fv:.1f} ({mm[0]:.0f} x {mm[1]:.0f})",
-                     f"{wd['range'][0]:g}-{wd['range'][1]:g} (optimal {wd['optimal']:g})",
-                     f"{p['value'] * 1e6:.0f} um {p['metric']} @ {p['distance']:g} m",
-                     f"{p['source']}; {dev['sources'][0]['url']}"))
+                     f"{wd['range'][0]:g}-{wd['range'][1]:g} (optimal {wd['optimal']:g})", prec, p["source"]))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]) - 1)]
     return "\n".join("  ".join(c.ljust(wd) for c, wd in zip(r, widths)) + "  " + r[-1] for r in rows)

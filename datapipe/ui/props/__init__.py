@@ -42,7 +42,8 @@ def _device_items():
     from ...devices import device, names
     return [("NONE", "None", "No device: the camera, projector and structured-light fields as they are")] + \
         [(n, device(n)["label"], f"{device(n)['label']}: fill the camera, projector and structured-light fields "
-          f"from its data sheet ({device(n)['precision']['source']}); `python -m datapipe sensors` lists them")
+          f"from its sourced figures (docs/DEVICES.md; precision: {device(n)['precision']['source'].split(':')[0]}); "
+          "`python -m datapipe sensors` lists them")
          for n in names()]
 
 
