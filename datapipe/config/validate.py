@@ -376,12 +376,22 @@ def _check_materials(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
 
 def _check_device(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
     """device (a known scanner) and binning (one it offers)."""
+    from ..calibration import is_calibration_path
     from ..devices import device_problem
+    if is_calibration_path(cfg.device):     # a calibration file: read (and checked) when the preset was parsed
+        return
     problem = device_problem(cfg.device, cfg.binning)
     if problem is not None:
         ck.problems.append(problem)
 
 
+def _check_lens(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
+    """camera.intrinsics / camera.distortion / projector.intrinsics (a calibration's fields)."""
+    from ..calibration import config_problems
+    ck.problems.extend(config_problems(cfg))
+
+
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
 VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_variety, _check_projector, _check_structured_light,
-                    _check_render, _check_simulation, _check_output, _check_materials, _check_device)
+                    _check_render, _check_simulation, _check_output, _check_materials, _check_device,
+                    _check_lens)
