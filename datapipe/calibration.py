@@ -64,6 +64,9 @@ def apply_calibration(data: dict, problems: list[Problem], base_dir=None) -> dic
         problems.extend(e.problems)
         return data
     from .devices import _merge
+    for sec in ("camera", "projector"):        # a null in the preset (a saved default) is "not given"
+        if isinstance(data.get(sec), dict):
+            data[sec] = {k: v for k, v in data[sec].items() if not (v is None and k in sections[sec])}
     return _merge(sections, data)
 
 
@@ -99,7 +102,7 @@ def read(path) -> dict:
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise _problem(path, f"is not valid JSON ({e})", "write it with cv2.FileStorage or as the plain JSON of "
                        "docs/CALIBRATION.md") from None
-    if isinstance(doc, dict) and isinstance(doc.get("camera"), dict):
+    if isinstance(doc, dict) and isinstance(doc.get("camera"), dict) and "K" in doc["camera"]:
         return _read_plain(path, doc)
     if isinstance(doc, dict) and any(k in doc for keys in OPENCV_KEYS.values() for k in keys):
         return _read_opencv(path)
@@ -118,8 +121,8 @@ def _read_opencv(path) -> dict:
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         opened = fs.isOpened()
-    except cv2.error as e:
-        raise _problem(path, f"cannot be parsed by cv2.FileStorage ({str(e).strip().splitlines()[-1]})",
+    except (cv2.error, SystemError) as e:        # cv2's parser errors arrive as either
+        raise _problem(path, f"cannot be parsed by cv2.FileStorage ({str(e).strip().splitlines()[-1][:200]})",
                        "write it with cv2.FileStorage (YAML/JSON/XML) or use the plain JSON of "
                        "docs/CALIBRATION.md") from None
     if not opened:
