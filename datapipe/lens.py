@@ -96,6 +96,16 @@ def _frame_border(K, size, step: float = 4.0):
     return (u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]
 
 
+def turning_radius(d) -> float:
+    """The ideal radius where r'' = r (1 + k1 r^2 + k2 r^4 + k3 r^6) stops growing (inf if never, up
+    to r = 10): beyond it the polynomial no longer describes a lens."""
+    k1, k2, _, _, k3 = d
+    r = np.linspace(0.0, 10.0, 100001)
+    r2 = r * r
+    turn = np.flatnonzero(1.0 + r2 * (3.0 * k1 + r2 * (5.0 * k2 + 7.0 * k3 * r2)) <= 0)
+    return float(r[turn[0]]) if turn.size else math.inf
+
+
 def fold_problem(K, d, size, path: str = "camera.distortion") -> Problem | None:
     """A Problem when the lens folds the image: the radius r'' = r (1 + k1 r^2 + k2 r^4 + k3 r^6)
     stops growing before it reaches the frame's farthest corner (two rays would land on one pixel),

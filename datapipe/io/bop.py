@@ -402,7 +402,7 @@ class BopWriter:
                 raise DataPipeError(f"{scene_dir.name}/{rd['name']}: object id {obj_id} has no model "
                                     f"{model_filename(obj_id)} in {self.models_dir}")
             m = models[obj_id]
-            sil, count, bbox = rasterize_silhouette(m.verts_mm, m.faces, K, R, t_mm, W, H)
+            sil, count, bbox = rasterize_silhouette(m.verts_mm, m.faces, K, R, t_mm, W, H, dist=rd.get("distortion"))
             visib = inst == int(o["mask_index"])
             infos.append(gt_info(sil, count, bbox, visib, depth_valid))
             if infos[-1]["px_count_visib"] > 0:
