@@ -182,3 +182,67 @@ def test_plane_depth_with_the_lens_stays_at_the_noise_limit(tmp_path):
           f"{np.median(err) * 1e3:.4f} mm, robust sigma {robust_sigma * 1e3:.4f} mm, scanner's sigma_z "
           f"{info['median_sigma_z'] * 1e3:.4f} mm")
     assert info["valid_fraction"] == pytest.approx(valid.mean())
+
+
+def test_calibration_file_round_trips_into_scene_json_and_scene_camera(tmp_path):
+    """A 96 x 72 rig written by cv2.FileStorage, run end to end (one scene, native + BOP): K and the
+    distortion in scene.json and in scene_camera.json are the file's (floats through JSON exactly);
+    each part's rendered mask (render grid -> remap) lies within a pixel of its silhouette rasterised
+    through the lens from the annotated pose (io/silhouette.py: a second implementation of the lens)."""
+    import json
+    from datapipe.engine.pipeline import Pipeline
+    from datapipe.io.exr import read_mask
+    from datapipe.io.silhouette import rasterize_silhouette
+    from datapipe.io.models import read_ply
+
+    K1 = np.array([[136.25, 0.0, 48.75], [0.0, 136.875, 35.25], [0.0, 0.0, 1.0]])
+    D1 = np.array([-0.21, 0.06, 0.0011, -0.0007, 0.0])
+    K2 = np.array([[1290.0, 0.0, 455.5], [0.0, 1290.0, 284.5], [0.0, 0.0, 1.0]])
+    R = cv2.Rodrigues(np.array([0.0, 0.148, 0.0]))[0]
+    T = np.array([-150.0, 0.0, 0.0])
+    path = tmp_path / "rig.yml"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for name, v in (("K1", K1), ("D1", D1), ("K2", K2), ("D2", np.zeros(5)), ("R", R), ("T", T),
+                    ("image_size1", np.array([96.0, 72.0])), ("image_size2", np.array([912.0, 570.0]))):
+        fs.write(name, v)
+    fs.write("unit", "mm")
+    fs.release()
+    d = C.default_config().to_dict()
+    for sec in ("camera", "projector"):
+        for k in ("focal_length", "sensor_width", "resolution", "location", "rotation", "sensor_fit"):
+            d[sec].pop(k, None)
+    d["device"] = str(path)
+    d["scene"].update(num_renders=1, min_renders_per_scene=1, max_renders_per_scene=1)
+    d["render"].update(samples=2, threads=2, outputs=["rgb", "depth", "mask"])
+    d["simulation"]["max_frames"] = 120
+    d["structured_light"]["periods"] = [1, 4, 16]      # finest fringe ~6 camera px at 96 px
+    for o in d["objects"]:
+        o["min_instances"] = o["max_instances"] = 1
+    d["output"].update(formats=["native", "bop"], overview=False)
+    cfg = C.Config.from_dict(d)
+    out = tmp_path / "out"
+    events = list(Pipeline(cfg, out).run())
+    assert events[-1].stage == "done", events[-1]
+    scene = json.loads(next(out.glob("scene.*/scene.json")).read_text())
+    rd = scene["renders"][0]
+    assert np.array_equal(np.array(rd["K"]), K1) and rd["distortion"] == D1.tolist()
+    cams = json.loads(next((out / "bop").glob("train_pbr/*/scene_camera.json")).read_text())
+    cam = next(iter(cams.values()))
+    assert cam["cam_K"] == K1.ravel().tolist() and cam["cam_dist"] == D1.tolist()
+    mask = read_mask(next(out.glob("scene.*")) / rd["files"]["mask"])
+    checked = 0
+    for o in rd["objects"]:
+        vis = mask == o["mask_index"]
+        if vis.sum() < 30:
+            continue
+        verts, faces = read_ply(out / "bop" / "models" / f"obj_{o['obj_id']:06d}.ply")     # mm
+        Tco = np.array(o["T_cam_obj"])
+        sil, _, _ = rasterize_silhouette(verts, faces, K1, Tco[:3, :3], Tco[:3, 3] * 1000.0, 96, 72, dist=D1)
+        # nearest lookup: a mask pixel takes the id of the render pixel whose centre is nearest its ray, up
+        # to half a render pixel (<= 0.5 image px here) away: every mask pixel lies within 1 px of the
+        # silhouette, and most inside it
+        near = cv2.dilate(sil.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        assert not (vis & ~near).any()
+        assert np.count_nonzero(vis & ~sil) <= 0.15 * vis.sum() + 2
+        checked += 1
+    assert checked >= 1
