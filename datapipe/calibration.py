@@ -38,6 +38,7 @@ OPENCV_KEYS = {          # DataPipe's name -> the FileStorage names accepted, fi
     "size_proj": ("image_size2", "imageSize2"), "unit": ("unit",),
 }
 FOCUS_SEARCH = (0.05, 10.0)    # m: the camera's central ray is sought in the projector's image over this range
+ROTATION_TOL = 1e-3            # |R^T R - I| accepted (rounded files), then made exact
 SENSOR_WIDTH_MM = 11.3         # the camera's nominal sensor width (only focal_length's mm depend on it)
 
 
@@ -226,9 +227,11 @@ def _checked(path, raw: dict) -> dict:
             raise _problem(path, f"{_name(key)} is {out[key].tolist()}", "give [width, height] in whole pixels")
         out[key] = (int(w), int(h))
     R = out["R"]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+    if not np.allclose(R.T @ R, np.eye(3), atol=ROTATION_TOL) or np.linalg.det(R) <= 0:
         raise _problem(path, "R is not a rotation (R^T R != I or det(R) <= 0)",
                        "give R as stereoCalibrate returns it (a 3x3 rotation; cv2.Rodrigues turns a vector into one)")
+    u, _, vt = np.linalg.svd(R)          # the nearest rotation: a file typed with 4 decimals is off by ~1e-4
+    out["R"] = u @ vt
     out["T"] = out["T"] * UNITS[unit.strip().lower()]
     return out
 

@@ -172,3 +172,17 @@ def test_camera_distortion_without_a_file_is_checked():
     cfg.camera.distortion = None
     cfg.camera.intrinsics = [0.0, 400.0, 160.0, 120.0]
     assert [p.path for p in cfg.problems(check_files=False)] == ["camera.intrinsics"]
+
+
+def test_the_documented_plain_json_example_loads(tmp_path):
+    """docs/CALIBRATION.md's example: it loads, and its projector sits ~111 mm to the camera's +x with
+    its axis crossing the camera's near 1.3 m (the numbers it was written with)."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "CALIBRATION.md").read_text()
+    block = text.split("### DataPipe's plain JSON", 1)[1].split("```json", 1)[1].split("```", 1)[0]
+    (tmp_path / "rig.json").write_text(block)
+    cfg = C.Config.from_dict(preset(tmp_path / "rig.json"))
+    T = geometry.T_cam_proj(cfg)
+    assert np.allclose(T[:3, 3], [0.1112, 0.0, 0.0079], atol=5e-4)
+    z = 1.3
+    Xp = np.linalg.inv(T) @ np.array([0.0, 0.0, z, 1.0])            # the camera axis at 1.3 m, projector frame
+    assert abs(Xp[0] / Xp[2]) < 0.01
