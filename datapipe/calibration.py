@@ -96,7 +96,7 @@ def read(path) -> dict:
     except OSError as e:
         raise _problem(path, f"cannot be read ({e.strerror})", "check the file's permissions") from None
     text_head = head.decode("utf-8", "replace").lstrip()
-    if text_head.startswith("%YAML") or text_head.startswith("<?xml") or path.suffix.lower() in (".yml", ".yaml", ".xml"):
+    if text_head.startswith(("%YAML", "<?xml")) or path.suffix.lower() in (".yml", ".yaml", ".xml"):
         return _read_opencv(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))

@@ -396,4 +396,5 @@ def _check_lens(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
 
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
 VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_lens, _check_variety, _check_projector,
-                    _check_structured_light, _check_render, _check_simulation, _check_output, _check_materials, _check_device)
+                    _check_structured_light, _check_render, _check_simulation, _check_output, _check_materials,
+                    _check_device)
