@@ -225,8 +225,9 @@ class DATAPIPE_PT_camera(_DataPipePanel, Panel):
         sub.prop(cam, "clip_end", text="End")
         for name in ("intrinsics", "distortion"):         # a calibrated camera (docs/CALIBRATION.md)
             col.prop(cam, f"use_{name}")
-            if getattr(cam, f"use_{name}"):
-                col.prop(cam, name)
+            sub = col.column()
+            sub.active = getattr(cam, f"use_{name}")
+            sub.prop(cam, name)
 
         on = preview.is_on("camera")
         layout.operator("datapipe.camera_preview", text="Hide Camera" if on else "Preview Camera",
@@ -286,8 +287,9 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         sub.prop(pr, "resolution", index=0, text="Resolution X")
         sub.prop(pr, "resolution", index=1, text="Y")
         bcol.prop(pr, "use_intrinsics")
-        if pr.use_intrinsics:
-            bcol.prop(pr, "intrinsics")
+        sub = bcol.column()
+        sub.active = pr.use_intrinsics
+        sub.prop(pr, "intrinsics")
         bcol.prop(pr, "power")
         bcol.label(text="Pose relative to the camera")
         bcol.prop(pr, "location")
