@@ -64,11 +64,11 @@ def apply_calibration(data: dict, problems: list[Problem], base_dir=None) -> dic
     except ConfigError as e:
         problems.extend(e.problems)
         return data
-    from .devices import _merge
-    for sec in ("camera", "projector"):        # a null in the preset (a saved default) is "not given"
-        if isinstance(data.get(sec), dict):
-            data[sec] = {k: v for k, v in data[sec].items() if not (v is None and k in sections[sec])}
-    return _merge(sections, data)
+    for sec, filled in sections.items():       # the preset's fields win; a null (a saved default) is "not given"
+        given = data.get(sec)
+        if given is None or isinstance(given, dict):
+            data[sec] = {**filled, **{k: v for k, v in (given or {}).items() if not (v is None and k in filled)}}
+    return data
 
 
 def load(path) -> dict:
