@@ -38,6 +38,7 @@ OPENCV_KEYS = {          # DataPipe's name -> the FileStorage names accepted, fi
     "size_proj": ("image_size2", "imageSize2"), "unit": ("unit",),
 }
 FOCUS_SEARCH = (0.05, 10.0)    # m: the camera's central ray is sought in the projector's image over this range
+MAX_FILE_BYTES = 1 << 20       # a calibration is a few kB: anything above 1 MiB is another file
 ROTATION_TOL = 1e-3            # |R^T R - I| accepted (rounded files), then made exact
 SENSOR_WIDTH_MM = 11.3         # the camera's nominal sensor width (only focal_length's mm depend on it)
 
@@ -92,9 +93,14 @@ def read(path) -> dict:
                        "give the path of the file cv2.FileStorage wrote after stereoCalibrate (relative "
                        "paths are relative to the preset's folder), or a device name (`python -m datapipe sensors`)")
     try:
-        head = path.read_bytes()[:4096]
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(4096)
     except OSError as e:
         raise _problem(path, f"cannot be read ({e.strerror})", "check the file's permissions") from None
+    if size > MAX_FILE_BYTES:
+        raise _problem(path, f"is {size / 2**20:.1f} MiB, not a calibration (a few kB)",
+                       "give the file cv2.FileStorage wrote after stereoCalibrate")
     text_head = head.decode("utf-8", "replace").lstrip()
     if text_head.startswith(("%YAML", "<?xml")) or path.suffix.lower() in (".yml", ".yaml", ".xml"):
         return _read_opencv(path)

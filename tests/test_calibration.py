@@ -135,6 +135,10 @@ def test_refusals_name_the_field_and_the_fix(tmp_path, calibrated):
     assert "cv2.FileStorage" in refusal(tmp_path, tmp_path / "garbage.yml")
     (tmp_path / "preset.json").write_text(json.dumps(C.default_config().to_dict()))
     assert "another layout" in refusal(tmp_path, tmp_path / "preset.json")
+    (tmp_path / "big.json").write_bytes(b" " * (2 << 20))
+    assert "not a calibration" in refusal(tmp_path, tmp_path / "big.json")
+    (tmp_path / "dir.yml").mkdir()
+    assert "is not a file" in refusal(tmp_path, tmp_path / "dir.yml")
     bad = k1.copy()
     bad[1, 1] = -bad[1, 1]
     msg = refusal(tmp_path, write_opencv(tmp_path / "neg.yml", bad, d1, k2, np.zeros(5), R, T))
