@@ -246,3 +246,16 @@ def test_calibration_file_round_trips_into_scene_json_and_scene_camera(tmp_path)
         assert np.count_nonzero(vis & ~sil) <= 0.15 * vis.sum() + 2
         checked += 1
     assert checked >= 1
+
+
+def test_without_intrinsics_and_distortion_the_camera_renders_as_before():
+    """No calibration fields: no render grid, no remap; Blender's camera is the config's lens with no
+    shift (what every run made before the lens existed; the golden snapshot keeps its output)."""
+    cfg = C.default_config()
+    cfg.camera.distortion = [0.0, 0.0, 0.0, 0.0, 0.0]          # all zero = none
+    blend = BlendScene(cfg).setup()
+    cam = BlendCamera(cfg, blend.scene).setup()
+    assert cam.lens is None and cam.distortion is None
+    r, data = blend.scene.render, cam.obj.data
+    assert (r.resolution_x, r.resolution_y) == tuple(cfg.camera.resolution)
+    assert data.lens == pytest.approx(cfg.camera.focal_length) and data.shift_x == data.shift_y == 0.0
