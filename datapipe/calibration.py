@@ -297,21 +297,26 @@ def sections(cal: dict, path="calibration file") -> dict:
     return {"camera": camera, "projector": projector}
 
 
-def _check_projector_sees(path, Kc, size_c, Kp, size_p, T_cam_proj) -> None:
-    """The camera's central ray must cross the projector's image (in front of it) somewhere between
-    FOCUS_SEARCH[0] and [1] m: otherwise no camera pixel is ever lit (R and T inverted, the wrong
-    unit, or two unrelated calibrations)."""
+def lit_depths(Kc, size_c, Kp, size_p, T_cam_proj, z) -> np.ndarray:
+    """Which depths `z` (m) of the camera's central ray the projector's image lights (bool array)."""
     wc, hc = size_c
     wp, hp = size_p
     ray = np.linalg.solve(Kc, [(wc - 1) / 2.0, (hc - 1) / 2.0, 1.0])
-    z = np.geomspace(*FOCUS_SEARCH, 400)
-    X = ray[None, :] * z[:, None]
+    X = ray[None, :] * np.asarray(z, dtype=np.float64)[:, None]
     T_proj_cam = np.linalg.inv(T_cam_proj)
     Xp = X @ T_proj_cam[:3, :3].T + T_proj_cam[:3, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
-        uv = Xp @ Kp.T
+        uv = Xp @ np.asarray(Kp).T
         u, v = uv[:, 0] / uv[:, 2], uv[:, 1] / uv[:, 2]
-    seen = (Xp[:, 2] > 0) & (u >= -0.5) & (u <= wp - 0.5) & (v >= -0.5) & (v <= hp - 0.5)
+    return (Xp[:, 2] > 0) & (u >= -0.5) & (u <= wp - 0.5) & (v >= -0.5) & (v <= hp - 0.5)
+
+
+def _check_projector_sees(path, Kc, size_c, Kp, size_p, T_cam_proj) -> None:
+    """The camera's central ray must cross the projector's image (in front of it) somewhere between
+    FOCUS_SEARCH[0] and [1] m: otherwise no camera pixel is ever lit (R and T inverted, the wrong
+    unit, or two unrelated calibrations). Whether it is lit at the run's working distance is
+    `config_problems`' (it knows the camera poses)."""
+    seen = lit_depths(Kc, size_c, Kp, size_p, T_cam_proj, np.geomspace(*FOCUS_SEARCH, 400))
     if not seen.any():
         raise _problem(path, f"the projector cannot see the camera's view: the centre of the camera image is lit "
                        f"by no projector pixel between {FOCUS_SEARCH[0]:g} and {FOCUS_SEARCH[1]:g} m (the projector "
@@ -363,3 +368,28 @@ def config_problems(cfg) -> list[Problem]:
     if problem is not None:
         out.append(problem)
     return out
+
+
+def working_distance_problems(cfg) -> list[Problem]:
+    """A calibrated rig whose projector does not light the centre of the camera's image at the
+    distances the run renders from (camera to drop zone): its structured-light depth would be empty
+    there. Only for `device` = a calibration file with structured light on."""
+    if not (is_calibration_path(cfg.device) and cfg.structured_light.enabled):
+        return []
+    from .config.plan import camera_distances
+    try:
+        Kc, Kp, T = geometry.camera_intrinsics(cfg.camera), geometry.projector_intrinsics(cfg), geometry.T_cam_proj(cfg)
+        dists = camera_distances(cfg)
+    except (ValueError, TypeError, ArithmeticError, np.linalg.LinAlgError):
+        return []                                      # a broken field: its own rule names it
+    lit = lit_depths(Kc, tuple(cfg.camera.resolution), Kp, tuple(cfg.projector.resolution), T, dists)
+    if lit.all():
+        return []
+    z = np.geomspace(*FOCUS_SEARCH, 400)
+    band = z[lit_depths(Kc, tuple(cfg.camera.resolution), Kp, tuple(cfg.projector.resolution), T, z)]
+    where = f"between {band.min():.3g} and {band.max():.3g} m" if band.size else "at no distance"
+    dark = sorted({round(float(d), 3) for d, ok in zip(dists, lit) if not ok})
+    return [Problem("device", f"the projector of {cfg.device} does not light the centre of the camera's image "
+                    f"at {dark} m from the bin (it lights it {where})",
+                    "move the camera (camera.poses or camera.sampler.distance) into that range, or check the "
+                    "file's R and T (X_proj = R X_cam + T)")]

@@ -23,7 +23,7 @@ from datapipe.errors import ConfigError
 K1 = np.array([[1210.5, 0.0, 652.25], [0.0, 1209.75, 471.5], [0.0, 0.0, 1.0]])    # 1280 x 960 camera
 D1 = np.array([-0.12, 0.085, 0.0007, -0.0004, -0.02])
 K2 = np.array([[1480.0, 0.0, 455.5], [0.0, 1481.0, 700.25], [0.0, 0.0, 1.0]])     # 912 x 1140 projector,
-R_TRUE = cv2.Rodrigues(np.array([0.01, -0.16, 0.004]))[0]                          # offset optics (cy high)
+R_TRUE = cv2.Rodrigues(np.array([0.01, 0.16, 0.004]))[0]     # toed in: axes cross ~1 m; projector optics offset (cy high)
 T_TRUE = np.array([-160.0, 2.5, 12.0])        # mm: X_proj = R X_cam + T (the projector on the camera's +x)
 SIZE1, SIZE2 = (1280, 960), (912, 1140)
 
@@ -190,3 +190,16 @@ def test_the_documented_plain_json_example_loads(tmp_path):
     z = 1.3
     Xp = np.linalg.inv(T) @ np.array([0.0, 0.0, z, 1.0])            # the camera axis at 1.3 m, projector frame
     assert abs(Xp[0] / Xp[2]) < 0.01
+
+
+def test_a_rig_that_does_not_light_the_working_distance_is_refused(tmp_path, calibrated):
+    """The stereoCalibrate rig (axes crossing near 1 m) with the camera moved to 0.2 m from the bin:
+    the projector, 0.16 m to the side and toed in, lights the image centre only farther away, so
+    validate names `device` and the lit range."""
+    path = write_opencv(tmp_path / "rig.yml", *calibrated[:3], np.zeros(5), *calibrated[4:])
+    d = preset(path)
+    assert C.Config.from_dict(d).problems(check_files=False) == []       # the demo's poses: lit
+    for pose in d["camera"]["poses"]:
+        pose["location"] = [pose["location"][0], pose["location"][1], pose["location"][2] - 0.5]
+    msg = [str(p) for p in C.Config.from_dict(d).problems(check_files=False) if p.path == "device"]
+    assert msg and "does not light the centre of the camera's image" in msg[0] and "it lights it between" in msg[0]

@@ -390,8 +390,10 @@ def _check_device(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
 
 def _check_lens(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
     """camera.intrinsics / camera.distortion / projector.intrinsics (a calibration's fields)."""
-    from ..calibration import config_problems
+    from ..calibration import config_problems, working_distance_problems
     ck.problems.extend(config_problems(cfg))
+    if not ck.has("camera") and not ck.has("projector"):
+        ck.problems.extend(working_distance_problems(cfg))
 
 
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
