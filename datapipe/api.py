@@ -179,9 +179,10 @@ def _shard(shard) -> tuple[int, int]:
 # -- structured light without Blender -----------------------------------------------------------------
 
 def camera_matrix(cfg: Config) -> np.ndarray:
-    """The camera's 3x3 intrinsics K of `cfg` (OpenCV, pixel centres at integers), as the runs write it."""
-    from .checks.device_checks import camera_K
-    return camera_K(cfg)
+    """The camera's 3x3 intrinsics K of `cfg` (OpenCV, pixel centres at integers), as the runs write it
+    (`camera.intrinsics` when given: a calibration, docs/CALIBRATION.md)."""
+    from .geometry import camera_intrinsics
+    return camera_intrinsics(cfg.camera)
 
 
 def patterns(cfg: Config) -> np.ndarray:

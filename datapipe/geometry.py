@@ -104,6 +104,22 @@ def intrinsics_from_sensor(focal_mm: float, sensor_mm: float, width: int, height
                                           sensor_height_mm=sensor_mm)
 
 
+def camera_intrinsics(camera_cfg) -> np.ndarray:
+    """The camera's K: `camera.intrinsics` [fx, fy, cx, cy] when given (a calibration, any principal
+    point), else the unshifted pinhole of its focal length and sensor size (`intrinsics_from_sensor`)."""
+    c = getattr(camera_cfg, "camera", camera_cfg)
+    if getattr(c, "intrinsics", None) is not None:
+        return intrinsics_matrix(c.intrinsics)
+    return intrinsics_from_sensor(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
+                                  c.sensor_fit)
+
+
+def intrinsics_matrix(fx_fy_cx_cy) -> np.ndarray:
+    """[fx, fy, cx, cy] -> K (3x3 float64, zero skew)."""
+    fx, fy, cx, cy = (float(v) for v in fx_fy_cx_cy)
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
 def project_points(K, T_cam_X, pts) -> np.ndarray:
     """Points in frame X (N,3) -> pixel coordinates (N,2) through T_cam_X (4x4) and K."""
     pts = np.asarray(pts, dtype=np.float64)
@@ -195,11 +211,14 @@ def projector_resolution(cfg) -> tuple[int, int]:
 
 
 def projector_intrinsics(cfg) -> np.ndarray:
-    """K_p (3x3, pixel centres at integers) from focal length (mm), sensor width (mm), W x H.
+    """K_p (3x3, pixel centres at integers) from focal length (mm), sensor width (mm), W x H, or
+    `projector.intrinsics` [fx, fy, cx, cy] when given.
 
     The projector is an unshifted pinhole with square pixels and Blender's AUTO sensor fit (the
     sensor width applies to the larger image dimension) - the same rule as the camera."""
     pr = projector_cfg(cfg)
+    if getattr(pr, "intrinsics", None) is not None:       # a calibration: any fx, fy, principal point
+        return intrinsics_matrix(pr.intrinsics)
     w, h = projector_resolution(pr)
     return intrinsics_from_sensor(pr.focal_length, pr.sensor_width, w, h, "AUTO")
 

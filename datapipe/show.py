@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from . import lens
 from .errors import DataPipeError
 from .io import layout
 from .io.files import imwrite_atomic, read_json
@@ -249,8 +250,13 @@ def _draw_poses(rgb: np.ndarray, rd: dict, info: dict[int, dict], scale: float) 
         P = np.asarray(pts, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
         if (P[:, 2] <= 1e-3).any():
             continue
-        uv = P @ K.T
-        uv = uv[:, :2] / uv[:, 2:] * scale
+        d = lens.coefficients(rd.get("distortion"))
+        if d is None:
+            uv = P @ K.T
+            uv = uv[:, :2] / uv[:, 2:] * scale
+        else:                     # through the lens the image was made with (docs/CALIBRATION.md)
+            xd, yd = lens.distort(P[:, 0] / P[:, 2], P[:, 1] / P[:, 2], d)
+            uv = np.stack([K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1) * scale
         q = [tuple(int(round(c)) for c in p) for p in uv]
         color = instance_color(int(o["mask_index"]))
         visible = o.get("px_count_visib", 1) not in (0, None) or o.get("px_count_visib") is None
@@ -410,7 +416,7 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
         if objs and len(stored) == len(objs):     # the run recorded them (scene.json): no re-rasterising
             fracs += stored
         else:                                     # a run from before visib_fract was recorded
-            fracs += visible_fractions(objs, m, K, meshes, data["W"], data["H"])
+            fracs += visible_fractions(objs, m, K, meshes, data["W"], data["H"], dist=rd.get("distortion"))
         n_vis.append(nv)
     err = np.concatenate(errs) if errs else np.zeros(0)
     panels = []

@@ -17,8 +17,8 @@ from .io.silhouette import rasterize_silhouette
 HIST_BINS = 1000          # run.json keeps a histogram: constant size, median to 0.001
 
 
-def visible_fractions(objects: list[dict], mask: np.ndarray | None, K, models: dict, width: int, height: int
-                      ) -> list[float]:
+def visible_fractions(objects: list[dict], mask: np.ndarray | None, K, models: dict, width: int, height: int,
+                      dist=None) -> list[float]:
     """Per render-record object (obj_id, mask_index, T_cam_obj in m) with a model in `models`
     ({obj_id: (verts_mm, faces)}): its visible fraction. Objects without a model are skipped.
     Each fraction is also written into its object record as "visib_fract" (rounded to 1e-4, BOP's
@@ -31,7 +31,8 @@ def visible_fractions(objects: list[dict], mask: np.ndarray | None, K, models: d
         visible = (mask == int(o["mask_index"])) if mask is not None else None
         n_vis = int(np.count_nonzero(visible)) if visible is not None else int(o.get("px_count_visib") or 0)
         T = np.asarray(o["T_cam_obj"], dtype=np.float64)
-        sil, count, _ = rasterize_silhouette(mdl[0], mdl[1], K, T[:3, :3], T[:3, 3] * 1000.0, width, height)
+        sil, count, _ = rasterize_silhouette(mdl[0], mdl[1], K, T[:3, :3], T[:3, 3] * 1000.0, width, height,
+                                             dist=dist)
         if visible is not None:
             count += int(np.count_nonzero(visible & ~sil))
         out.append(n_vis / count if count else 0.0)

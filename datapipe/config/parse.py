@@ -25,8 +25,12 @@ def from_dict(cls, data: dict, *, base_dir: str | os.PathLike | None = None):
     if version != SCHEMA_VERSION:
         problems.append(Problem("schema_version", f"unsupported schema version {_short(version)}",
                                 f"use schema_version {SCHEMA_VERSION} (re-save the preset)"))
+    from ..calibration import apply_calibration, is_calibration_path
     from ..devices import apply_device
-    data = apply_device(data, problems)      # a device fills the sections the preset leaves out
+    if is_calibration_path(data.get("device")):   # your own rig: a calibration file (datapipe/calibration.py)
+        data = apply_calibration(data, problems, base_dir)
+    else:
+        data = apply_device(data, problems)      # a device fills the sections the preset leaves out
     cfg = _build(cls, data, "", problems)
     if base_dir is not None:
         cfg.resolve_paths(base_dir)

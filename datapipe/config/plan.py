@@ -53,12 +53,12 @@ def fringe_period_camera_px(cfg: Config) -> float:
     length L at distance d' as L * fx_cam / d' pixels. In camera-object axes the camera looks down
     -Z, so a projector at z_p > 0 sits behind the camera: d = d' + z_p for a part d' in front of
     the camera. Distances d' are from each camera pose to the drop zone centre."""
-    from ..geometry import intrinsics_from_sensor
+    from ..geometry import camera_intrinsics, projector_intrinsics
     c, pr, sl = cfg.camera, cfg.projector, cfg.structured_light
-    fx_cam = float(intrinsics_from_sensor(c.focal_length, c.sensor_width, int(c.resolution[0]),
-                                          int(c.resolution[1]), c.sensor_fit)[0, 0])
+    fx_cam = float(camera_intrinsics(c)[0, 0])          # camera.intrinsics when given (a calibration)
     fringe_proj_px = pr.resolution[0] / max(sl.periods)
-    metres_per_proj_px = pr.sensor_width / (pr.focal_length * pr.resolution[0])   # at 1 m
+    metres_per_proj_px = (1.0 / float(projector_intrinsics(cfg)[0, 0]) if pr.intrinsics is not None
+                          else pr.sensor_width / (pr.focal_length * pr.resolution[0]))   # at 1 m
     worst = math.inf
     for d in camera_distances(cfg):
         d_cam = max(d, c.clip_start)

@@ -101,6 +101,9 @@ class CameraConfig:
     resolution: list[int] = _vec(320, 240)   # [width, height] px
     clip_start: float = 0.05           # m
     clip_end: float = 10.0             # m
+    intrinsics: list[float] | None = None    # [fx, fy, cx, cy] px at `resolution` (a calibration); wins over
+                                             # focal_length/sensor_width; None: theirs, principal point centred
+    distortion: list[float] | None = None    # OpenCV k1 k2 p1 p2 k3 (docs/CALIBRATION.md); None/zeros: none
     poses: list[CameraPose] = field(default_factory=lambda: [CameraPose()])
     sampler: CameraSamplerConfig = field(default_factory=CameraSamplerConfig)
 
@@ -113,6 +116,7 @@ class ProjectorConfig:
     resolution: list[int] = _vec(912, 570)   # [width, height] px (DLP 0.23" class)
     location: list[float] = _vec(-0.15, 0.0, 0.0)        # m, relative to the camera object
     rotation: list[float] = _vec(0.0, math.radians(-8.5), 0.0)  # XYZ Euler rad, or quaternion wxyz
+    intrinsics: list[float] | None = None    # [fx, fy, cx, cy] px (a calibration); wins over focal_length
     power: float = 5.0                 # emission strength of the light's node tree (a grey 0.5
                                        # floor at 0.8 m gets fringe peaks of ~1.0 linear radiance)
 

@@ -335,10 +335,13 @@ def _sampler_problems(cfg: Config) -> list[Problem]:
                            f"({c.clip_start:g}..{c.clip_end:g} m): the target would be clipped",
                            "keep the distances between camera.clip_start and camera.clip_end"))
     res, fit = c.resolution, c.sensor_fit
-    if len(res) == 2 and min(res) >= 1 and c.focal_length > 0 and c.sensor_width > 0 and fit in SENSOR_FITS:
+    intrinsics_ok = c.intrinsics is None or (len(c.intrinsics) == 4 and all(_finite(v) for v in c.intrinsics)
+                                             and min(c.intrinsics[:2]) > 0)   # else _check_lens says why
+    if len(res) == 2 and min(res) >= 1 and c.focal_length > 0 and c.sensor_width > 0 and fit in SENSOR_FITS \
+            and intrinsics_ok:
         from ..draws.camera_sampler import view_problems
-        from ..geometry import intrinsics_from_sensor
-        K = intrinsics_from_sensor(c.focal_length, c.sensor_width, res[0], res[1], fit)
+        from ..geometry import camera_intrinsics
+        K = camera_intrinsics(c)            # camera.intrinsics when given (a calibration)
         half_fov = math.degrees(min(math.atan(res[0] / 2 / K[0, 0]), math.atan(res[1] / 2 / K[1, 1])))
         s = cfg.scene
         if len(s.drop_zone_scale) == 3 and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2:
@@ -376,12 +379,24 @@ def _check_materials(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
 
 def _check_device(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
     """device (a known scanner) and binning (one it offers)."""
+    from ..calibration import is_calibration_path
     from ..devices import device_problem
+    if is_calibration_path(cfg.device):     # a calibration file: read (and checked) when the preset was parsed
+        return
     problem = device_problem(cfg.device, cfg.binning)
     if problem is not None:
         ck.problems.append(problem)
 
 
+def _check_lens(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
+    """camera.intrinsics / camera.distortion / projector.intrinsics (a calibration's fields)."""
+    from ..calibration import config_problems, working_distance_problems
+    ck.problems.extend(config_problems(cfg))
+    if not ck.has("camera") and not ck.has("projector"):
+        ck.problems.extend(working_distance_problems(cfg))
+
+
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
-VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_variety, _check_projector, _check_structured_light,
-                    _check_render, _check_simulation, _check_output, _check_materials, _check_device)
+VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_lens, _check_variety, _check_projector,
+                    _check_structured_light, _check_render, _check_simulation, _check_output, _check_materials,
+                    _check_device)

@@ -12,7 +12,7 @@ import numpy as np
 
 import bpy
 
-from .. import geometry
+from .. import geometry, lens
 from ..config import Config
 from ..errors import DataPipeError
 
@@ -25,21 +25,42 @@ def apply_intrinsics(cam_data, scene, camera_cfg) -> None:
     c = camera_cfg
     cam_data.type = "PERSP"
     cam_data.lens_unit = "MILLIMETERS"
-    cam_data.lens = c.focal_length
-    cam_data.sensor_fit = c.sensor_fit
-    # With VERTICAL fit Blender uses sensor_height; the config's sensor_width is the size of the
-    # fitted sensor dimension in every case (what intrinsics_from_sensor takes).
-    cam_data.sensor_width = c.sensor_width
-    if c.sensor_fit == "VERTICAL":
-        cam_data.sensor_height = c.sensor_width
-    cam_data.shift_x = cam_data.shift_y = 0.0
+    grid = render_grid(c)
+    if grid is None:
+        cam_data.lens = c.focal_length
+        cam_data.sensor_fit = c.sensor_fit
+        # With VERTICAL fit Blender uses sensor_height; the config's sensor_width is the size of the
+        # fitted sensor dimension in every case (what intrinsics_from_sensor takes).
+        cam_data.sensor_width = c.sensor_width
+        if c.sensor_fit == "VERTICAL":
+            cam_data.sensor_height = c.sensor_width
+        cam_data.shift_x = cam_data.shift_y = 0.0
+        size = tuple(int(v) for v in c.resolution)
+    else:
+        # a calibrated camera (any principal point, fx != fy) or a distorting lens: Blender renders the
+        # ideal pinhole of the render grid (square pixels, principal point by lens shift, overscan for
+        # the distortion) and the renderer remaps it into the camera's image (datapipe/lens.py)
+        size = grid.render_size
+        cam_data.sensor_fit = "AUTO"
+        cam_data.sensor_width = c.sensor_width
+        cam_data.lens = grid.K_render[0, 0] * c.sensor_width / max(size)
+        cam_data.shift_x, cam_data.shift_y = lens.blender_shift(grid)
     cam_data.clip_start, cam_data.clip_end = c.clip_start, c.clip_end
     cam_data.dof.use_dof = False
     r = scene.render
-    r.resolution_x, r.resolution_y = (int(v) for v in c.resolution)
+    r.resolution_x, r.resolution_y = size
     r.resolution_percentage = 100
     r.pixel_aspect_x = r.pixel_aspect_y = 1.0
     r.use_border = False
+
+
+def render_grid(camera_cfg) -> "lens.RenderGrid | None":
+    """The grid Blender renders when it is not the camera's own image (datapipe/lens.py), else None:
+    a camera without `intrinsics` and `distortion` renders exactly as it always did."""
+    c = camera_cfg
+    if c.intrinsics is None and lens.coefficients(c.distortion) is None:
+        return None
+    return lens.render_grid(geometry.camera_intrinsics(c), c.distortion, tuple(int(v) for v in c.resolution))
 
 
 class BlendCamera:
@@ -86,9 +107,24 @@ class BlendCamera:
 
     @property
     def K(self) -> np.ndarray:
+        return geometry.camera_intrinsics(self.cfg.camera)
+
+    @property
+    def lens(self) -> "lens.RenderGrid | None":
+        """The remap from Blender's render to the camera's image; None when they are the same."""
         c = self.cfg.camera
-        w, h = self.resolution
-        return geometry.intrinsics_from_sensor(c.focal_length, c.sensor_width, w, h, c.sensor_fit)
+        key = (c.intrinsics and tuple(c.intrinsics), c.distortion and tuple(c.distortion), tuple(c.resolution),
+               c.focal_length, c.sensor_width, c.sensor_fit)
+        if getattr(self, "_grid_key", None) != key:          # the grid's rays are solved once per camera
+            grid = render_grid(c)
+            self._grid, self._grid_key = (None if grid is None or grid.identity else grid), key
+        return self._grid
+
+    @property
+    def distortion(self) -> list[float] | None:
+        """OpenCV k1 k2 p1 p2 k3 of the camera's lens, None without distortion."""
+        d = lens.coefficients(self.cfg.camera.distortion)
+        return None if d is None else [float(v) for v in d]
 
     # -- poses ------------------------------------------------------------------------------------
     def set_pose(self, pose_index: int) -> np.ndarray:

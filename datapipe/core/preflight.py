@@ -21,7 +21,7 @@ from ..errors import Problem
 from ..io.bop_models import entry_field
 from ..draws.fill import hull_volume
 from ..checks.part_fit import fill_problems
-from ..geometry import intrinsics_from_sensor
+from ..geometry import camera_intrinsics
 from .. import collision
 from .objects import _IMPORTERS, DECOMPOSED_SHAPES, _run_importer, remove_import_leftovers
 
@@ -75,8 +75,7 @@ def measure_meshes(cfg: Config) -> tuple[list[Problem], dict[int, float]]:
     volumes: dict[int, float] = {}          # entry -> one part's hull volume, m^3
     zone = np.asarray(cfg.scene.drop_zone_scale, dtype=np.float64) * 2        # full extents, m
     c = cfg.camera
-    fx = float(intrinsics_from_sensor(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
-                                      c.sensor_fit)[0, 0])
+    fx = float(camera_intrinsics(c)[0, 0])          # camera.intrinsics when given (a calibration)
     far = max(camera_distances(cfg))
     for i, o in enumerate(cfg.objects):
         field = f"{entry_field(o, i)}.filepath"

@@ -236,6 +236,9 @@ class Renderer:
 
         channels = compat.take_written_exr(render_dir, TEMP_BASENAME, "pass", expect=[
             f"{item}.{c}" for item, (_, _, socket_type) in self._items.items() for c in _CHANNELS[socket_type]])
+        grid = getattr(self.camera, "lens", None)
+        if grid is not None:      # render grid -> the camera's image (datapipe/lens.py): radiance by spline,
+            channels = {k: grid.remap(v, linear=k.startswith("Image.")) for k, v in channels.items()}  # maps nearest
         out = self._convert(channels, T_world_cam)
         out.seconds = seconds
         out.T_world_cam = T_world_cam

@@ -424,6 +424,9 @@ class StructuredLightCamera:
         rdir = Path(rdir)
         self.set_sharp_glossy(has_shiny_surface(self.scene))
         radiance, render_s = self.render_fringes(rdir, seed, T_world_cam)
+        grid = getattr(self.camera, "lens", None)
+        if grid is not None:            # render grid -> the camera's image, radiance by spline (datapipe/lens.py)
+            radiance = grid.remap(radiance, linear=True)
         progress.begin("decode", f"{radiance.shape[0]} images, exposure {s.exposure}, HDR {s.hdr or 'off'}")
         scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam, ambient=self.ambient_image)
         self.last_seconds = {"render": render_s, "decode": scan.seconds}

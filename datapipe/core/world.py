@@ -90,7 +90,7 @@ class BlenderWorld:
         view = View(files=dict(out.files), K=self.camera.K, resolution=tuple(self.camera.resolution),
                     T_world_cam=T_world_cam, T_world_blcam=T_world_blcam,
                     T_world_obj=[np.array(inst.obj.matrix_world, dtype=np.float64) for inst in self.instances],
-                    mask=out.mask, rgb=out.rgb, camera_sampler=sampled,
+                    mask=out.mask, rgb=out.rgb, camera_sampler=sampled, distortion=self.camera.distortion,
                     seconds={"render": cycles_s, "write": max(0.0, (t1 - t0) - cycles_s)})  # EXR read-back + writes
         if self.sl is not None:
             t2 = time.perf_counter()

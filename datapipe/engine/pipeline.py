@@ -250,7 +250,8 @@ class Pipeline:
             progress.begin("annotate", f"{len(start.parts)} parts")
             scene["renders"].append(native.render_record(r, int(self.first_image_id[i] + r), pose_index, seed,
                                                          view, start.parts, sdir))
-            visible_fractions(scene["renders"][-1]["objects"], view.mask, view.K, self._models, *view.resolution)
+            visible_fractions(scene["renders"][-1]["objects"], view.mask, view.K, self._models, *view.resolution,
+                              dist=view.distortion)
             for k, v in view.seconds.items():
                 self.stats["seconds"][k] += v
             done += 1

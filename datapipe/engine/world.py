@@ -52,6 +52,7 @@ class View:
     camera_sampler: dict | None = None      # the drawn camera pose's parameters (bin_view sampler)
     structured_light: dict | None = None    # the render's structured_light record (files excluded)
     seconds: dict = field(default_factory=dict)      # {"render": s, "write": s, "structured_light": s}
+    distortion: list | None = None      # the lens's OpenCV k1 k2 p1 p2 k3 (docs/CALIBRATION.md), None: none
 
 
 class World(Protocol):

@@ -137,6 +137,7 @@ def _mat(x, shape) -> np.ndarray:
 # the writer
 
 CHUNK_FILES = ("scene_camera", "scene_gt", "scene_gt_info", "datapipe")
+DISTORTION_KEY = "cam_dist"   # scene_camera: OpenCV k1 k2 p1 p2 k3 of a distorting lens (not BOP's; readers skip it)
 COCO_VISIB_MIN = 0.1      # bop_toolkit's calc_gt_coco: annotations less visible than this are "ignore"
 
 
@@ -401,7 +402,7 @@ class BopWriter:
                 raise DataPipeError(f"{scene_dir.name}/{rd['name']}: object id {obj_id} has no model "
                                     f"{model_filename(obj_id)} in {self.models_dir}")
             m = models[obj_id]
-            sil, count, bbox = rasterize_silhouette(m.verts_mm, m.faces, K, R, t_mm, W, H)
+            sil, count, bbox = rasterize_silhouette(m.verts_mm, m.faces, K, R, t_mm, W, H, dist=rd.get("distortion"))
             visib = inst == int(o["mask_index"])
             infos.append(gt_info(sil, count, bbox, visib, depth_valid))
             if infos[-1]["px_count_visib"] > 0:
@@ -418,9 +419,12 @@ class BopWriter:
 
     def _camera_entry(self, K: np.ndarray, rd: dict) -> dict:
         T_cw = np.linalg.inv(_mat(rd["T_world_cam"], (4, 4)))
-        return {"cam_K": [float(x) for x in K.reshape(-1)], "depth_scale": self.depth_scale,
-                "cam_R_w2c": [float(x) for x in T_cw[:3, :3].reshape(-1)],
-                "cam_t_w2c": [float(x) for x in T_cw[:3, 3] * 1000.0]}
+        entry = {"cam_K": [float(x) for x in K.reshape(-1)], "depth_scale": self.depth_scale,
+                 "cam_R_w2c": [float(x) for x in T_cw[:3, :3].reshape(-1)],
+                 "cam_t_w2c": [float(x) for x in T_cw[:3, 3] * 1000.0]}
+        if rd.get("distortion") is not None:      # OpenCV k1 k2 p1 p2 k3 beside cam_K (docs/DATASETS.md)
+            entry = {"cam_K": entry.pop("cam_K"), DISTORTION_KEY: [float(x) for x in rd["distortion"]], **entry}
+        return entry
 
     def finish(self) -> dict:
         """Flush everything (every add_scene already did) and return a summary."""

@@ -74,7 +74,9 @@ def render_record(render_id: int, image_id: int, pose_index: int, seed: int, vie
     poses in the OpenCV (T_cam_obj) and Blender (cam2obj_pose) camera frames, visible pixel counts."""
     rec = {
         "render_id": render_id, "name": layout.render_name(render_id), "image_id": image_id,
-        "pose_index": None if pose_index is None else int(pose_index), "K": view.K, "resolution": list(view.resolution),
+        "pose_index": None if pose_index is None else int(pose_index), "K": view.K,
+        **({"distortion": list(view.distortion)} if getattr(view, "distortion", None) is not None else {}),  # a lens only
+        "resolution": list(view.resolution),
         "T_world_cam": view.T_world_cam, "T_world_blcam": view.T_world_blcam, "seed": seed,
         "files": {k: str(Path(p).relative_to(scene_dir)) for k, p in view.files.items()},
         "objects": [],

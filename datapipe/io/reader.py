@@ -44,6 +44,7 @@ class Render:
     objects: list[dict]            # per visible-or-not part: name, obj_id, mask_index, T_cam_obj (4x4 array,
                                    # m), px_count_visib, visib_fract (BOP's), material ...
     files: dict[str, Path] = field(default_factory=dict)     # output kind -> file
+    distortion: list | None = None  # OpenCV k1 k2 p1 p2 k3 of a distorting lens (docs/CALIBRATION.md), else None
 
     def _file(self, kind: str) -> Path | None:
         p = self.files.get(kind)
@@ -207,4 +208,5 @@ def _render(sdir: Path, scene: dict, rd: dict) -> Render:
     W, H = (int(v) for v in rd["resolution"])
     return Render(scene=sdir.name, name=rd["name"], path=sdir / rd["name"], record=rd,
                   K=np.asarray(rd["K"], dtype=np.float64), resolution=(W, H),
-                  T_world_cam=np.asarray(rd["T_world_cam"], dtype=np.float64), objects=objects, files=files)
+                  T_world_cam=np.asarray(rd["T_world_cam"], dtype=np.float64), objects=objects, files=files,
+                  distortion=rd.get("distortion"))

@@ -7,15 +7,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..lens import coefficients, distort, turning_radius
+
 NEAR_MM = 1.0       # triangles with a vertex closer than this to the camera plane are skipped
 
 
 def rasterize_silhouette(verts_mm: np.ndarray, faces: np.ndarray, K, R, t_mm, width: int, height: int,
-                         *, margin: tuple[int, int] | None = None):
+                         *, margin: tuple[int, int] | None = None, dist=None):
     """Full silhouette of a posed mesh, pixel-centre coverage (edges inclusive).
 
     Returns (mask (H,W) bool inside the image, px_count_all, bbox_obj) where the count and the bbox
-    cover a canvas extended by `margin` = (mx, my) pixels on each side (default: one image size)."""
+    cover a canvas extended by `margin` = (mx, my) pixels on each side (default: one image size).
+
+    `dist` (OpenCV k1 k2 p1 p2 k3, datapipe/lens.py): the vertices go through the lens; edges stay
+    straight between them (a part's triangles span a few pixels: the bend of an edge across one is
+    far below a pixel). Faces with a vertex beyond the radius where the lens polynomial turns
+    (outside the frame: validate refuses a lens that turns inside it) are left out."""
     mx, my = margin if margin is not None else (width, height)
     K = np.asarray(K, dtype=np.float64)
     pc = np.asarray(verts_mm, dtype=np.float64) @ np.asarray(R, dtype=np.float64).T + np.asarray(t_mm, dtype=np.float64).reshape(3)
@@ -29,8 +36,16 @@ def rasterize_silhouette(verts_mm: np.ndarray, faces: np.ndarray, K, R, t_mm, wi
     if len(faces) == 0:
         return empty
     zs = np.where(z > NEAR_MM, z, 1.0)
-    u = K[0, 0] * pc[:, 0] / zs + K[0, 1] * pc[:, 1] / zs + K[0, 2]
-    v = K[1, 1] * pc[:, 1] / zs + K[1, 2]
+    xn, yn = pc[:, 0] / zs, pc[:, 1] / zs
+    d = coefficients(dist)
+    if d is not None:
+        ok = (np.hypot(xn, yn)[faces] < turning_radius(d)).all(axis=1)
+        faces = faces[ok]
+        if len(faces) == 0:
+            return empty
+        xn, yn = distort(xn, yn, d)
+    u = K[0, 0] * xn + K[0, 1] * yn + K[0, 2]
+    v = K[1, 1] * yn + K[1, 2]
     tu, tv = u[faces], v[faces]                                   # (F,3)
     x0 = np.maximum(np.ceil(tu.min(1)), -mx).astype(np.int64)
     x1 = np.minimum(np.floor(tu.max(1)), width - 1 + mx).astype(np.int64)

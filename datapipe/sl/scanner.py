@@ -78,6 +78,7 @@ from .metrics import pixel_depth_sigma
 from .patterns import fringe_patterns, phase_shifts
 from .phase import phase_shift
 from .sensor import SensorModel
+from .triangulate import Triangulator
 from .unwrap import plan_unwrap
 
 MIN_CONTRAST = 0.05              # decode(min_contrast=): a sanity floor; global light is the multipath filter's
@@ -180,7 +181,7 @@ class Scanner:
                  unwrap: str = "auto", sensor: SensorModel | str = "industrial", exposure: float | str = "auto",
                  hdr: Sequence[float] | str = (), min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX,
                  edge_filter: bool = True, multipath_filter: bool = True, row_check: bool = True,
-                 projector_gamma: float = 1.0):
+                 projector_gamma: float = 1.0, camera_pixels=None):
         self.periods, self.steps = list(periods), int(steps)
         self.proj_size = tuple(int(v) for v in proj_size)
         self.K_proj = np.asarray(K_proj, dtype=np.float64)
@@ -195,6 +196,9 @@ class Scanner:
         self.border_px = float(border_px)
         self.edge_filter = bool(edge_filter)
         self.projector_gamma = float(projector_gamma)     # the decoder corrects its phase ripple
+        # a distorting camera lens: each pixel's ideal (undistorted) coordinates, (H, W, 2); the decoder
+        # triangulates their rays (datapipe.lens.RenderGrid.ideal_pixels); None: a pinhole camera
+        self.camera_pixels = camera_pixels
         plan_unwrap(self.periods, unwrap)          # refuse an ambiguous period set before any render
 
     @classmethod
@@ -203,6 +207,9 @@ class Scanner:
         s = cfg.structured_light
         kw = dict(unwrap=s.unwrap, sensor=s.sensor, exposure=s.exposure, hdr=s.hdr, projector_gamma=s.projector_gamma,
                   multipath_filter=s.reflection_filter != "off", row_check=s.reflection_filter != "off")
+        grid = _lens_grid(cfg)
+        if grid is not None:
+            kw["camera_pixels"] = grid.ideal_pixels()
         kw.update(overrides)
         return cls(s.periods, s.steps, cfg.projector.resolution, projector_intrinsics(cfg), T_cam_proj(cfg), **kw)
 
@@ -256,9 +263,14 @@ class Scanner:
         off = projector_off(ambient, model, cap, seed) if ambient is not None else None
         P_cam = projection_matrix(K_cam, T_world_cam)
         P_proj = self.projector_matrix(T_world_cam)
+        tri = None
+        if self.camera_pixels is not None:
+            h, w = radiance.shape[1:]
+            tri = Triangulator.cached(P_cam, P_proj, (w, h), self.proj_size, pixels=self.camera_pixels)
         res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
                      proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=cap.noise_sigma,
-                     saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma)
+                     saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma,
+                     triangulator=tri)
         res.extras["noise_model"] = {          # never a global estimate: the sensor's own per-pixel noise
             "kind": "sensor", "source": "sensor model: shot + read + quantisation at each pixel's signal"
             + (", per pixel at its HDR exposure after fusion" if cap.chosen is not None else
@@ -316,6 +328,16 @@ class Scanner:
         filtered |= edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
         _remove(res, filtered, FILTERED)
         return filtered
+
+
+def _lens_grid(cfg):
+    """The camera's lens remap (datapipe/lens.py) when it distorts, else None."""
+    from .. import lens
+    from ..geometry import camera_intrinsics
+    c = cfg.camera
+    if lens.coefficients(getattr(c, "distortion", None)) is None:
+        return None
+    return lens.render_grid(camera_intrinsics(c), c.distortion, tuple(int(v) for v in c.resolution))
 
 
 def _remove(res: DecodeResult, mask: np.ndarray, reason: int) -> None:

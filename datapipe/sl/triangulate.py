@@ -87,12 +87,18 @@ class Triangulator:
     ``Triangulator(P_cam, P_proj, cam_size, proj_size, axis='x')``; ``axis='y'`` when the fringes
     code projector rows. Per-pixel coefficients are computed lazily once (float64 -> float32) and
     kept; :meth:`cached` returns a shared instance for a repeated geometry.
+
+    ``pixels`` ((H, W, 2) float64, optional): a camera with lens distortion. Pixel (u, v) then sees
+    the ray of the ideal pixel ``pixels[v, u]`` (its undistorted coordinates under the same K,
+    `datapipe.lens.RenderGrid.ideal_pixels`), as a real scanner undistorts before it triangulates;
+    every quantity that is linear in (u, v) is then kept per pixel (5 float32 maps more). Without
+    it (None) every result is bit for bit that of a distortion-free camera.
     """
 
     _cache: "OrderedDict[bytes, Triangulator]" = OrderedDict()
     _cache_size = 4
 
-    def __init__(self, P_cam, P_proj, cam_size, proj_size, *, axis: str = "x"):
+    def __init__(self, P_cam, P_proj, cam_size, proj_size, *, axis: str = "x", pixels=None):
         P_cam = _finite_matrix(P_cam, (3, 4), "P_cam")
         P_proj = _finite_matrix(P_proj, (3, 4), "P_proj")
         self.cam_size = _size(cam_size, "cam_size")
@@ -113,17 +119,29 @@ class Triangulator:
         self._H = H
         self._beta = Pp[:, 3] - H @ p4
         self._coef = None
+        self._pixels = None
+        if pixels is not None:
+            px = np.asarray(pixels, dtype=np.float64)
+            w, h = self.cam_size
+            if px.shape != (h, w, 2) or not np.all(np.isfinite(px)):
+                raise bad_value("pixels", f"has shape {px.shape} (or non-finite values), expected {(h, w, 2)}",
+                                "pass the ideal (undistorted) pixel coordinates of every camera pixel")
+            self._pixels = px
 
     # -- construction helpers --------------------------------------------------------------
     @classmethod
-    def cached(cls, P_cam, P_proj, cam_size, proj_size, *, axis: str = "x") -> "Triangulator":
+    def cached(cls, P_cam, P_proj, cam_size, proj_size, *, axis: str = "x", pixels=None) -> "Triangulator":
         """A shared instance for this geometry (LRU of the last few), coefficients kept."""
-        key = b"".join([np.ascontiguousarray(P_cam, dtype=np.float64).tobytes(),
-                        np.ascontiguousarray(P_proj, dtype=np.float64).tobytes(),
-                        repr((tuple(int(v) for v in cam_size), tuple(int(v) for v in proj_size), axis)).encode()])
+        parts = [np.ascontiguousarray(P_cam, dtype=np.float64).tobytes(),
+                 np.ascontiguousarray(P_proj, dtype=np.float64).tobytes(),
+                 repr((tuple(int(v) for v in cam_size), tuple(int(v) for v in proj_size), axis)).encode()]
+        if pixels is not None:
+            import hashlib
+            parts.append(hashlib.sha1(np.ascontiguousarray(pixels, dtype=np.float64).tobytes()).digest())
+        key = b"".join(parts)
         tri = cls._cache.get(key)
         if tri is None:
-            tri = cls(P_cam, P_proj, cam_size, proj_size, axis=axis)
+            tri = cls(P_cam, P_proj, cam_size, proj_size, axis=axis, pixels=pixels)
             cls._cache[key] = tri
             while len(cls._cache) > cls._cache_size:
                 cls._cache.popitem(last=False)
@@ -161,6 +179,8 @@ class Triangulator:
         return {"a1": H[1], "a2": H[2], "q": b[0] * H[2] - b[2] * H[0], "rx": Kinv[0], "ry": Kinv[1]}
 
     def _compute_coefficients(self):
+        if self._pixels is not None:
+            return self._compute_pixel_coefficients()
         w, h = self.cam_size
         u = np.arange(w, dtype=np.float64)
         H = self._H
@@ -179,8 +199,23 @@ class Triangulator:
         out["lin"] = lin
         return out
 
+    def _compute_pixel_coefficients(self):
+        """With `pixels`: the same quantities, evaluated at each pixel's ideal coordinates (per pixel)."""
+        u, v = self._pixels[..., 0], self._pixels[..., 1]
+        H = self._H
+        with np.errstate(all="ignore"):
+            a0, a2 = (H[i, 0] * u + H[i, 1] * v + H[i, 2] for i in (0, 2))
+            xinf = np.where(a2 != 0, a0 / a2, np.inf).astype(np.float32)
+        lin = {k: ((c[0] * u + c[1] * v + c[2]).astype(np.float32), None) for k, c in self._linear_rows().items()}
+        return {"xinf": xinf, "lin": lin}
+
     def _lin(self, name, r0, r1, out=None):
         row, col = self.coefficients["lin"][name]
+        if col is None:                                   # per pixel (a distorting lens)
+            if out is None:
+                return row[r0:r1].copy()
+            np.copyto(out, row[r0:r1])
+            return out
         return np.add(row, col[r0:r1], out=out)
 
     # -- evaluation ------------------------------------------------------------------------
@@ -264,6 +299,8 @@ class Triangulator:
         z = np.asarray(depth, dtype=np.float64)
         u = np.arange(w, dtype=np.float64)[None, :]
         v = np.arange(h, dtype=np.float64)[:, None]
+        if self._pixels is not None:
+            u, v = self._pixels[..., 0], self._pixels[..., 1]
         lr = self._linear_rows()
         a2 = lr["a2"][0] * u + lr["a2"][1] * v + lr["a2"][2]
         q = lr["q"][0] * u + lr["q"][1] * v + lr["q"][2]

@@ -104,6 +104,13 @@ _SPECIAL = {
                         lambda value: [("use_fill", False)] if value is None
                         else [("use_fill", True), ("fill", tuple(value))]),
     ("projector", "rotation"): (lambda grp, name: _rot_get(grp), _rot_set),
+    # a calibration's fields (docs/CALIBRATION.md): null <-> the use_ switch off
+    ("camera", "intrinsics"): (lambda grp, name: _optional_get(grp, name),
+                               lambda value: _optional_set("intrinsics", value)),
+    ("camera", "distortion"): (lambda grp, name: _optional_get(grp, name),
+                               lambda value: _optional_set("distortion", value)),
+    ("projector", "intrinsics"): (lambda grp, name: _optional_get(grp, name),
+                                  lambda value: _optional_set("intrinsics", value)),
     ("structured_light", "periods"): (lambda grp, name: parse_periods(grp.periods),
                                       lambda value: [("periods", format_periods(value))]),
     ("structured_light", "exposure"): (lambda grp, name: "auto" if grp.auto_exposure else f32(grp.exposure),
@@ -129,6 +136,14 @@ _SPECIAL = {
     ("output", "formats"): (_ordered(C.FORMATS), lambda value: [("formats", set(value))]),
     ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),
 }
+
+
+def _optional_get(grp, name):
+    return [f32(v) for v in getattr(grp, name)] if getattr(grp, f"use_{name}") else None
+
+
+def _optional_set(name, value):
+    return [(f"use_{name}", False)] if value is None else [(f"use_{name}", True), (name, tuple(value))]
 
 
 def _ids_get(grp):
@@ -305,6 +320,9 @@ def config_to_props(cfg: C.Config, props) -> None:
                                 problems)
     plans.append((props.lighting, lighting))
     known = {item.identifier for item in props.bl_rna.properties["device"].enum_items}
+    from ..calibration import is_calibration_path
+    if is_calibration_path(cfg.device):       # the file's rig is spelled out in the camera/projector fields
+        cfg = dataclasses.replace(cfg, device=None)
     if cfg.device is not None and cfg.device not in known:
         problems.append(Problem("device", f"unknown device {cfg.device!r}", f"use one of {', '.join(sorted(known))}"))
     if problems:

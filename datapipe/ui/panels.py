@@ -223,6 +223,11 @@ class DATAPIPE_PT_camera(_DataPipePanel, Panel):
         sub = col.column(align=True)
         sub.prop(cam, "clip_start")
         sub.prop(cam, "clip_end", text="End")
+        for name in ("intrinsics", "distortion"):         # a calibrated camera (docs/CALIBRATION.md)
+            col.prop(cam, f"use_{name}")
+            sub = col.column()
+            sub.active = getattr(cam, f"use_{name}")
+            sub.prop(cam, name)
 
         on = preview.is_on("camera")
         layout.operator("datapipe.camera_preview", text="Hide Camera" if on else "Preview Camera",
@@ -281,6 +286,10 @@ class DATAPIPE_PT_structured_light(_DataPipePanel, Panel):
         sub = bcol.column(align=True)
         sub.prop(pr, "resolution", index=0, text="Resolution X")
         sub.prop(pr, "resolution", index=1, text="Y")
+        bcol.prop(pr, "use_intrinsics")
+        sub = bcol.column()
+        sub.active = pr.use_intrinsics
+        sub.prop(pr, "intrinsics")
         bcol.prop(pr, "power")
         bcol.label(text="Pose relative to the camera")
         bcol.prop(pr, "location")

@@ -224,7 +224,8 @@ def test_light_pose_matches_math():
         assert np.allclose(np.linalg.norm(M[:3, :3], axis=0), 1.0, atol=1e-6)
     assert np.allclose(proj.P_proj(), pj.projector_matrix(cfg, Twc), atol=1e-6)
     ld = proj.lights[0].data
-    assert ld.type == "SPOT" and ld.spot_blend == 0 and ld.shadow_soft_size == 0 and not ld.use_soft_falloff
+    assert ld.type == "SPOT" and ld.shadow_soft_size == 0 and not ld.use_soft_falloff
+    assert math.isclose(ld.spot_blend, pj.SPOT_BLEND, rel_tol=1e-6)      # soft edge outside the image, never 0 (NaN)
     assert ld.use_shadow and math.isclose(ld.spot_size, pj.spot_size(cfg), rel_tol=1e-6)
     img = proj.images[0]
     assert img.is_float and img.colorspace_settings.name == "Non-Color"

@@ -117,6 +117,23 @@ def test_quaternion_projector_round_trip(registered):
     assert props_to_config(registered).projector.rotation == [0.5, 0.5, 0.5, 0.5]
 
 
+def test_calibrated_camera_and_projector_round_trip(registered):
+    """camera.intrinsics / distortion and projector.intrinsics (docs/CALIBRATION.md) through the
+    sidebar: the values (float32, as every sidebar float) and their null (the switch off)."""
+    cfg = C.default_config()
+    cfg.camera.intrinsics = [300.25, 302.5, 163.3, 116.2]
+    cfg.camera.distortion = [-0.25, 0.08, 0.0012, -0.0009, -0.01]
+    cfg.projector.intrinsics = [1290.0, 1291.5, 455.5, 300.25]
+    config_to_props(cfg, registered)
+    back = props_to_config(registered)
+    assert back.camera.intrinsics == [f32(v) for v in cfg.camera.intrinsics]
+    assert back.camera.distortion == [f32(v) for v in cfg.camera.distortion]
+    assert back.projector.intrinsics == [f32(v) for v in cfg.projector.intrinsics]
+    config_to_props(C.default_config(), registered)
+    back = props_to_config(registered)
+    assert back.camera.intrinsics is None and back.camera.distortion is None and back.projector.intrinsics is None
+
+
 @pytest.mark.parametrize("exposure, hdr", [("auto", []), (0.7, [1.0, 4.0, 16.0]), ("auto", "auto")])
 def test_exposure_and_hdr_round_trip(registered, exposure, hdr):
     cfg = C.default_config()

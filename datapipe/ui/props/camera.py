@@ -1,6 +1,6 @@
 """`Scene.datapipe.camera`: intrinsics, the pose pool and the look-at pose sampler (`Config.camera`)."""
-from bpy.props import (CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
-                       IntVectorProperty, PointerProperty)
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
+                       IntProperty, IntVectorProperty, PointerProperty)
 from bpy.types import PropertyGroup
 
 from ... import config as C
@@ -67,6 +67,19 @@ class DATAPIPE_PG_camera(PropertyGroup):
         name="Clip End", description="Farthest rendered distance. Lowering it below Clip Start moves Clip Start",
         subtype="DISTANCE", unit="LENGTH", min=2e-5, soft_max=1000.0, precision=3,
         default=default(_K, "clip_end"), update=chain(_clip_hi, sync_previews))
+    # a calibrated camera (docs/CALIBRATION.md): K and OpenCV lens distortion, each off = the config's null
+    use_intrinsics: BoolProperty(
+        name="Calibrated K", description="Use fx, fy, cx, cy in pixels (a calibration) instead of the focal "
+        "length and sensor width", default=False, update=sync_previews)
+    intrinsics: FloatVectorProperty(
+        name="K", description="fx, fy, cx, cy in pixels at the resolution above", size=4, precision=3,
+        default=(453.1, 453.1, 159.5, 119.5), update=sync_previews)
+    use_distortion: BoolProperty(
+        name="Lens Distortion", description="Render through OpenCV's lens model (k1 k2 p1 p2 k3)",
+        default=False, update=sync_previews)
+    distortion: FloatVectorProperty(
+        name="Distortion", description="OpenCV k1, k2, p1, p2, k3", size=5, precision=5,
+        default=(0.0, 0.0, 0.0, 0.0, 0.0), update=sync_previews)
     poses: CollectionProperty(type=DATAPIPE_PG_pose, name="Poses",
                               description="Pool of camera poses; each scene draws its renders' poses from it")
     poses_index: IntProperty(name="Active Pose", description="Selected camera pose", min=0)

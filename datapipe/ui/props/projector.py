@@ -1,6 +1,6 @@
 """`Scene.datapipe.projector`: the fringe projector's intrinsics and its pose relative to the camera
 (`Config.projector`); the rotation is kept as Euler angles and as a quaternion, always equal."""
-from bpy.props import EnumProperty, FloatProperty, FloatVectorProperty, IntVectorProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntVectorProperty
 from bpy.types import PropertyGroup
 from mathutils import Euler, Quaternion
 
@@ -39,6 +39,12 @@ class DATAPIPE_PG_projector(PropertyGroup):
     resolution: IntVectorProperty(
         name="Resolution", description="Projector image size in pixels (width, height)", size=2,
         min=1, max=C.MAX_RESOLUTION, default=default(_J, "resolution"), update=sync_previews)
+    use_intrinsics: BoolProperty(
+        name="Calibrated K", description="Use fx, fy, cx, cy in projector pixels (a calibration) instead of "
+        "the focal length and sensor width", default=False, update=sync_previews)
+    intrinsics: FloatVectorProperty(
+        name="K", description="fx, fy, cx, cy in projector pixels", size=4, precision=3,
+        default=(1291.3, 1291.3, 455.5, 284.5), update=sync_previews)
     location: FloatVectorProperty(
         name="Location", description="Projector position relative to the camera, in the camera object's "
         "local axes", size=3, subtype="TRANSLATION", unit="LENGTH", default=default(_J, "location"),
