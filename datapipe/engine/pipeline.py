@@ -166,7 +166,7 @@ class Pipeline:
         try:
             with self.manifest.writing():      # every write under OUT: through its handle, recorded
                 if kept is not None:
-                    yield Progress("setup", 0, self.total, message=_force_line(removed, kept))
+                    yield Progress("force", 0, self.total, message=_force_line(removed, kept))
                 yield from self._run()
         finally:
             self.manifest.close()

@@ -244,17 +244,17 @@ def refuse_foreign_scenes(out: Path, scenes: dict[str, tuple[int, int | None]]) 
 
 
 class Manifest:
-    """What a run wrote into OUT, by record (see the module doc): {path: [[size, mtime_ns], ...]}
-    of every file (None: listed by a manifest of format 1, content unknown), the folders it made
-    and its temporary files (device, inode). Kept in manifest.json, with the records made since
+    """What a run wrote into OUT, by record (see the module doc): {path: [[size, sha256], ...]}
+    of every file (None: recorded by path only: a file whose bytes hold a time, one the run
+    appends to, or one listed by a manifest of format 1), the folders it made and its temporary
+    files (device, inode). Kept in manifest.json, with the records made since
     its last writing appended to the journal (a killed run's last files are recorded too)."""
 
-    def __init__(self, out: Path, files: dict | None = None, dirs=(), tmps: dict | None = None, by_name=()):
+    def __init__(self, out: Path, files: dict | None = None, dirs=(), tmps: dict | None = None):
         self.out = Path(out)
         self._files: dict[str, list | None] = dict(files or {})
         self._dirs: set[str] = set(dirs)
         self._tmps: dict[str, list] = dict(tmps or {})
-        self._by_name: set[str] = set(by_name)
         self._known: dict[str, tuple] = {}      # files this process wrote: their stat when written
         self._journal_fd: int | None = None
         self._lock = threading.Lock()
@@ -285,19 +285,17 @@ class Manifest:
         if not isinstance(data, dict):
             return None
         files, dirs, tmps = data.get("files"), data.get("dirs", []), data.get("temporaries", {})
-        by_name = data.get("by_name", [])
         if data.get(MANIFEST_KEY) == 1 and isinstance(files, list) and all(isinstance(f, str) for f in files):
             # format 1 listed paths only: each stays the run's, whatever its content now
             is_dir = {f: (out / f).is_dir() and not (out / f).is_symlink() for f in files}
             return cls(out, {f: None for f in files if not is_dir[f]}, [f for f in files if is_dir[f]])
         if data.get(MANIFEST_KEY) != 2 or not (isinstance(files, dict) and isinstance(dirs, list)
-                                                 and isinstance(tmps, dict) and isinstance(by_name, list)):
+                                                 and isinstance(tmps, dict)):
             return None
         if not all(v is None or (isinstance(v, list) and all(_is_content(x) for x in v)) for v in files.values()):
             return None
         return cls(out, {k: v and [list(x) for x in v] for k, v in files.items()},
-                   [d for d in dirs if isinstance(d, str)], {k: v for k, v in tmps.items() if _is_version(v)},
-                   [a for a in by_name if isinstance(a, str)])
+                   [d for d in dirs if isinstance(d, str)], {k: v for k, v in tmps.items() if _is_version(v)})
 
     def _apply(self, entry) -> None:
         if not (isinstance(entry, list) and entry and isinstance(entry[0], str) and len(entry) >= 2
@@ -314,7 +312,7 @@ class Manifest:
         elif kind == "t" and _is_version(entry[2:]):
             self._tmps[rel] = list(entry[2:])
         elif kind == "a" and len(entry) == 2:
-            self._by_name.add(rel)
+            self._files[rel] = None              # by path only (see record_append)
 
     @classmethod
     def start(cls, out: Path, *, resume: bool) -> "Manifest":
@@ -334,7 +332,7 @@ class Manifest:
     @property
     def files(self) -> list[str]:
         """Every path the run wrote (files and the folders it made)."""
-        return sorted(set(self._files) | self._dirs | self._by_name)
+        return sorted(set(self._files) | self._dirs)
 
     # -- the ledger of datapipe/io/guard.py -------------------------------------------------------
     def record_file(self, rel: str, st: os.stat_result, digest: str) -> None:
@@ -360,7 +358,7 @@ class Manifest:
 
     def may_replace(self, rel: str, st: os.stat_result) -> bool:
         """Whether the file `st` at `rel` is one the run wrote, with the content it wrote."""
-        if rel == JOURNAL_FILE or rel in self._by_name:
+        if rel == JOURNAL_FILE:
             return True
         if rel == MANIFEST_FILE:
             return Manifest._read(self.out) is not None
@@ -407,8 +405,7 @@ class Manifest:
             for rel in [r for r, v in self._tmps.items() if _ino(self.out / r) != v]:
                 del self._tmps[rel]                                  # renamed into place
             text = json.dumps({MANIFEST_KEY: 2, "files": dict(sorted(self._files.items())),
-                               "dirs": sorted(self._dirs), "temporaries": dict(sorted(self._tmps.items())),
-                               "by_name": sorted(self._by_name)},
+                               "dirs": sorted(self._dirs), "temporaries": dict(sorted(self._tmps.items()))},
                               indent=0)
         write_text_atomic(self.out / MANIFEST_FILE, text)
         with self._lock:
@@ -423,7 +420,7 @@ class Manifest:
         Returns (how many files were removed, the files kept in OUT: everything else)."""
         removed = 0
         with guard.guarding(self.out) as g:
-            for rel in sorted(set(self._files) | self._by_name, key=lambda r: (-r.count("/"), r)):
+            for rel in sorted(self._files, key=lambda r: (-r.count("/"), r)):
                 if rel not in (MANIFEST_FILE, JOURNAL_FILE):
                     removed += _remove(g, self.out, rel, lambda st, rel=rel: self.may_replace(rel, st))
             for rel in sorted(self._tmps):
