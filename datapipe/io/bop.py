@@ -206,10 +206,13 @@ class BopWriter:
                                     "start of a run by datapipe.io.models.write_models)")
             if src.resolve() != self.models_dir.resolve():
                 make_dirs(self.models_dir)
-                # models_info.json last: add_scene takes its presence for "the models are copied"
-                for p in sorted(src.iterdir(), key=lambda p: (p.name == layout.MODELS_INFO, p.name)):
-                    if p.is_file() and (p.suffix == ".ply" or p.name == layout.MODELS_INFO):
-                        copy_atomic(p, self.models_dir / p.name)
+                # only the models models_info.json lists (another .ply of yours in models/ is not the
+                # run's); models_info.json last: add_scene takes its presence for "the models are copied"
+                info = read_json(src / layout.MODELS_INFO)
+                ids = sorted(int(k) for k in info if str(k).isdigit()) if isinstance(info, dict) else []
+                for name in [model_filename(i) for i in ids] + [layout.MODELS_INFO]:
+                    if (src / name).is_file():
+                        copy_atomic(src / name, self.models_dir / name)
         self._models = None
         self._write_models_eval()
 
