@@ -337,8 +337,9 @@ class Manifest:
     # -- the ledger of datapipe/io/guard.py -------------------------------------------------------
     def record_file(self, rel: str, st: os.stat_result, digest: str) -> None:
         if rel in (MANIFEST_FILE, JOURNAL_FILE):
-            return                               # the record itself: ours when it is a DataPipe manifest
-        self._journal(["a", rel] if _holds_a_time(rel) else ["f", rel, st.st_size, digest])
+            self._known[rel] = _stamp(st)        # the record itself: ours when it is a DataPipe manifest
+            return
+        self._journal(["a", rel] if _by_path(rel) else ["f", rel, st.st_size, digest])
         self._known[rel] = _stamp(st)            # this process wrote it: no need to read it again
 
     def record_dir(self, rel: str) -> None:
@@ -360,8 +361,8 @@ class Manifest:
         """Whether the file `st` at `rel` is one the run wrote, with the content it wrote."""
         if rel == JOURNAL_FILE:
             return True
-        if rel == MANIFEST_FILE:
-            return Manifest._read(self.out) is not None
+        if rel == MANIFEST_FILE:                 # written by this process, else read as a DataPipe manifest
+            return self._known.get(rel) == _stamp(st) or Manifest._read(self.out) is not None
         if rel not in self._files:
             return False
         versions = self._files[rel]
@@ -436,10 +437,12 @@ class Manifest:
         return removed, kept
 
 
-def _holds_a_time(rel: str) -> bool:
-    """run.json (its steps' seconds) and the BOP COCO files (`date_created`): recorded by path, so
-    that manifest.json is the same bytes for a resumed run as for an uninterrupted one."""
-    return rel == layout.RUN_FILE or rel.endswith("_coco.json")
+def _by_path(rel: str) -> bool:
+    """Files whose bytes say when or where the run ran: run.json (its steps' seconds), the BOP COCO
+    files (`date_created`), the sheets (their titles name the run's folder). Recorded by path, so
+    that manifest.json is the same bytes for a resumed run (or one in another folder) as for an
+    uninterrupted one."""
+    return rel == layout.RUN_FILE or rel.endswith("_coco.json") or rel.startswith(layout.SHEETS_DIR + "/")
 
 
 def _is_version(v) -> bool:
