@@ -74,7 +74,7 @@ def test_force_removes_exactly_the_recorded_files(finished):
     cfg, out = finished
     user = user_files(out, ISSUE_FORCE_FILES)
     m = outdir.Manifest.load(out)
-    removed, kept = m.remove_listed()
+    removed, kept = outdir.remove_run_files(m)
     assert sorted(kept) == sorted(user) and removed > 0
     assert {k: v for k, v in hashes(out).items() if v != "dir"} == user
 

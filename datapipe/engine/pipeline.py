@@ -157,7 +157,7 @@ class Pipeline:
         self._t_start = time.perf_counter()
         kept = None
         if self.force and self.out.is_dir() and not self.resume and outdir.meaningful_entries(self.out):
-            removed, kept = outdir.check_force(self.out).remove_listed()   # only the earlier run's own files
+            removed, kept = outdir.remove_run_files(outdir.check_force(self.out))   # only the earlier run's own
         self.out.mkdir(parents=True, exist_ok=True)
         if self.resume:
             earlier = self._run_record().get("stats")

@@ -198,10 +198,10 @@ class Manifest:
             os.ftruncate(self._journal_fd, 0)
 
     # -- --force ----------------------------------------------------------------------------------
-    def remove_listed(self) -> tuple[int, list[str]]:
+    def remove_listed(self) -> int:
         """Delete the run's files whose content is still what it wrote (deepest first), its
         temporaries, then the folders it made that are empty after it; never through a link.
-        Returns (how many files were removed, the files kept in OUT: everything else)."""
+        Returns how many files were removed."""
         removed = 0
         with guard.guarding(self.out) as g:
             for rel in sorted(self._files, key=lambda r: (-r.count("/"), r)):
@@ -215,10 +215,7 @@ class Manifest:
                 _remove(g, self.out, MANIFEST_FILE, lambda st: True)
             _remove(g, self.out, JOURNAL_FILE, lambda st: True)
         self.close()
-        from .outdir import meaningful_entries, walk
-        kept = sorted(rel for name in meaningful_entries(self.out) for rel, _, is_dir in walk(self.out, name)
-                      if not is_dir)
-        return removed, kept
+        return removed
 
 
 def _by_path(rel: str) -> bool:

@@ -291,3 +291,12 @@ def check_force(out: Path) -> Manifest:
                             f"({MANIFEST_FILE}), so nothing in it is known to be a run's own file "
                             "(fix: choose another folder, or delete what you do not need yourself)")
     return m
+
+
+def remove_run_files(manifest: Manifest) -> tuple[int, list[str]]:
+    """--force: remove what the manifest records as the run's (Manifest.remove_listed); returns (how
+    many files were removed, every file kept in OUT: the ones the run did not write, or changed)."""
+    removed = manifest.remove_listed()
+    out = manifest.out
+    kept = sorted(rel for name in meaningful_entries(out) for rel, _, is_dir in walk(out, name) if not is_dir)
+    return removed, kept
