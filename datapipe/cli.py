@@ -234,7 +234,7 @@ def _run(cfg, args, preset_path) -> int:
     t0 = time.perf_counter()
 
     def print_event(p) -> None:
-        if not args.quiet or p.stage in ("done", "cancelled"):
+        if not args.quiet or p.stage in ("done", "cancelled", "force"):     # force: what --force kept
             print(p.line(), file=sys.stderr, flush=True)
     pipe, last = run_pipeline(cfg, args.out, resume=args.resume, force=args.force, shard=shard, seed=args.seed,
                               strict=args.strict, verbose=args.verbose, on_event=print_event,

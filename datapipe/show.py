@@ -32,7 +32,7 @@ import numpy as np
 from . import lens
 from .errors import DataPipeError
 from .io import layout
-from .io.files import imwrite_atomic, read_json
+from .io.files import imwrite_atomic, make_dirs, read_json
 from .io.models import load_models
 from .visibility import visible_fractions
 from .io.outdir import OutputStateError
@@ -469,7 +469,7 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
 
 
 def _imwrite(path: Path, img: np.ndarray) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs(path.parent)
     return imwrite_atomic(path, img)
 
 

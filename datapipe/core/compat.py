@@ -17,6 +17,8 @@ from typing import Iterable
 
 import bpy
 
+from ..io.files import scratch_dir
+
 VERSION: tuple[int, int, int] = tuple(bpy.app.version)
 IS_5 = VERSION >= (5, 0, 0)
 
@@ -141,6 +143,11 @@ def new_file_output(tree, directory: str | os.PathLike, basename: str, name: str
 
 
 def set_file_output_path(fo, directory: str | os.PathLike, basename: str) -> None:
+    """Where the File Output node writes `basename`: in `directory`, or, for a folder inside a
+    run's output folder, in the run's private scratch folder reached through its handle
+    (datapipe/io/guard.py): Blender writes by path, and a link put in the output folder during the
+    render must not lead its write elsewhere. written_files and take_written_exr look there too."""
+    directory = scratch_dir(directory)
     path = os.path.join(os.fspath(directory), basename)
     if "{" in path or "}" in path:
         raise ValueError(f"braces are path templates in Blender 5 and would skip the write: {path!r}")
@@ -176,7 +183,7 @@ def written_files(directory: str | os.PathLike, basename: str) -> list[Path]:
     """Multilayer EXRs the File Output node wrote for `basename` in `directory`.
 
     5.x writes `<basename>.exr`; 4.2 appends the frame number, `<basename>0001.exr`. Both match."""
-    d = Path(directory)
+    d = scratch_dir(directory)
     if not d.is_dir():
         return []
     out = []

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.files import make_dirs
 from ..sl.fringe_synth import INDIRECT_BLUR_PX, indirect_gain  # noqa: F401  (the bounce model both modes render)
 from .projector import AMBIENT_LAYER
 
@@ -28,7 +29,7 @@ def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *,
     from . import compat
 
     render_dir = Path(render_dir)
-    render_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(render_dir)          # never through a link in the output folder
     for stale in compat.written_files(render_dir, basename):
         stale.unlink()
     compat.set_file_output_path(file_output, render_dir, basename)

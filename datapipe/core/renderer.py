@@ -38,6 +38,7 @@ from . import compat, object_coords
 from ..config import Config
 from ..errors import DataPipeError
 from ..engine import progress
+from ..io.files import make_dirs
 from ..io.native import write_render_maps
 from .objects import OBJECTS_COLLECTION
 
@@ -212,7 +213,7 @@ class Renderer:
         if self.tree is None:
             raise DataPipeError("Renderer.setup() must run before render()")
         render_dir = Path(render_dir)
-        render_dir.mkdir(parents=True, exist_ok=True)
+        make_dirs(render_dir)          # never through a link in the output folder
         for stale in compat.written_files(render_dir, TEMP_BASENAME):
             stale.unlink()
         try:

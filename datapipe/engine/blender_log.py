@@ -26,6 +26,8 @@ import threading
 import time
 from pathlib import Path
 
+from ..io.files import open_append
+
 _ERROR_LINE = re.compile(rb"\|\s+(ERROR|FATAL)\b|^Error: ")
 _MAX_PENDING = 1 << 20             # bytes kept in memory before the log file is known
 _PIPE_SIZE = 1 << 20
@@ -63,7 +65,7 @@ class BlenderLog:
                 return
             if self._file is not None:
                 self._file.close()
-            self._file = open(path, "ab")
+            self._file = open_append(path)       # inside a run's folder: never through a link
             self.path = path
             stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
             self._file.write(f"=== DataPipe session {stamp} UTC, pid {os.getpid()}: Blender's own output\n"

@@ -27,7 +27,7 @@ from ..checks.physics_check import physics_line, totals_line
 from .progress import Progress, Tracker, fmt_s
 from ..checks.quality import render_warnings
 from ..io import layout, native
-from ..io.files import read_json, write_json_atomic
+from ..io.files import make_dirs, read_json, write_json_atomic
 from ..io.bop_models import models_symmetries
 from ..io.models import write_models
 from ..io.legacy import LegacyPickleWriter
@@ -133,17 +133,19 @@ class Pipeline:
                                         "(fix: resume with the same preset and --seed, or choose another folder)")
                 base = self.cfg.scene.seed
                 scenes = {layout.scene_name(i): (i, scene_seed(base, i)) for i in self.scene_ids}
-            elif self.force:
+                # the scenes --resume makes (again): every file it writes there must be its own
+                to_write = [n for n in scenes if not _complete_with_files(self.out / n)]
+            else:
+                if not self.force:
+                    raise DataPipeError(f"output: {self.out} is not empty (fix: pass --resume to continue that "
+                                        "run, or choose an empty folder; nothing was written)")
                 earlier = outdir.check_force(self.out)
                 scenes = {name: (i, None) for name, i in outdir.scene_folders(self.out).items()}
-            else:
-                raise DataPipeError(f"output: {self.out} is not empty (fix: pass --resume to continue that run, "
-                                    "or choose an empty folder; nothing was written)")
+                to_write = [layout.scene_name(i) for i in self.scene_ids]
             outdir.refuse_foreign_scenes(self.out, scenes)
-            if earlier is not None:
-                outdir.refuse_collisions(earlier)
             if self.resume and self.cfg.output.legacy_pickle and (self.out / layout.LEGACY_PICKLE).is_file():
                 LegacyPickleWriter(self.out).start()        # refuses a pickle that is not the run's
+            outdir.refuse_collisions(self.out, earlier, to_write)
 
     def cancel(self) -> None:
         """Stop after the render in progress; everything written so far stays."""
@@ -153,13 +155,24 @@ class Pipeline:
     def run(self) -> Iterator[Progress]:
         self.check()
         self._t_start = time.perf_counter()
+        kept = None
         if self.force and self.out.is_dir() and not self.resume and outdir.meaningful_entries(self.out):
-            outdir.check_force(self.out).remove_listed()      # only the earlier run's own files
+            removed, kept = outdir.remove_run_files(outdir.check_force(self.out))   # only the earlier run's own
         self.out.mkdir(parents=True, exist_ok=True)
         if self.resume:
             earlier = self._run_record().get("stats")
             self._earlier_stats = earlier if isinstance(earlier, dict) else {}
-        self.manifest = outdir.Manifest.start(self.out, resume=self.resume)
+        self.manifest = (outdir.Manifest.load(self.out) if self.resume else None) or outdir.Manifest(self.out)
+        try:
+            with self.manifest.writing():      # every write under OUT: through its handle, recorded
+                if kept is not None:
+                    yield Progress("force", 0, self.total, message=_force_line(removed, kept))
+                yield from self._run()
+        finally:
+            self.manifest.close()
+
+    def _run(self) -> Iterator[Progress]:
+        self.manifest.update()
         self._write_run_file(status="running")
         self.manifest.update()
         writers = open_writers(self.cfg.output, self.out)
@@ -231,7 +244,7 @@ class Pipeline:
         sdir = self.out / layout.scene_name(i)
         # a scene killed mid-way is made again over its files (same names: each write replaces one);
         # nothing else in the folder is touched (a file of yours there stays, beside the run's)
-        sdir.mkdir(parents=True, exist_ok=True)
+        make_dirs(sdir)
         yield Progress("scene", done, self.total, scene=i, message="dropping parts")
         base = self.cfg.scene.seed
         seed_python(base, i)
@@ -244,7 +257,7 @@ class Pipeline:
         for r, pose_index in enumerate(start.pose_indices):
             seed = render_seed(base, i, r)
             rdir = sdir / layout.render_name(r)
-            rdir.mkdir(parents=True, exist_ok=True)
+            make_dirs(rdir)
             self._track(done, i, r)
             view = world.render(rdir, pose_index, seed, scene_id=i, render_id=r, base_seed=base)
             progress.begin("annotate", f"{len(start.parts)} parts")
@@ -376,6 +389,21 @@ class Pipeline:
 
 def _no_lines(_: Progress) -> None:
     """The step sink of a run without progress lines (the tracker still times the steps)."""
+
+
+def _force_line(removed: int, kept: list[str]) -> str:
+    """What --force removed and kept (every file it did not write, whatever its name)."""
+    line = f"--force: removed {removed} file(s) the earlier run wrote"
+    if not kept:
+        return line + "; nothing else was in the folder"
+    more = f" and {len(kept) - 10} more" if len(kept) > 10 else ""
+    return line + f"; kept {len(kept)} it did not write (or that changed since): {', '.join(kept[:10])}{more}"
+
+
+def _complete_with_files(sdir: Path) -> bool:
+    """A scene --resume skips: complete, with every file its renders list."""
+    scene = layout.read_scene(sdir)
+    return scene is not None and bool(scene.get("complete", False)) and _files_present(sdir, scene)
 
 
 def _files_present(sdir: Path, scene: dict) -> bool:

@@ -42,7 +42,7 @@ HEARTBEAT_S = 30.0
 
 @dataclass
 class Progress:
-    stage: str                 # setup | scene | step | render | scene_done | skip | done | cancelled
+    stage: str                 # force | setup | scene | step | render | scene_done | skip | done | cancelled
     done: int                  # renders finished in this run (skipped-complete scenes included)
     total: int                 # renders this run (this shard) makes
     scene: int | None = None

@@ -73,8 +73,10 @@ def run_pipeline(cfg, out, *, resume: bool = False, force: bool = False, shard: 
                 on_event(last)
         if last is not None and last.stage == "done":
             from ..show import overview_after_run
-            overview_after_run(pipe.out, pipe.cfg.output)
-            pipe.manifest.update()  # the sheets are the run's files too
+            with pipe.manifest.writing():       # the sheets are the run's files too
+                overview_after_run(pipe.out, pipe.cfg.output)
+                pipe.manifest.update()
+            pipe.manifest.close()
     blender_log.close()
     return pipe, last
 

@@ -50,7 +50,7 @@ import numpy as np
 from ..errors import DataPipeError
 from .exr import read_depth, read_exr, read_mask, write_exr
 from . import layout
-from .files import copy_atomic, imwrite_atomic, read_json, read_json_or_empty, write_json_lines_atomic
+from .files import copy_atomic, imwrite_atomic, make_dirs, read_json, read_json_or_empty, write_json_lines_atomic
 from .models import Model, load_models, model_filename, write_models, write_ply
 from .models_eval import SPACING_MM, resample_for_eval, vertex_normals
 from .silhouette import mask_bbox, rasterize_silhouette
@@ -178,7 +178,7 @@ class BopWriter:
         self.depth_scale = float(depth_scale)
         self.chunk_size = int(chunk_size)
         self.split = split
-        self.root.mkdir(parents=True, exist_ok=True)
+        make_dirs(self.root)
         self._models: dict[int, Model] | None = None
         self._chunks: dict[int, dict[str, dict]] = {}    # chunks in memory: the last scene's (see add_scene)
         self._chunks_touched: set[int] = set()
@@ -206,18 +206,21 @@ class BopWriter:
                 raise DataPipeError(f"{src}: no {layout.MODELS_INFO} (the run's models/ folder is written at the "
                                     "start of a run by datapipe.io.models.write_models)")
             if src.resolve() != self.models_dir.resolve():
-                self.models_dir.mkdir(parents=True, exist_ok=True)
-                # models_info.json last: add_scene takes its presence for "the models are copied"
-                for p in sorted(src.iterdir(), key=lambda p: (p.name == layout.MODELS_INFO, p.name)):
-                    if p.is_file() and (p.suffix == ".ply" or p.name == layout.MODELS_INFO):
-                        copy_atomic(p, self.models_dir / p.name)
+                make_dirs(self.models_dir)
+                # only the models models_info.json lists (another .ply of yours in models/ is not the
+                # run's); models_info.json last: add_scene takes its presence for "the models are copied"
+                info = read_json(src / layout.MODELS_INFO)
+                ids = sorted(int(k) for k in info if str(k).isdigit()) if isinstance(info, dict) else []
+                for name in [model_filename(i) for i in ids] + [layout.MODELS_INFO]:
+                    if (src / name).is_file():
+                        copy_atomic(src / name, self.models_dir / name)
         self._models = None
         self._write_models_eval()
 
     def _write_models_eval(self) -> None:
         """models_eval/: every model resampled (io/models_eval.py) and the same models_info.json."""
         out = self.root / MODELS_EVAL_DIR
-        out.mkdir(parents=True, exist_ok=True)
+        make_dirs(out)
         for obj_id, m in self.models().items():
             v, f = resample_for_eval(m.verts_mm, m.faces, self.eval_spacing_mm)
             write_ply(out / model_filename(obj_id), v, f, vertex_normals(v, f))
@@ -325,14 +328,14 @@ class BopWriter:
         W, H = (int(x) for x in rd["resolution"])
         K = _mat(rd["K"], (3, 3))
         for sub in ("rgb", "depth", "mask", "mask_visib"):
-            (cdir / sub).mkdir(parents=True, exist_ok=True)
+            make_dirs(cdir / sub)
         stem = f"{im_id:06d}"
         rgb_name = f"rgb/{stem}.{self.rgb_format}"
         self._write_rgb(_required(scene_dir, rd, "rgb"), cdir / rgb_name)
         depth_valid = self._write_depth(_required(scene_dir, rd, "depth"), cdir / "depth" / f"{stem}.png", W, H)
         sl_src = layout.render_file(scene_dir, rd, "sl_depth")
         if sl_src.is_file():
-            (cdir / "depth_sl").mkdir(exist_ok=True)
+            make_dirs(cdir / "depth_sl")
             imwrite_atomic(cdir / "depth_sl" / f"{stem}.png",
                            encode_depth(read_depth(sl_src), self.depth_scale, what=str(sl_src)))
         inst = read_mask(_required(scene_dir, rd, "mask"))
@@ -376,7 +379,7 @@ class BopWriter:
         xyz = {c: np.asarray(ch[c], dtype=np.float32) * np.float32(1000.0) for c in "XYZ"}
         if xyz["X"].shape != (H, W):
             raise DataPipeError(f"{src}: shape {xyz['X'].shape} but scene.json says {W}x{H}")
-        dst.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(dst.parent)
         write_exr(dst, xyz)
 
     def _write_depth(self, src: Path, dst: Path, W: int, H: int) -> np.ndarray:

@@ -1,6 +1,9 @@
 """Atomic writes and JSON readers. Every file is written to a temporary name and renamed, so a crash
 leaves either the old or the new file, never half of one. A failed write (disk full, permission)
-removes its temporary file and raises an OSError that names the file it was writing."""
+removes its temporary file and raises an OSError that names the file it was writing.
+
+Inside a run's output folder the writes go through the folder's opened handle instead of paths
+(datapipe/io/guard.py): no link is followed, and each file is recorded in the run's manifest."""
 from __future__ import annotations
 
 import errno
@@ -14,6 +17,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..errors import DataPipeError
+from . import guard
 
 
 def _tmp(path: Path) -> Path:
@@ -52,18 +56,52 @@ def atomic_path(path: str | os.PathLike, tmp: str | os.PathLike | None = None) -
     On any failure the temporary file is removed; an OSError is re-raised naming `path`."""
     path = Path(path)
     tmp = Path(tmp) if tmp is not None else _tmp(path)
+    g = guard.active_for(path)
+    written = [str(tmp), tmp.name]
     try:
-        yield tmp
-        os.replace(tmp, path)
+        if g is not None:
+            with g.atomic(path, tmp.name) as through:
+                written.append(str(through))
+                yield through
+        else:
+            yield tmp
+            os.replace(tmp, path)
     except OSError as e:
-        _remove(tmp)
-        ours = (None, str(tmp))
+        if g is None:
+            _remove(tmp)
+        ours = (None, *written)
         if e.filename not in ours and e.filename2 not in ours[1:]:
             raise                          # about another file (a copy's unreadable source): its own name
         raise named_os_error(e, path) from e
     except BaseException:
-        _remove(tmp)
+        if g is None:
+            _remove(tmp)
         raise
+
+
+def make_dirs(path: str | os.PathLike) -> None:
+    """`path` and its missing parents (`mkdir -p`); inside a run's output folder never through a link."""
+    g = guard.active_for(path)
+    if g is not None:
+        g.make_dirs(path)
+    else:
+        Path(path).mkdir(parents=True, exist_ok=True)
+
+
+def open_append(path: str | os.PathLike):
+    """A binary file opened for appending (made when missing); inside a run's output folder never
+    through a link."""
+    g = guard.active_for(path)
+    if g is None:
+        return open(path, "ab")
+    return os.fdopen(g.open_append(path), "ab")
+
+
+def scratch_dir(fallback: str | os.PathLike) -> Path:
+    """Where another program (Blender's File Output) may write scratch files by path: inside a run's
+    output folder a private folder reached through its handle, else `fallback`."""
+    g = guard.active_for(fallback)
+    return g.scratch_dir() if g is not None else Path(fallback)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str, *, fsync: bool = False) -> None:
@@ -107,7 +145,13 @@ def imwrite_atomic(path: str | os.PathLike, img: np.ndarray, params: list[int] |
 
     path = Path(path)
     with atomic_path(path, path.with_name(path.stem + ".tmp" + path.suffix)) as tmp:
-        if not cv2.imwrite(str(tmp), img, params or []):
+        if guard.active_for(path) is not None:     # tmp is /proc/self/fd/N: no extension to pick the codec by
+            ok, buf = cv2.imencode(path.suffix, img, params or [])
+            if not ok:
+                raise disk_full_error(path, "OpenCV could not encode the image")
+            with open(tmp, "wb") as f:
+                f.write(buf.tobytes())
+        elif not cv2.imwrite(str(tmp), img, params or []):
             raise disk_full_error(path, "OpenCV could not write the image")
     return path
 

@@ -3,14 +3,16 @@ refusals that keep a user's files safe. No bpy.
 
 - Lock: `OUT/.datapipe.lock`, an `fcntl.flock` held for the whole run (the kernel drops it when
   the process exits or crashes, so a stale lock file never blocks). It holds the holder's pid for
-  the refusal message. The lock file alone does not make a folder "not empty".
-- Manifest: `OUT/manifest.json` lists every file and folder of the run's own layout that appeared
-  in OUT after the run started (`foreign` remembers what was there before, e.g. a README the user
-  keeps next to a run, or notes in a scene folder; inside scene folders only the layout's own
-  names count as the run's). `--force` removes exactly the listed paths and nothing else.
+  the refusal message. The lock file alone does not make a folder "not empty". Released by
+  unlinking it while held; so an acquire checks, once it holds the lock, that the file it locked
+  is still the one at the path (else it locked a file just released and unlinked: it tries again).
+- Manifest, by record (datapipe/io/manifest.py): the path, size and SHA-256 of each file the run
+  wrote, recorded as it wrote it. `--force` removes exactly the recorded files whose content is
+  still the recorded one, and the folders the run made once they are empty.
 - Refusals before anything is written (exit status 1, the path and the fix): a symbolic link where
-  the run writes (it could lead the writes out of OUT), a file of someone else's at a path the run
-  writes, and a `scene.json` that is not this run's record.
+  the run writes (it could lead the writes out of OUT), a file the run did not write at a path it
+  writes, and a `scene.json` that is not this run's record. During the run the guard refuses the
+  same at the write itself.
 """
 from __future__ import annotations
 
@@ -20,16 +22,15 @@ import json
 import os
 import re
 import stat
+import time
 from pathlib import Path
 from typing import Iterator
 
 from ..errors import DataPipeError, OutputStateError  # noqa: F401 (re-exported)
-from . import layout
-from .files import write_text_atomic
+from . import guard, layout
+from .manifest import JOURNAL_FILE, MANIFEST_FILE, MANIFEST_KEY, Manifest  # noqa: F401 (re-exported)
 
 LOCK_FILE = ".datapipe.lock"
-MANIFEST_FILE = "manifest.json"
-MANIFEST_KEY = "datapipe_manifest"     # format version marker: a foreign manifest.json is not ours
 
 # Top-level names a run writes (native layout, BOP export, sheets, temporaries of atomic writes).
 _OWN_TOP = re.compile("^(" + "|".join(re.escape(n) for n in (
@@ -84,8 +85,9 @@ def own_tops(out: Path) -> list[str]:
 
 
 def meaningful_entries(out: Path) -> list[str]:
-    """Names in `out` other than the lock file."""
-    return sorted(p.name for p in out.iterdir() if p.name != LOCK_FILE)
+    """Names in `out` other than the lock file and the journal (and a killed run's scratch folder)."""
+    return sorted(p.name for p in out.iterdir() if p.name not in (LOCK_FILE, JOURNAL_FILE)
+                  and not p.name.startswith(guard.SCRATCH_PREFIX))
 
 
 class OutLock:
@@ -97,6 +99,15 @@ class OutLock:
 
     def acquire(self) -> "OutLock":
         self.out.mkdir(parents=True, exist_ok=True)
+        for _ in range(1000):              # each try again follows a release that unlinked the file we locked
+            if self._try_acquire():
+                return self
+            time.sleep(0.001)
+        raise OutputStateError(f"output: {self.out / LOCK_FILE} keeps being replaced while DataPipe takes the "
+                               "lock (fix: stop the other program that removes it, or choose another --out)")
+
+    def _try_acquire(self) -> bool:
+        """True holding the lock; False when the file locked was no longer the one at the path."""
         path = self.out / LOCK_FILE
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
@@ -114,16 +125,24 @@ class OutLock:
             os.close(fd)
             raise OutputStateError(f"output: {self.out} is in use by another DataPipe run (pid {holder}) "
                                    "(fix: wait for it to finish or stop it, or choose another --out)") from None
+        try:
+            now = os.stat(path, follow_symlinks=False)
+        except FileNotFoundError:
+            now = None
+        held = os.fstat(fd)
+        if now is None or (now.st_dev, now.st_ino) != (held.st_dev, held.st_ino):
+            os.close(fd)                   # released (unlinked) between our open and our lock
+            return False
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         self.fd = fd
-        return self
+        return True
 
     def release(self) -> None:
         if self.fd is not None:
             try:
-                os.unlink(self.out / LOCK_FILE)        # while still held: no other run can hold it now
-            except OSError:
+                os.unlink(self.out / LOCK_FILE)        # while still held; a process that opened it before
+            except OSError:                            # locks a file no longer at the path: it tries again
                 pass
             fcntl.flock(self.fd, fcntl.LOCK_UN)
             os.close(self.fd)
@@ -211,130 +230,57 @@ def refuse_foreign_scenes(out: Path, scenes: dict[str, tuple[int, int | None]]) 
                 "another --out; nothing was written)")
 
 
-class Manifest:
-    """What a run wrote into OUT (see the module doc)."""
-
-    def __init__(self, out: Path, foreign: list[str], files: list[str]):
-        self.out, self._foreign, self._files = Path(out), set(foreign), set(files)
-
-    @classmethod
-    def load(cls, out: Path) -> "Manifest | None":
-        """The manifest of an earlier run in `out`, or None when there is none (or not ours)."""
-        path = Path(out) / MANIFEST_FILE
-        if not path.is_file():
-            return None
-        try:
-            data = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError, OSError):
-            return None
-        if not isinstance(data, dict) or data.get(MANIFEST_KEY) != 1:
-            return None
-        files, foreign = data.get("files"), data.get("foreign")
-        if not (isinstance(files, list) and isinstance(foreign, list)
-                and all(isinstance(f, str) for f in files + foreign)):
-            return None
-        return cls(out, foreign, files)
-
-    @classmethod
-    def start(cls, out: Path, *, resume: bool) -> "Manifest":
-        """Begin (or, resuming, continue) the manifest of the run about to write into `out`: what
-        is there now and is not the earlier run's is foreign (never removed, never adopted)."""
-        earlier = cls.load(out)
-        if resume and earlier is not None:
-            m = earlier
-        else:
-            m = cls(out, cls.present_foreign(out, earlier, adopt_layout=resume), [])
-        m.update()
-        return m
-
-    @staticmethod
-    def present_foreign(out: Path, earlier: "Manifest | None", *, adopt_layout: bool) -> list[str]:
-        """Paths in `out` now (top-level names; inside the layout's folders, every path) that are not
-        the earlier run's. adopt_layout: a run resumed without a manifest owns the layout's names."""
-        foreign = []
-        for name in meaningful_entries(out):
-            if name == MANIFEST_FILE:
-                continue
-            for rel, *_ in (walk(out, name) if _OWN_TOP.match(name) else [(name,)]):
-                if earlier is not None and earlier.owns(rel):
-                    continue
-                if adopt_layout and earlier is None and is_run_path(rel):
-                    continue
-                foreign.append(rel)
-        return foreign
-
-    def only_itself(self) -> bool:
-        """Whether the run wrote nothing but this manifest (it stopped before its first record, e.g.
-        on a full disk): resuming it is starting it."""
-        return not any((self.out / f).exists() for f in self.files if f != MANIFEST_FILE)
-
-    def owns(self, rel: str) -> bool:
-        """Whether `rel` is the run's: listed, or a layout name that was not there before the run."""
-        return rel in self._files or (rel not in self._foreign and is_run_path(rel))
-
-    @property
-    def files(self) -> list[str]:
-        return sorted(self._files)
-
-    @property
-    def foreign(self) -> list[str]:
-        return sorted(self._foreign)
-
-    def _ours_now(self) -> set[str]:
-        """The listed paths and the run's paths in OUT now (a killed call's last files included)."""
-        ours = set(self._files)
-        for top in own_tops(self.out):
-            ours.update(rel for rel, *_ in walk(self.out, top) if self.owns(rel))
-        return ours
-
-    def update(self) -> None:
-        """Add every path of the run's layout that is in OUT now and was not there before the run."""
-        self._files = self._ours_now() | {MANIFEST_FILE}
-        write_text_atomic(self.out / MANIFEST_FILE,
-                          json.dumps({MANIFEST_KEY: 1, "foreign": self.foreign, "files": self.files}, indent=0))
-
-    def collisions(self) -> list[str]:
-        """Files of someone else's (foreign) at names the run's layout writes: it would overwrite them."""
-        return sorted(rel for top in own_tops(self.out) for rel, _, is_dir in walk(self.out, top)
-                      if rel in self._foreign and is_run_path(rel) and not is_dir)
-
-    def remove_listed(self) -> int:
-        """Delete the run's files (deepest first), then its folders that are empty after it. A path
-        that is not inside OUT, a foreign one, or a folder that still holds something else is kept."""
-        root = self.out.resolve()
-        removed = 0
-        for rel in sorted(self._ours_now(), key=lambda r: r.count("/"), reverse=True):
-            p = self.out / rel
-            if ".." in Path(rel).parts or Path(rel).is_absolute() or rel in self._foreign:
-                continue
-            try:
-                if p.parent.resolve() != root.joinpath(*Path(rel).parts[:-1]):
-                    continue                   # a symlinked folder on the way: it leads outside OUT
-                if p.is_symlink() or p.is_file():
-                    p.unlink()
-                    removed += 1
-                elif p.is_dir() and not any(p.iterdir()):
-                    p.rmdir()
-            except FileNotFoundError:
-                pass
-        return removed
-
-
 def scene_folders(out: Path) -> dict[str, int]:
     """{folder name: scene index} of the scene folders (layout names) in `out`."""
     return {p.name: int(p.name[len(layout.SCENE_PREFIX):]) - 1 for p in layout.scene_dirs(out)
             if _SCENE_DIR.match(p.name)}
 
 
-def refuse_collisions(manifest: Manifest) -> None:
-    """OutputStateError when a foreign file sits at a name the run writes (it would be overwritten)."""
-    hits = manifest.collisions()
+_WRITES_TOP = {layout.RUN_FILE, layout.LEGACY_PICKLE}
+_WRITES_MODELS = re.compile(r"^obj_\d{6}\.ply$|^" + re.escape(layout.MODELS_INFO) + "$")
+_WRITES_RENDER = set(layout.RENDER_FILES.values())
+
+
+def _files_run_writes(out: Path, scenes: list[str]) -> Iterator[str]:
+    """The files in OUT now at a name the run is about to write: run.json, the pickle, models/,
+    and in the scene folders `scenes` scene.json and the render maps (bop/ and sheets/ are
+    checked at the write itself, by the guard)."""
+    for name in sorted(_WRITES_TOP):
+        yield name
+    models = out / layout.MODELS_DIR
+    if models.is_dir() and not models.is_symlink():
+        for p in sorted(models.iterdir()):
+            if _WRITES_MODELS.match(p.name):
+                yield f"{layout.MODELS_DIR}/{p.name}"
+    for sname in scenes:
+        sdir = out / sname
+        if not sdir.is_dir() or sdir.is_symlink():
+            continue
+        yield f"{sname}/{layout.SCENE_FILE}"
+        for rdir in sorted(sdir.glob(layout.RENDER_PREFIX + "*")):
+            if rdir.is_dir() and not rdir.is_symlink():
+                for n in sorted(_WRITES_RENDER):
+                    yield f"{sname}/{rdir.name}/{n}"
+
+
+def refuse_collisions(out: Path, manifest: "Manifest | None", scenes: list[str]) -> None:
+    """OutputStateError when a file the run did not write (no record, or changed since) stands at a
+    name the run is about to write: it would be overwritten."""
+    hits = []
+    for rel in _files_run_writes(out, scenes):
+        try:
+            st = os.lstat(out / rel)
+        except OSError:
+            continue
+        if stat.S_ISREG(st.st_mode) and (manifest is None or not manifest.may_replace(rel, st)):
+            hits.append(rel)
     if hits:
-        more = f" (and {len(hits) - 1} more)" if len(hits) > 1 else ""
+        more = f" (and {len(hits) - 5} more)" if len(hits) > 5 else ""
         raise OutputStateError(
-            f"output: {manifest.out / hits[0]}{more} is not a file of this run ({MANIFEST_FILE} lists it as "
-            "there before the run) but sits where the run writes; DataPipe never overwrites it (fix: move it "
-            "out of the folder, then run again, or choose another --out; nothing was written)")
+            f"output: {', '.join(str(out / h) for h in hits[:5])}{more}: not written by this run ({MANIFEST_FILE} "
+            "has no record of it, or it changed since) but where the run writes; DataPipe never overwrites "
+            "or adopts it (fix: move it out of the folder, then run again, or choose another --out; nothing was "
+            "written)")
 
 
 def check_force(out: Path) -> Manifest:
@@ -345,3 +291,12 @@ def check_force(out: Path) -> Manifest:
                             f"({MANIFEST_FILE}), so nothing in it is known to be a run's own file "
                             "(fix: choose another folder, or delete what you do not need yourself)")
     return m
+
+
+def remove_run_files(manifest: Manifest) -> tuple[int, list[str]]:
+    """--force: remove what the manifest records as the run's (Manifest.remove_listed); returns (how
+    many files were removed, every file kept in OUT: the ones the run did not write, or changed)."""
+    removed = manifest.remove_listed()
+    out = manifest.out
+    kept = sorted(rel for name in meaningful_entries(out) for rel, _, is_dir in walk(out, name) if not is_dir)
+    return removed, kept

@@ -124,7 +124,10 @@ class Run:
         """The run's overview sheet (output.overview); a failure to draw it does not fail the run."""
         from ..show import overview_after_run
         try:
-            overview_after_run(self.pipeline.out, self.pipeline.cfg.output)
+            with self.pipeline.manifest.writing():     # the sheet is the run's file too
+                overview_after_run(self.pipeline.out, self.pipeline.cfg.output)
+                self.pipeline.manifest.update()
+            self.pipeline.manifest.close()
         except Exception:
             traceback.print_exc()
 

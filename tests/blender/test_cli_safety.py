@@ -14,7 +14,7 @@ import pytest
 from datapipe import cli, config as C
 from datapipe.io import outdir
 from datapipe.io import layout
-from datapipe.io.files import write_json_atomic
+from datapipe.io.files import write_bytes_atomic, write_json_atomic
 from datapipe.draws.seeds import scene_seed
 
 
@@ -38,14 +38,16 @@ def fake_earlier_run(out, cfg):
     """What a finished run leaves (run.json, scene folder, pickle), listed in its manifest."""
     out.mkdir()
     m = outdir.Manifest.start(out, resume=False)
-    write_json_atomic(out / "run.json", {"config_identity": layout.config_identity(cfg.to_dict()),
-                                                "status": "complete", "scenes_done": []})
-    (out / "scene.0001" / "render.0001").mkdir(parents=True)
-    (out / "scene.0001" / "render.0001" / "rgb.png").write_bytes(b"png")
-    write_json_atomic(out / "scene.0001" / "scene.json", {      # a scene killed before it was complete
-        "scene_id": 0, "name": "scene.0001", "seed": scene_seed(cfg.scene.seed, 0), "renders": [], "complete": False})
-    (out / "output_dict.pickle").write_bytes(pickle.dumps({}))
-    m.update()
+    with m.writing():                     # written as a run writes: through the folder, recorded
+        write_json_atomic(out / "run.json", {"config_identity": layout.config_identity(cfg.to_dict()),
+                                                    "status": "complete", "scenes_done": []})
+        write_bytes_atomic(out / "scene.0001" / "render.0001" / "rgb.png", b"png")
+        write_json_atomic(out / "scene.0001" / "scene.json", {      # a scene killed before it was complete
+            "scene_id": 0, "name": "scene.0001", "seed": scene_seed(cfg.scene.seed, 0), "renders": [],
+            "complete": False})
+        write_bytes_atomic(out / "output_dict.pickle", pickle.dumps({}))
+        m.update()
+    m.close()
 
 
 def test_1_force_never_removes_a_foreign_folder(tmp_path, capsys):
@@ -63,10 +65,12 @@ def test_1_force_removes_exactly_the_manifest(tmp_path):
     (tmp_path / "o").mkdir()
     (out / "notes.txt").write_text("mine, before the run")
     (out / "scene.0001").mkdir()                # foreign before the run started: stays foreign
-    outdir.Manifest.start(out, resume=False)
-    write_json_atomic(out / "run.json", {"status": "complete"})
-    (out / "scene.0002" / "render.0001").mkdir(parents=True)
-    (out / "scene.0002" / "render.0001" / "rgb.png").write_bytes(b"x")
+    m = outdir.Manifest.start(out, resume=False)
+    with m.writing():                           # written as a run writes: through the folder, recorded
+        write_json_atomic(out / "run.json", {"status": "complete"})
+        write_bytes_atomic(out / "scene.0002" / "render.0001" / "rgb.png", b"x")
+        m.update()
+    m.close()
     outside = tmp_path / "outside"
     outside.mkdir()
     (outside / "victim.txt").write_text("never")
@@ -76,8 +80,9 @@ def test_1_force_removes_exactly_the_manifest(tmp_path):
     m = outdir.check_force(out)
     assert "notes.txt" not in m.files and "scene.0001" not in m.files
     m.remove_listed()
-    assert tree(out) == ["notes.txt", "scene.0001", "scene.0002", "scene.0002/later.txt"]
-    assert (outside / "victim.txt").read_text() == "never"
+    # the link at `models` is the user's, not the run's (issue #33: by record, not by name): kept, not followed
+    assert tree(out) == ["models", "notes.txt", "scene.0001", "scene.0002", "scene.0002/later.txt"]
+    assert (out / "models").is_symlink() and (outside / "victim.txt").read_text() == "never"
 
 
 def test_2_force_with_a_broken_mesh_removes_nothing(tmp_path, capsys):
