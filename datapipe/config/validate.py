@@ -9,7 +9,9 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import Problem
+from ..errors import DataPipeError, Problem
+from ..io.gltf_refs import gltf_problems
+from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
@@ -66,7 +68,7 @@ def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if not 0 <= s.seed < 2**32:
         ck.add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
     if s.blend_file and ck.path("scene.blend_file", s.blend_file) and check_files:
-        if not os.path.isfile(s.blend_file):
+        if not os.path.isfile(s.blend_file) or file_problem(s.blend_file, MAX_MESH_BYTES):
             ck.add("scene.blend_file", _not_found(s.blend_file), "give the path of an existing .blend")
         elif not s.blend_file.lower().endswith(".blend"):
             ck.add("scene.blend_file", f"not a .blend file: {s.blend_file}", "give a .blend file")
@@ -81,10 +83,9 @@ def _check_blend_header(ck: _Checks, path: str) -> None:
     """The first bytes of a .blend: a file that is not one fails here, before Blender is started
     (the Blender preflight then reads the file itself: core/preflight.check_blend)."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(12)
-    except OSError as e:
-        ck.add("scene.blend_file", f"cannot read {path}: {e.strerror or e}", "check the file's permissions")
+        head = read_regular(path, MAX_MESH_BYTES, head=12)
+    except DataPipeError as e:
+        ck.add("scene.blend_file", str(e), "check the file's permissions")
         return
     if not head.startswith(BLEND_MAGICS):
         ck.add("scene.blend_file", f"{path} is not a Blender file (it starts with {_short(head[:7])}, not "
@@ -92,9 +93,9 @@ def _check_blend_header(ck: _Checks, path: str) -> None:
 
 
 def _not_found(path: str) -> str:
-    if os.path.islink(path):
-        return f"file not found: {path} is a symbolic link to nothing (its target is missing, or a loop)"
-    return f"file not found: {path}"
+    """Why an input file cannot be read: missing (or a dangling link), or there but not a regular file
+    within the limit (a FIFO would block the reader, a device never end: io/input_files.py)."""
+    return file_problem(path, MAX_MESH_BYTES) or f"file not found: {path}"
 
 
 def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -> None:
@@ -108,9 +109,15 @@ def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -
         ck.add(path, f"is a folder, not a mesh file: {filepath}", "give the path of one mesh file inside it")
     elif suffix not in MESH_SUFFIXES:
         ck.add(path, f"not a mesh file: {filepath}", f"use one of {', '.join(MESH_SUFFIXES)}")
-    elif check_files and not os.path.isfile(filepath):
-        ck.add(path, _not_found(filepath), "check the path (relative paths are resolved against the "
-               "preset's folder)")
+    elif check_files and file_problem(filepath, MAX_MESH_BYTES):
+        problem = file_problem(filepath, MAX_MESH_BYTES)
+        ck.add(path, problem, "check the path (relative paths are resolved against the preset's folder)"
+               if problem.startswith("file not found") else "give a mesh file (a regular file within the limit "
+               "in docs/INPUT_LIMITS.md)")
+    elif check_files and suffix in (".gltf", ".glb"):
+        for problem in gltf_problems(filepath):
+            ck.add(path, problem, "give a glTF whose buffers and images are regular files beside it, or one "
+                   ".glb (re-export it from a modeller); see docs/INPUT_LIMITS.md")
 
 
 def _check_bop_entry(ck: _Checks, p: str, o: ObjectEntry, check_files: bool) -> None:
