@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 
 from ..errors import DataPipeError
-from .input_files import read_json_file
+from .input_files import MAX_MESH_BYTES, file_problem, read_json_file
 from .layout import MODELS_INFO
 SYMMETRY_KEYS = ("symmetries_discrete", "symmetries_continuous")
 
@@ -97,9 +97,12 @@ def bop_ids(entry, field: str) -> list[int]:
         raise DataPipeError(f"{field}.bop_obj_ids: {missing} not in {entry.bop_models}/{MODELS_INFO} (it has "
                             f"{sorted(info)}) (fix: give ids it lists, or [] for all)")
     for i in ids:
-        if not ply_path(entry.bop_models, i).is_file():
+        problem = file_problem(ply_path(entry.bop_models, i), MAX_MESH_BYTES)
+        if problem is not None and problem.startswith("file not found"):
             raise DataPipeError(f"{field}.bop_obj_ids: object {i} has no {ply_path(entry.bop_models, i).name} in "
                                 f"{entry.bop_models} (fix: drop id {i} or restore the file)")
+        if problem is not None:
+            raise DataPipeError(f"{field}.bop_obj_ids: object {i}: {problem} (fix: drop id {i} or restore the file)")
     if len(set(ids)) != len(ids):
         raise DataPipeError(f"{field}.bop_obj_ids: {ids} lists an id twice (fix: list each id once)")
     return ids
