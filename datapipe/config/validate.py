@@ -233,7 +233,8 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if not c.poses and pool:
         ck.add("camera.poses", "no camera poses", "add at least one pose (location + quaternion wxyz)")
     for i, pose in enumerate(c.poses):
-        ck.vector(f"camera.poses[{i}].location", pose.location, 3)
+        if ck.vector(f"camera.poses[{i}].location", pose.location, 3) and pool:
+            _check_pose_reaches_bin(ck, cfg, i)
         if ck.vector(f"camera.poses[{i}].rotation", pose.rotation, 4):
             if math.sqrt(sum(q * q for q in pose.rotation)) < 1e-6:
                 ck.add(f"camera.poses[{i}].rotation", "zero quaternion", "give a unit quaternion (w, x, y, z)")
@@ -242,6 +243,35 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
                f"{s.max_renders_per_scene} renders per scene but only {len(c.poses)} camera poses "
                "(poses are drawn without replacement within a scene)",
                "add camera poses or lower max_renders_per_scene")
+
+
+def _check_pose_reaches_bin(ck: _Checks, cfg: Config, i: int) -> None:
+    """A pool pose from which no part can be rendered: every point where parts can lie is beyond
+    camera.clip_end in depth. A point seen at angle theta off the optical axis at distance d has depth
+    d cos(theta) >= d cos(theta_max), theta_max the half diagonal field of view; parts lie within a
+    sphere of radius R about the drop zone's centre (twice the zone's half diagonal times the largest
+    bin scale: a margin for parts heaped above the zone), so (distance to the centre - R) cos(theta_max) > clip_end means nothing of the bin is
+    drawn. (A pose 2^63 m away was blamed on objects[i].scale by the mesh preflight: "0 px".)"""
+    c, s = cfg.camera, cfg.scene
+    res = c.resolution
+    if not (len(res) == 2 and min(res) >= 1 and len(s.drop_zone_loc) == 3 and len(s.drop_zone_scale) == 3
+            and c.focal_length > 0 and c.sensor_width > 0 and c.sensor_fit in SENSOR_FITS
+            and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2) or s.blend_file:
+        return                     # their own rules report them; a .blend's drop_zone object moves the bin
+    from ..geometry import intrinsics_from_sensor
+    K = intrinsics_from_sensor(c.focal_length, c.sensor_width, res[0], res[1], c.sensor_fit)
+    fx, fy = float(K[0, 0]), float(K[1, 1])
+    if not (math.isfinite(fx) and math.isfinite(fy) and fx > 0 and fy > 0):
+        return
+    cos_max = math.cos(math.atan(math.hypot(res[0] / 2 / fx, res[1] / 2 / fy)))
+    grow = max(1.0, *s.bin_size_scale, *s.bin_wall_scale)
+    R = 2 * math.sqrt(sum(h * h for h in s.drop_zone_scale)) * grow
+    d = math.dist(c.poses[i].location, s.drop_zone_loc)
+    if math.isfinite(d) and (d - R) * cos_max > c.clip_end:
+        ck.add(f"camera.poses[{i}].location", f"the camera is {d:.3g} m from the drop zone's centre: every part "
+               f"would be beyond camera.clip_end ({c.clip_end:g} m), so nothing of the bin is rendered",
+               "give the camera's location in metres in the world, near the bin (see scene.drop_zone_loc), or "
+               "raise camera.clip_end")
 
 
 def _check_render(ck: _Checks, cfg: Config, check_files: bool) -> None:
@@ -346,7 +376,10 @@ def _sampler_problems(cfg: Config) -> list[Problem]:
         from ..draws.camera_sampler import view_problems
         from ..geometry import intrinsics_from_sensor
         K = intrinsics_from_sensor(c.focal_length, c.sensor_width, res[0], res[1], fit)
-        half_fov = math.degrees(min(math.atan(res[0] / 2 / K[0, 0]), math.atan(res[1] / 2 / K[1, 1])))
+        fx, fy = float(K[0, 0]), float(K[1, 1])
+        if not (math.isfinite(fx) and math.isfinite(fy) and fx > 0 and fy > 0):
+            return out        # a lens of 1e-300 mm: the field-of-view rule refuses it (no numpy warning here)
+        half_fov = math.degrees(min(math.atan(res[0] / 2 / fx), math.atan(res[1] / 2 / fy)))
         s = cfg.scene
         if len(s.drop_zone_scale) == 3 and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2:
             walls = 2 * s.drop_zone_scale[2] * max(s.bin_wall_scale) if s.make_bin else 0.0   # highest walls
