@@ -15,7 +15,7 @@ from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
-from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_RENDERS, MAX_SAMPLES,
+from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS, MAX_SAMPLES,
                      MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS)
 from .validate_sl import _check_projector, _check_structured_light
 
@@ -65,8 +65,8 @@ def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
     ck.vector("scene.drop_zone_scale", s.drop_zone_scale, 3, pos=True)
     ck.positive("scene.bin_wall_thickness", s.bin_wall_thickness)
     ck.choice("scene.other_objects", s.other_objects, OTHER_OBJECTS)
-    if not 0 <= s.seed < 2**32:
-        ck.add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
+    if not 0 <= s.seed <= MAX_INT32:      # the sidebar's IntProperty holds no more (limits.MAX_INT32)
+        ck.add("scene.seed", f"must be in 0..{MAX_INT32} (2^31-1), got {s.seed}", f"give a seed from 0 to {MAX_INT32}")
     if s.blend_file and ck.path("scene.blend_file", s.blend_file) and check_files:
         if not os.path.isfile(s.blend_file) or file_problem(s.blend_file, MAX_MESH_BYTES):
             ck.add("scene.blend_file", _not_found(s.blend_file), "give the path of an existing .blend")
@@ -165,9 +165,9 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
         else:
             _check_mesh_path(ck, f"{p}.filepath", o.filepath, check_files)
         _check_symmetries(ck, p, o.symmetries)
-        if o.obj_id < 0:
-            ck.add(f"{p}.obj_id", f"must be >= 0, got {o.obj_id}", "give a BOP object id >= 1, or 0 for the "
-                   "entry's position + 1")
+        if not 0 <= o.obj_id <= MAX_INT32:
+            ck.add(f"{p}.obj_id", f"must be in 0..{MAX_INT32}, got {o.obj_id}", "give a BOP object id >= 1, or 0 for "
+                   "the entry's position + 1")
         ck.positive(f"{p}.scale", o.scale)
         ck.positive(f"{p}.mass", o.mass)
         ck.choice(f"{p}.collision_shape", o.collision_shape, COLLISION_SHAPES)
@@ -226,6 +226,8 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if c.clip_end <= c.clip_start:
         ck.add("camera.clip_end", f"clip_end ({c.clip_end}) <= clip_start ({c.clip_start})",
                "make clip_end > clip_start")
+    else:
+        ck.not_below("camera.clip_end", c.clip_end)
     _check_field_of_view(ck, "camera", c.focal_length, c.sensor_width, "sensor sees",
                          ": parts would be a few pixels or less",
                          "give a focal length of a real lens (industrial cameras: 4-50 mm)")
