@@ -68,7 +68,7 @@ def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if not 0 <= s.seed <= MAX_INT32:      # the sidebar's IntProperty holds no more (limits.MAX_INT32)
         ck.add("scene.seed", f"must be in 0..{MAX_INT32} (2^31-1), got {s.seed}", f"give a seed from 0 to {MAX_INT32}")
     if s.blend_file and ck.path("scene.blend_file", s.blend_file) and check_files:
-        if not os.path.isfile(s.blend_file) or file_problem(s.blend_file, MAX_MESH_BYTES):
+        if not os.path.isfile(s.blend_file) or file_problem(s.blend_file, None):   # Blender reads it: any size
             ck.add("scene.blend_file", _not_found(s.blend_file), "give the path of an existing .blend")
         elif not s.blend_file.lower().endswith(".blend"):
             ck.add("scene.blend_file", f"not a .blend file: {s.blend_file}", "give a .blend file")
@@ -83,7 +83,7 @@ def _check_blend_header(ck: _Checks, path: str) -> None:
     """The first bytes of a .blend: a file that is not one fails here, before Blender is started
     (the Blender preflight then reads the file itself: core/preflight.check_blend)."""
     try:
-        head = read_regular(path, MAX_MESH_BYTES, head=12)
+        head = read_regular(path, None, head=12)
     except DataPipeError as e:
         ck.add("scene.blend_file", str(e), "check the file's permissions")
         return
@@ -94,8 +94,8 @@ def _check_blend_header(ck: _Checks, path: str) -> None:
 
 def _not_found(path: str) -> str:
     """Why an input file cannot be read: missing (or a dangling link), or there but not a regular file
-    within the limit (a FIFO would block the reader, a device never end: io/input_files.py)."""
-    return file_problem(path, MAX_MESH_BYTES) or f"file not found: {path}"
+    (a FIFO would block the reader, a device never end: io/input_files.py)."""
+    return file_problem(path, None) or f"file not found: {path}"
 
 
 def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -> None:

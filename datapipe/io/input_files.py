@@ -53,9 +53,9 @@ def too_large_message(path, size: int, limit: int) -> str:
     return f"{path} is {size:,} bytes, more than the {limit:,} bytes DataPipe reads from one input file"
 
 
-def file_problem(path, limit: int) -> str | None:
-    """None when `path` is a regular file (links followed) of at most `limit` bytes; else why not,
-    without opening it. A missing path: 'file not found'."""
+def file_problem(path, limit: int | None) -> str | None:
+    """None when `path` is a regular file (links followed) of at most `limit` bytes (None: any size);
+    else why not, without opening it. A missing path: 'file not found'."""
     try:
         st = os.stat(path)
     except FileNotFoundError:
@@ -68,12 +68,12 @@ def file_problem(path, limit: int) -> str | None:
         return f"cannot read {path}: {e.strerror or e}"
     if not stat.S_ISREG(st.st_mode):
         return not_regular_message(path, st.st_mode)
-    if st.st_size > limit:
+    if limit is not None and st.st_size > limit:
         return too_large_message(path, st.st_size, limit)
     return None
 
 
-def read_regular(path, limit: int, head: int | None = None) -> bytes:
+def read_regular(path, limit: int | None, head: int | None = None) -> bytes:
     """The bytes of regular file `path` (its first `head` bytes when given), refusing before reading
     anything that is not a regular file or is larger than `limit`: DataPipeError with the reason
     (no field: the caller adds it). Never blocks on a FIFO, never reads a device."""
@@ -87,7 +87,7 @@ def read_regular(path, limit: int, head: int | None = None) -> bytes:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise DataPipeError(not_regular_message(path, st.st_mode))
-        if st.st_size > limit:
+        if limit is not None and st.st_size > limit:
             raise DataPipeError(too_large_message(path, st.st_size, limit))
         want = st.st_size if head is None else min(head, st.st_size)
         chunks, got = [], 0
