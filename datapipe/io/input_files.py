@@ -66,6 +66,8 @@ def file_problem(path, limit: int | None) -> str | None:
         if os.path.islink(path):       # ELOOP: a link loop
             return f"file not found: {path} is a symbolic link to nothing (its target is missing, or a loop)"
         return f"cannot read {path}: {e.strerror or e}"
+    except ValueError:                 # a NUL byte or a lone surrogate: no file can have that name
+        return f"file not found: {path!r} is not a name a file can have"
     if not stat.S_ISREG(st.st_mode):
         return not_regular_message(path, st.st_mode)
     if limit is not None and st.st_size > limit:
@@ -83,6 +85,8 @@ def read_regular(path, limit: int | None, head: int | None = None) -> bytes:
         raise DataPipeError(file_problem(path, limit) or f"file not found: {path}") from None
     except OSError as e:
         raise DataPipeError(f"cannot read {path}: {e.strerror or e}") from None
+    except ValueError:
+        raise DataPipeError(f"file not found: {path!r} is not a name a file can have") from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
