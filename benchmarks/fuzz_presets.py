@@ -384,6 +384,8 @@ def main() -> None:
                     if stage == "preflight":
                         preflight_fields[field] += 1
                         preflight_examples.setdefault(field, p.message.replace(str(work), "DIR")[:110])
+                if {q.path for q in getattr(e, "problems", [])} == {"output.path"}:
+                    stage = "output.path only"     # `run --out DIR` replaces that field: the CLI check skips it
                 outcomes[stage].append(path)
             else:
                 counts["project error without path or fix"] += 1
@@ -420,7 +422,9 @@ def main() -> None:
 def cli_check(outcomes: dict, n: int, seed: int, work: Path) -> dict:
     """N presets through the CLI, as a user runs it: a quarter of them accepted ones (`validate`:
     exit 0, OK), the rest refused ones, drawn evenly from the stage that refused them (`validate`
-    and `run --out`: exit 2, a fix, nothing written). Any traceback or other outcome is listed."""
+    and `run --out`: exit 2, a fix, nothing written). Any traceback or other outcome is listed.
+    Presets refused only for their output.path are not drawn: `run --out DIR` replaces that field,
+    so the run rightly starts (and renders)."""
     import subprocess
     rng = random.Random(seed + 1)                 # its own stream: the presets above do not change
     picks = [("accepted", p) for p in rng.sample(outcomes["accepted"], min(n // 4, len(outcomes["accepted"])))]

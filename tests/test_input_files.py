@@ -159,8 +159,21 @@ DEEP = "[" * 200_000 + "]" * 200_000
 def test_models_info_problems_are_found_by_validate(tmp_path, assets_dir, info, fragment):
     models = _models(tmp_path, info)
     preset = _preset(tmp_path, assets_dir, objects=[{"bop_models": str(models), "bop_obj_ids": []}])
-    stderr = _refused(preset, "objects[0].bop_models", str(models / "models_info.json"), fragment, "(fix:")
-    assert "RecursionError" not in stderr and "TypeError" not in stderr
+    _in_process_seconds(preset, "objects[0].bop_models", str(models / "models_info.json"))
+    _in_process_seconds(preset, "objects[0].bop_models", fragment)
+
+
+@pytest.mark.parametrize("info,fragment", [
+    ('{"1": 5}', "object 1: the entry is 5"),
+    ('{"1": ' + DEEP + "}", "nested too deeply"),
+    (json.dumps({"1": {**GOOD, "symmetries_discrete": "garbage"}}), "object 1.symmetries_discrete: expected a list"),
+])
+def test_models_info_problems_exit_2_from_the_cli(tmp_path, assets_dir, info, fragment):
+    """The command a user runs: exit 2, the field, the file, the object id; no TypeError or
+    RecursionError traceback, and bad symmetries no longer pass (exit 0 before)."""
+    models = _models(tmp_path, info)
+    preset = _preset(tmp_path, assets_dir, objects=[{"bop_models": str(models), "bop_obj_ids": []}])
+    _refused(preset, "objects[0].bop_models", str(models / "models_info.json"), fragment, "(fix:")
 
 
 def test_a_good_models_info_still_passes(tmp_path, assets_dir):
