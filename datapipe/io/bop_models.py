@@ -78,7 +78,11 @@ def _entry_problem(entry) -> str | None:
         return f"the entry is {json.dumps(entry)[:40]}, not an object of diameter, min_x ... size_z"
     for key in ("diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z"):
         v = entry.get(key, 0.0)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        try:
+            finite = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+        except OverflowError:           # an integer past float64 (10**400)
+            finite = False
+        if not finite:
             return f"{key} is {json.dumps(v)[:40]}, not a finite number (mm)"
     return None
 
