@@ -15,7 +15,8 @@ folders (`bop_models`) whose models_info.json is good, a number or null entry, 2
 list, cut short, a FIFO, missing, with a bad key, garbage or NaN symmetries, or whose PLY is a FIFO;
 and glTF / .glb files whose buffers or images are /dev/zero (byteLength 1e9), a FIFO, missing, shorter
 than their byteLength, or good (a data URI, a file beside it), or whose own JSON is a FIFO or 200,000
-levels deep (issue 33: these hung `validate`, exhausted its memory or ended in a traceback). Then, in process and in this order:
+levels deep, and OBJ files whose .mtl or a texture it names is a FIFO (issue 33: these hung
+`validate`, exhausted its memory or ended in a traceback). Then, in process and in this order:
 `config.load` (the CLI's loader), `Config.validate()` (files checked), and for the given share of
 the presets validate accepts, the gate `checks.run_checks` without an output folder (as `validate`:
 mesh imports, the .blend read by Blender, the bin volume) on the bpy module. `--cli N` then runs N of them (a quarter accepted, the rest
@@ -260,7 +261,8 @@ def make_bop_folders(folder: Path) -> list[str]:
 
 
 def make_gltf_files(folder: Path) -> list[str]:
-    """glTF / .glb files (relative paths) with good and hostile buffers and images."""
+    """glTF / .glb files (relative paths) with good and hostile buffers and images, and OBJ files whose
+    material library, or a texture it names, is a FIFO (or good, or missing)."""
     import base64
     import struct
     tri = struct.pack("<9f", 0, 0, 0, 0.03, 0, 0, 0, 0.03, 0.01)     # one triangle, m
@@ -289,7 +291,15 @@ def make_gltf_files(folder: Path) -> list[str]:
     chunk += b" " * (-len(chunk) % 4)
     (folder / "fifo_buffer.glb").write_bytes(b"glTF" + struct.pack("<III", 2, 20 + len(chunk), len(chunk))
                                              + b"JSON" + chunk)
-    return names + ["deep.gltf", "fifo_buffer.glb", "fifo_itself.gltf"]
+    obj = "v 0 0 0\nv 0.03 0 0\nv 0 0.03 0\nv 0 0 0.02\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"   # OBJ + .mtl
+    os.mkfifo(folder / "fifo.mtl")
+    (folder / "tex_fifo.mtl").write_text("newmtl a\nmap_Kd -s 1 1 1 fifo.png\n")
+    (folder / "ok.mtl").write_text("newmtl a\nKd 0.5 0.5 0.5\n")
+    for name, lib in (("mtl_fifo", "fifo.mtl"), ("mtl_tex_fifo", "tex_fifo.mtl"), ("mtl_ok", "ok.mtl"),
+                      ("mtl_missing", "gone.mtl")):
+        (folder / f"{name}.obj").write_text(f"mtllib {lib}\nusemtl a\n" + obj)
+    return names + ["deep.gltf", "fifo_buffer.glb", "fifo_itself.gltf", "mtl_fifo.obj", "mtl_tex_fifo.obj",
+                    "mtl_ok.obj", "mtl_missing.obj"]
 
 
 def well_formed(e: Exception) -> bool:
@@ -349,8 +359,8 @@ def main() -> None:
             counts["not writable (skipped)"] += 1
             continue
         made += 1
-        kinds = [k for k, marks in (("BOP models folder", (b"bop_",)), ("glTF / .glb", (b".gltf", b".glb")))
-                 if any(m in raw for m in marks)]
+        kinds = [k for k, marks in (("BOP models folder", (b"bop_",)), ("glTF / .glb", (b".gltf", b".glb")),
+                                    ("OBJ naming a .mtl", (b"mtl_",))) if any(m in raw for m in marks)]
         path = work / f"p{made:05d}.{'pickle' if as_pickle else 'json'}"
         path.write_bytes(raw)
         stage = "load"

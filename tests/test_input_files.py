@@ -102,6 +102,23 @@ def test_glb_json_chunk_buffers_are_checked(tmp_path, assets_dir):
     _in_process_seconds(preset, "objects[0].filepath", "buffers[1].uri 'ext.bin'")
 
 
+def test_obj_material_library_or_texture_that_is_a_fifo(tmp_path, assets_dir):
+    """Blender's OBJ importer hung (bpy 5.0.1) on a FIFO as the .mtl or as a texture the .mtl names."""
+    tri = "v 0 0 0\nv 0.02 0 0\nv 0 0.02 0\nf 1 2 3\n"
+    os.mkfifo(tmp_path / "fifo.mtl")
+    os.mkfifo(tmp_path / "wood.png")
+    (tmp_path / "ok.mtl").write_text("newmtl a\nmap_Kd -s 1 1 1 wood.png\n")
+    (tmp_path / "a.obj").write_text("mtllib fifo.mtl\n" + tri)
+    (tmp_path / "b.obj").write_text("mtllib ok.mtl\nusemtl a\n" + tri)
+    (tmp_path / "c.obj").write_text("mtllib missing.mtl\n" + tri)       # missing: the importer goes on
+    preset = _preset(tmp_path, assets_dir, objects=[{"filepath": str(tmp_path / n)} for n in ("a.obj", "b.obj",
+                                                                                               "c.obj")])
+    assert _in_process_seconds(preset, "objects[0].filepath", "mtllib 'fifo.mtl'") < 1.0
+    problems = {p.path: p.message for p in C.load(preset).problems()}
+    assert "map_Kd 'wood.png'" in problems["objects[1].filepath"] and "FIFO" in problems["objects[1].filepath"]
+    assert "objects[2].filepath" not in problems
+
+
 def test_mesh_preset_and_blend_fifos_are_not_regular_files(tmp_path, assets_dir):
     os.mkfifo(tmp_path / "part.obj")
     os.mkfifo(tmp_path / "scene.blend")

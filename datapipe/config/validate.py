@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import DataPipeError, Problem
-from ..io.gltf_refs import gltf_problems
+from ..io.mesh_refs import mesh_ref_problems
 from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
@@ -114,10 +114,10 @@ def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -
         ck.add(path, problem, "check the path (relative paths are resolved against the preset's folder)"
                if problem.startswith("file not found") else "give a mesh file (a regular file within the limit "
                "in docs/INPUT_LIMITS.md)")
-    elif check_files and suffix in (".gltf", ".glb"):
-        for problem in gltf_problems(filepath):
-            ck.add(path, problem, "give a glTF whose buffers and images are regular files beside it, or one "
-                   ".glb (re-export it from a modeller); see docs/INPUT_LIMITS.md")
+    elif check_files:
+        for problem in mesh_ref_problems(filepath):    # a glTF's buffers, an OBJ's .mtl and textures
+            ck.add(path, problem, "make the files the mesh names regular files beside it (re-export it from a "
+                   "modeller, e.g. as one .glb); see docs/INPUT_LIMITS.md")
 
 
 def _check_bop_entry(ck: _Checks, p: str, o: ObjectEntry, check_files: bool) -> None:

@@ -1,4 +1,5 @@
-"""The files a glTF names (its buffers and images), checked before Blender's importer reads them. No bpy.
+"""The files a mesh file names (a glTF's buffers and images; an OBJ's material libraries and their
+textures), checked before Blender's importer reads them. No bpy.
 
 Blender's glTF importer reads each buffer `uri` whole (joined to the glTF's folder, so an absolute
 path is taken as it stands): a uri of /dev/zero grew `validate` to 22 GiB before the kernel killed it,
@@ -9,11 +10,18 @@ inside the glTF file, whose own size is limited. The JSON of a .gltf, or the JSO
 (Khronos glTF 2.0, "GLB File Format Specification": a 12-byte header `magic` "glTF", `version`,
 `length`, then chunks of `chunkLength`, `chunkType` 0x4E4F534A "JSON", data), is read within
 MAX_JSON_BYTES.
+
+An OBJ names material libraries (`mtllib a.mtl`), and a .mtl names textures (`map_Kd wood.png`,
+`bump`, `disp`, `refl`, `norm`); Blender's OBJ importer opens each: a FIFO as the .mtl, or as a texture
+the .mtl names, hung `bpy.ops.wm.obj_import` (bpy 5.0.1, still waiting when killed after 30-40 s). Those that exist must be regular files within MAX_MESH_BYTES; missing ones are the importer's to
+report (it goes on without the material or texture).
 """
 from __future__ import annotations
 
 import json
 import os
+import re
+import stat
 import struct
 from urllib.parse import unquote
 
@@ -84,3 +92,81 @@ def gltf_problems(path: str) -> list[str]:
                 out.append(f"{where}.uri {uri!r}: {target} holds {os.path.getsize(target):,} bytes, fewer than "
                            f"its byteLength {int(n):,}")
     return out
+
+
+_MTLLIB = re.compile(rb"^[ \t]*mtllib[ \t]+([^\r\n]+)", re.M)
+_TEXTURE = re.compile(r"^\s*(map_\w+|bump|disp|decal|refl|norm)\s+(.+?)\s*$", re.M | re.I)
+
+
+def obj_problems(path: str) -> list[str]:
+    """Why the OBJ at `path` may not be handed to Blender's importer: one line per material library or
+    texture it names that exists but is not a regular file within the limit; [] when it may."""
+    base = os.path.dirname(os.path.abspath(path))
+    out = []
+    for lib in _obj_mtllibs(path):
+        target = os.path.join(base, lib)
+        problem = _existing_problem(target)
+        if problem is not None:
+            out.append(f"{path}: mtllib {lib!r}: {problem}")
+            continue
+        if not os.path.isfile(target):
+            continue                                  # missing: the importer goes on without it
+        try:
+            text = read_regular(target, MAX_MESH_BYTES).decode("utf-8", "replace")
+        except DataPipeError as e:
+            out.append(f"{path}: mtllib {lib!r}: {e}")
+            continue
+        mtl_base = os.path.dirname(target)
+        for key, rest in _TEXTURE.findall(text):
+            names = {rest, rest.split()[-1]}         # options (-s 1 1 1 ...) come before the file name
+            for name in sorted(names):
+                problem = _existing_problem(os.path.join(mtl_base, name))
+                if problem is not None:
+                    out.append(f"{target}: {key} {name!r}: {problem}")
+    return out
+
+
+def _obj_mtllibs(path: str) -> list[str]:
+    """The file names of an OBJ's `mtllib` lines (the whole rest of the line, and each blank-separated
+    part), read in
+    16 MiB blocks (a part mesh may be gigabytes; the file checked regular first)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    found, tail = [], b""
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return []
+        while True:
+            block = os.read(fd, 1 << 24)
+            data = tail + block
+            cut = data.rfind(b"\n") + 1 if block else len(data)    # whole lines now, the rest with the next block
+            found += [m.group(1) for m in _MTLLIB.finditer(data, 0, cut)]
+            tail = data[cut:]
+            if not block:
+                break
+    finally:
+        os.close(fd)
+    names = []        # Blender 5.0 takes the rest of the line as one name; other readers split it at blanks
+    for line in found:
+        for name in [line.strip(), *line.split()]:
+            if name.decode("utf-8", "surrogateescape") not in names:
+                names.append(name.decode("utf-8", "surrogateescape"))
+    return names
+
+
+def _existing_problem(target: str) -> str | None:
+    """Why an existing file named by a mesh may not be opened (not a regular file, or too large);
+    None for a regular file within the limit, a missing one or a folder (neither can hang a reader)."""
+    problem = file_problem(target, MAX_MESH_BYTES)
+    if problem is None or problem.startswith(("file not found", "cannot read")) or os.path.isdir(target):
+        return None
+    return problem
+
+
+def mesh_ref_problems(path: str) -> list[str]:
+    """The problems of the files a mesh file names (glTF, OBJ); [] for formats that name none."""
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix in (".gltf", ".glb"):
+        return gltf_problems(path)
+    if suffix == ".obj":
+        return obj_problems(path)
+    return []
