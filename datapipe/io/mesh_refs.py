@@ -4,8 +4,9 @@ textures), checked before Blender's importer reads them. No bpy.
 Blender's glTF importer reads each buffer `uri` whole (joined to the glTF's folder, so an absolute
 path is taken as it stands): a uri of /dev/zero grew `validate` to 22 GiB before the kernel killed it,
 a FIFO made it wait forever. So every external buffer must be a regular file within MAX_MESH_BYTES
-holding at least its `byteLength`, and every external image a regular file within the same limit
-(a missing image is the importer's to report: it imports the mesh without the texture). Data URIs are
+holding at least its `byteLength`, and every external image that exists a regular file within the
+same limit (a missing image is left to the importer: DataPipe refuses here only what could hang or
+exhaust it, or what the importer cannot read at all). Data URIs are
 inside the glTF file, whose own size is limited. The JSON of a .gltf, or the JSON chunk of a .glb
 (Khronos glTF 2.0, "GLB File Format Specification": a 12-byte header `magic` "glTF", `version`,
 `length`, then chunks of `chunkLength`, `chunkType` 0x4E4F534A "JSON", data), is read within
@@ -13,8 +14,9 @@ MAX_JSON_BYTES.
 
 An OBJ names material libraries (`mtllib a.mtl`), and a .mtl names textures (`map_Kd wood.png`,
 `bump`, `disp`, `refl`, `norm`); Blender's OBJ importer opens each: a FIFO as the .mtl, or as a texture
-the .mtl names, hung `bpy.ops.wm.obj_import` (bpy 5.0.1, still waiting when killed after 30-40 s). Those that exist must be regular files within MAX_MESH_BYTES; missing ones are the importer's to
-report (it goes on without the material or texture).
+the .mtl names, hung `bpy.ops.wm.obj_import` (bpy 5.0.1, still waiting when killed after 30-40 s).
+Those that exist must be regular files within MAX_MESH_BYTES; missing ones are the importer's to
+report (a missing .mtl: bpy 5.0.1 logs "cannot read from MTL file" and imports the mesh).
 """
 from __future__ import annotations
 
