@@ -10,12 +10,19 @@ and random bytes, one that is text). Mutations: a field set to a hostile value (
 surrogates in paths and names, names past 63 bytes, 401-digit ints, 1e308, NaN, lists nested up to
 1,200 deep, periods of a million or 2**62, part counts past the bin's volume), a random position
 replaced, a key removed or added, a list grown; a few files are cut short or have bytes flipped, and
-a few pickles hold a dict key nested up to 200,000 tuples deep. Then, in process and in this order:
+a few pickles hold a dict key nested up to 200,000 tuples deep. Object entries also get BOP models
+folders (`bop_models`) whose models_info.json is good, a number or null entry, 200,000 levels deep, a
+list, cut short, a FIFO, missing, with a bad key, garbage or NaN symmetries, or whose PLY is a FIFO;
+and glTF / .glb files whose buffers or images are /dev/zero (byteLength 1e9), a FIFO, missing, shorter
+than their byteLength, or good (a data URI, a file beside it), or whose own JSON is a FIFO or 200,000
+levels deep, and OBJ files whose .mtl or a texture it names is a FIFO (issue 33: these hung
+`validate`, exhausted its memory or ended in a traceback). Then, in process and in this order:
 `config.load` (the CLI's loader), `Config.validate()` (files checked), and for the given share of
 the presets validate accepts, the gate `checks.run_checks` without an output folder (as `validate`:
 mesh imports, the .blend read by Blender, the bin volume) on the bpy module. `--cli N` then runs N of them (a quarter accepted, the rest
 refused, evenly by the stage that refused them) through `python -m datapipe validate` and
 `run --out` in subprocesses: exit codes, a fix in the message, nothing written, no traceback.
+Each preset runs under a watchdog (HANG_S): one that has not answered by then is counted as a hang.
 
 Writes benchmarks/results/fuzz_presets.md (with fuzz_presets_notes.md appended). A foreign exception
 (anything but ConfigError / DataPipeError, or one of those without a field path and a fix) is listed
@@ -32,6 +39,7 @@ import os
 import pickle
 import random
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -53,6 +61,13 @@ HUGE = [10**400, int("9" * 401), 2**62 + 1, 2**62 - 1, 2**63, -2**63 - 1, 1e308,
         math.nan, -0.0, 1e-300, 0, -1, 1000003, 999983]
 PERIOD_SETS = [[1000003, 999983], [2**62 + 1, 2**62 - 1], [1, 8, 64], [70, 64, 59], [13, 7], [8, 8], [1, 304],
                [1, 305], [1, 8, 3000], [2.5, 1], [], [0], [1, 2, 3, 4, 5, 6, 7, 8, 9]]
+
+
+HANG_S = 60          # a preset's load + validate + preflight takes well under a second; 60 s is a hang
+
+
+class Hang(Exception):
+    """Raised by the watchdog's SIGALRM in a preset that has not answered within HANG_S."""
 
 
 def nested(depth: int, leaf="steel"):
@@ -82,6 +97,11 @@ def hostile_value(rng: random.Random):
     return rng.randrange(-3, 600)
 
 
+def file_paths(files: dict) -> list[str]:
+    """Every file a mesh or blend field can name (the glTF files among them; not the BOP folders)."""
+    return [v for v in files.values() if isinstance(v, str)] + files["gltf"]
+
+
 def targeted(rng: random.Random, d: dict, files: dict) -> None:
     """Set one of the fields where a hostile value reaches the OS, Blender or the decoder."""
     objs = d.get("objects")
@@ -90,13 +110,20 @@ def targeted(rng: random.Random, d: dict, files: dict) -> None:
         entries = [e for e in lst if isinstance(e, dict)] if isinstance(lst, list) else []
         if entries:
             rng.choice(entries)[rng.choice(["filepath", "scale", "max", "min"])] = rng.choice(
-                [rng.choice(HOSTILE_TEXT) + ".obj", rng.choice(list(files.values())), hostile_value(rng)])
+                [rng.choice(HOSTILE_TEXT) + ".obj", rng.choice(file_paths(files)), hostile_value(rng)])
         return
-    choice = rng.randrange(8)
+    choice = rng.randrange(10)
     entries = [e for e in objs if isinstance(e, dict)] if isinstance(objs, list) else []
     o = rng.choice(entries) if entries else None
-    if choice == 0 and o is not None:
-        o["filepath"] = rng.choice([rng.choice(HOSTILE_TEXT) + ".obj", rng.choice(list(files.values()))])
+    if choice == 8 and o is not None:                              # a BOP models folder (good or hostile)
+        o.pop("filepath", None)
+        o["bop_models"] = rng.choice(files["bop"] + ["bop_ok"] * 4)     # the good folder a quarter of the time
+        o["bop_obj_ids"] = rng.choice([[], [], [1], [1, 2], [7]])
+        o["symmetries"] = rng.choice(["auto", "auto", "none", "detect"])
+    elif choice == 9 and o is not None:                            # a glTF with hostile buffers/images
+        o["filepath"] = rng.choice(files["gltf"])
+    elif choice == 0 and o is not None:
+        o["filepath"] = rng.choice([rng.choice(HOSTILE_TEXT) + ".obj", rng.choice(file_paths(files))])
     elif choice == 1 and o is not None:
         o["name"] = rng.choice(HOSTILE_TEXT + ["é" * rng.randrange(25, 35), "n" * rng.randrange(55, 65)])
     elif choice == 2 and o is not None:
@@ -192,7 +219,87 @@ def make_files(folder: Path) -> dict:
     return {"peg": "peg.obj", "nut": "nut.obj", "bracket": "bracket.obj", "empty": "empty.obj",
             "no_faces": "no_faces.obj", "nan": "nan.obj", "flat": "flat.obj", "blend_ok": "ok.blend",
             "blend_garbage": "garbage.blend", "blend_text": "text.blend", "missing": "missing.obj",
-            "loop": "loop.obj", "blend_loop": "loop.blend"}
+            "loop": "loop.obj", "blend_loop": "loop.blend",
+            "bop": make_bop_folders(folder), "gltf": make_gltf_files(folder)}
+
+
+DEEP_JSON = "[" * 200_000 + "]" * 200_000
+
+
+def make_bop_folders(folder: Path) -> list[str]:
+    """BOP models folders (relative paths), one per models_info.json case: a good one and hostile ones."""
+    import numpy as np
+    from datapipe.io.models import model_info, write_ply
+    V = np.array([[0, 0, 0], [40, 0, 0], [0, 30, 0], [0, 0, 20]], float)       # mm: a 40 mm tetrahedron
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    good = {**model_info(V), "symmetries_continuous": [{"axis": [0, 0, 1], "offset": [0, 0, 0]}]}
+    cases = {"ok": {"1": good, "2": dict(good)}, "number": {"1": 5}, "null": {"1": None}, "list": [1, 2],
+             "bad_key": {"x": good}, "sym_garbage": {"1": {**good, "symmetries_discrete": "garbage"}},
+             "sym_nan": {"1": {**good, "symmetries_continuous": [{"axis": [math.nan, 0, 1], "offset": [0, 0, 0]}]}},
+             "diameter_text": {"1": {**good, "diameter": "big"}}}
+    names = []
+    for name in [*cases, "deep", "cut", "fifo_info", "fifo_ply", "no_info"]:
+        d = folder / f"bop_{name}"
+        d.mkdir()
+        for k in (1, 2):
+            if not (name == "fifo_ply" and k == 1):
+                write_ply(d / f"obj_{k:06d}.ply", V, F)
+        info = d / "models_info.json"
+        if name == "fifo_ply":
+            os.mkfifo(d / "obj_000001.ply")
+            info.write_text(json.dumps(cases["ok"]))
+        elif name == "deep":
+            info.write_text('{"1": ' + DEEP_JSON + "}")
+        elif name == "cut":
+            info.write_text(json.dumps(cases["ok"])[:30])
+        elif name == "fifo_info":
+            os.mkfifo(info)
+        elif name != "no_info":
+            info.write_text(json.dumps(cases[name]))
+        names.append(d.name)
+    return names
+
+
+def make_gltf_files(folder: Path) -> list[str]:
+    """glTF / .glb files (relative paths) with good and hostile buffers and images, and OBJ files whose
+    material library, or a texture it names, is a FIFO (or good, or missing)."""
+    import base64
+    import struct
+    tri = struct.pack("<9f", 0, 0, 0, 0.03, 0, 0, 0, 0.03, 0.01)     # one triangle, m
+    def doc(uri, n=len(tri), images=()):
+        return {"asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "scene": 0, "nodes": [{"mesh": 0}],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+                "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                               "min": [0, 0, 0], "max": [0.03, 0.03, 0.01]}],
+                "bufferViews": [{"buffer": 0, "byteLength": len(tri)}], "buffers": [{"uri": uri, "byteLength": n}],
+                **({"images": [{"uri": u} for u in images]} if images else {})}
+    (folder / "tri.bin").write_bytes(tri)
+    (folder / "short.bin").write_bytes(tri[:8])
+    os.mkfifo(folder / "fifo.bin")
+    os.mkfifo(folder / "fifo.png")
+    os.mkfifo(folder / "fifo_itself.gltf")
+    cases = {"ok_data": doc("data:application/octet-stream;base64," + base64.b64encode(tri).decode()),
+             "ok_file": doc("tri.bin"), "dev_zero": doc("/dev/zero", 10**9), "fifo": doc("fifo.bin"),
+             "short": doc("short.bin"), "missing": doc("gone.bin"), "image_fifo": doc("tri.bin", images=["fifo.png"]),
+             "length_text": doc("tri.bin", "36")}
+    names = []
+    for name, d in cases.items():
+        (folder / f"{name}.gltf").write_text(json.dumps(d))
+        names.append(f"{name}.gltf")
+    (folder / "deep.gltf").write_text(DEEP_JSON)
+    chunk = json.dumps(doc("fifo.bin")).encode()
+    chunk += b" " * (-len(chunk) % 4)
+    (folder / "fifo_buffer.glb").write_bytes(b"glTF" + struct.pack("<III", 2, 20 + len(chunk), len(chunk))
+                                             + b"JSON" + chunk)
+    obj = "v 0 0 0\nv 0.03 0 0\nv 0 0.03 0\nv 0 0 0.02\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"   # OBJ + .mtl
+    os.mkfifo(folder / "fifo.mtl")
+    (folder / "tex_fifo.mtl").write_text("newmtl a\nmap_Kd -s 1 1 1 fifo.png\n")
+    (folder / "ok.mtl").write_text("newmtl a\nKd 0.5 0.5 0.5\n")
+    for name, lib in (("mtl_fifo", "fifo.mtl"), ("mtl_tex_fifo", "tex_fifo.mtl"), ("mtl_ok", "ok.mtl"),
+                      ("mtl_missing", "gone.mtl")):
+        (folder / f"{name}.obj").write_text(f"mtllib {lib}\nusemtl a\n" + obj)
+    return names + ["deep.gltf", "fifo_buffer.glb", "fifo_itself.gltf", "mtl_fifo.obj", "mtl_tex_fifo.obj",
+                    "mtl_ok.obj", "mtl_missing.obj"]
 
 
 def well_formed(e: Exception) -> bool:
@@ -216,6 +323,10 @@ def main() -> None:
     import bpy  # noqa: F401  (the preflight's Blender; imported once)
     from datapipe.checks import run_checks
 
+    def watchdog(signum, frame):
+        raise Hang()
+    signal.signal(signal.SIGALRM, watchdog)
+
     rng = random.Random(args.seed)
     work = Path(tempfile.mkdtemp(prefix="datapipe_fuzz_"))
     files = make_files(work)
@@ -234,6 +345,7 @@ def main() -> None:
     foreign: list[tuple[str, str]] = []
     outcomes: dict[str, list[Path]] = collections.defaultdict(list)   # stage refused at (or accepted) -> files
     cpu = collections.Counter()
+    input_kinds = collections.defaultdict(collections.Counter)   # presets naming a BOP folder / a glTF
     t_start, wall_start = time.process_time(), time.perf_counter()
     made = 0
     while made < args.n:
@@ -247,9 +359,12 @@ def main() -> None:
             counts["not writable (skipped)"] += 1
             continue
         made += 1
+        kinds = [k for k, marks in (("BOP models folder", (b"bop_",)), ("glTF / .glb", (b".gltf", b".glb")),
+                                    ("OBJ naming a .mtl", (b"mtl_",))) if any(m in raw for m in marks)]
         path = work / f"p{made:05d}.{'pickle' if as_pickle else 'json'}"
         path.write_bytes(raw)
         stage = "load"
+        signal.alarm(HANG_S)                   # the watchdog: a preset that hangs is counted, not waited on
         try:
             t = time.process_time()
             cfg = C.load(path)
@@ -264,10 +379,14 @@ def main() -> None:
                 cpu["preflight"] += time.process_time() - t
             counts["accepted"] += 1
             outcomes["accepted"].append(path)
+            for k in kinds:
+                input_kinds[k]["accepted"] += 1
         except (ConfigError, DataPipeError) as e:
             if well_formed(e):
                 counts["clear error"] += 1
                 stages[stage] += 1
+                for k in kinds:
+                    input_kinds[k][f"refused ({stage})"] += 1
                 for p in getattr(e, "problems", [])[:1]:
                     field = p.path.split("[")[0].split(".")[0] + ("." + p.path.split(".")[-1].split("[")[0]
                                                                   if "." in p.path else "")
@@ -275,15 +394,26 @@ def main() -> None:
                     if stage == "preflight":
                         preflight_fields[field] += 1
                         preflight_examples.setdefault(field, p.message.replace(str(work), "DIR")[:110])
+                if {q.path for q in getattr(e, "problems", [])} == {"output.path"}:
+                    stage = "output.path only"     # `run --out DIR` replaces that field: the CLI check skips it
                 outcomes[stage].append(path)
             else:
                 counts["project error without path or fix"] += 1
                 foreign.append((path.name, f"{stage}: {type(e).__name__} without a path or fix", str(e)[:160]))
+        except Hang:
+            counts["hang"] += 1
+            for k in kinds:
+                input_kinds[k]["hang"] += 1
+            foreign.append((path.name, f"{stage}: no answer within {HANG_S} s (hang)", ""))
         except Exception as e:  # noqa: BLE001 - the point: anything else is a defect
             counts["foreign exception"] += 1
+            for k in kinds:
+                input_kinds[k]["foreign exception"] += 1
             frame = traceback.extract_tb(e.__traceback__)[-1]
             where = f"{Path(frame.filename).name}:{frame.lineno} in {frame.name}"
             foreign.append((path.name, f"{stage}: {type(e).__name__} at {where}", str(e)[:160]))
+        finally:
+            signal.alarm(0)
     total_cpu, wall = time.process_time() - t_start, time.perf_counter() - wall_start
     cli = cli_check(outcomes, args.cli, args.seed, work) if args.cli else None
     if foreign:
@@ -291,7 +421,7 @@ def main() -> None:
         for name, _, _ in foreign:
             shutil.copy(work / name, kept / name)
     write_report(Path(args.out), args, counts, stages, fields, (preflight_fields, preflight_examples), foreign,
-                 cpu, total_cpu, wall, cli)
+                 cpu, total_cpu, wall, cli, input_kinds)
     print(Path(args.out).read_text())
     if foreign or (cli and cli["bad"]):
         print(f"presets with foreign exceptions kept in {kept}; all presets in {work}")
@@ -302,7 +432,9 @@ def main() -> None:
 def cli_check(outcomes: dict, n: int, seed: int, work: Path) -> dict:
     """N presets through the CLI, as a user runs it: a quarter of them accepted ones (`validate`:
     exit 0, OK), the rest refused ones, drawn evenly from the stage that refused them (`validate`
-    and `run --out`: exit 2, a fix, nothing written). Any traceback or other outcome is listed."""
+    and `run --out`: exit 2, a fix, nothing written). Any traceback or other outcome is listed.
+    Presets refused only for their output.path are not drawn: `run --out DIR` replaces that field,
+    so the run rightly starts (and renders)."""
     import subprocess
     rng = random.Random(seed + 1)                 # its own stream: the presets above do not change
     picks = [("accepted", p) for p in rng.sample(outcomes["accepted"], min(n // 4, len(outcomes["accepted"])))]
@@ -317,8 +449,13 @@ def cli_check(outcomes: dict, n: int, seed: int, work: Path) -> dict:
         out = work / f"cli_out_{k}"
         calls = [["validate", str(path)]] + ([] if stage == "accepted" else [["run", str(path), "--out", str(out)]])
         for argv in calls:
-            r = subprocess.run([sys.executable, "-m", "datapipe", *argv], capture_output=True, text=True, env=env,
-                               cwd=work, errors="backslashreplace")
+            try:
+                r = subprocess.run([sys.executable, "-m", "datapipe", *argv], capture_output=True, text=True,
+                                   env=env, cwd=work, errors="backslashreplace", timeout=HANG_S)
+            except subprocess.TimeoutExpired:
+                result["calls"] += 1
+                result["bad"].append(f"{path.name} ({stage}) {argv[0]}: no answer within {HANG_S} s (hang)")
+                continue
             result["calls"] += 1
             want = 0 if stage == "accepted" else 2
             ok = (r.returncode == want and "Traceback" not in r.stderr and not out.exists()
@@ -337,7 +474,7 @@ def _example(foreign, kind) -> str:
 
 
 def write_report(out: Path, args, counts, stages, fields, preflight_fields, foreign, cpu, total_cpu,
-                 wall, cli) -> None:
+                 wall, cli, input_kinds) -> None:
     n = args.n
     pf = counts["went through the Blender preflight"]
     lines = [
@@ -356,6 +493,7 @@ def write_report(out: Path, args, counts, stages, fields, preflight_fields, fore
         f"| clear error (ConfigError / DataPipeError: field path + fix) | {counts['clear error']} |",
         f"| accepted (validate, and the preflight where run) | {counts['accepted']} |",
         f"| **foreign exception** (anything else) | **{counts['foreign exception']}** |",
+        f"| **hang** (no answer within {HANG_S} s) | **{counts['hang']}** |",
         f"| project error without a path or a fix | {counts['project error without path or fix']} |",
         "",
         f"Through the Blender preflight: {pf} presets (every preset validate accepted, "
@@ -366,6 +504,13 @@ def write_report(out: Path, args, counts, stages, fields, preflight_fields, fore
         f"Time: {wall:.0f} s wall, {total_cpu:.0f} s CPU in all (of it {cpu['load + validate']:.1f} s load + "
         f"validate of the accepted presets, {cpu['preflight']:.1f} s their preflight; the rest writes the files "
         "and refuses the others), on a shared 2-core machine.",
+        "",
+        "Presets naming the generated BOP models folders and glTF files (see the docstring), by outcome:",
+        "",
+        "| input | presets | outcomes |",
+        "|---|---:|---|",
+        *[f"| {k} | {sum(c.values())} | {', '.join(f'{o}: {n}' for o, n in sorted(c.items()))} |"
+          for k, c in sorted(input_kinds.items())],
         "",
         "First problem's field (section.field) of the clear errors, most frequent:",
         "",

@@ -3,6 +3,7 @@ validation, run's refusals before any work, decoding fringe stacks against analy
 reading a run back against its files read independently (OpenEXR, OpenCV, json)."""
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -311,3 +312,31 @@ def test_read_run_names_a_damaged_file(tmp_path):
     (r.path / "depth.exr").write_bytes(b"\x76\x2f\x31\x01" + b"\0" * 20)
     with pytest.raises(OSError, match="corrupt"):
         r.depth
+
+
+@pytest.mark.parametrize("damage", ["truncated", "list", "folder", "fifo"])
+def test_read_run_never_drops_a_damaged_scene_silently(tmp_path, damage):
+    """A scene.json cut short, a JSON list, or a folder in its place: the scene was left out without
+    a word before (issue 33); now OutputStateError naming the file, or, asked for, listed as skipped.
+    A scene folder with no scene.json is a scene not finished: left out, as before."""
+    out = fx.make_native_run(tmp_path / "run")
+    whole = dp.read_run(out)
+    victim = out / whole.scenes[1].name / "scene.json"
+    text = victim.read_text()
+    victim.unlink()
+    if damage == "truncated":
+        victim.write_text(text[: len(text) // 2])
+    elif damage == "list":
+        victim.write_text(json.dumps([json.loads(text)]))
+    elif damage == "folder":
+        victim.mkdir()
+    else:
+        os.mkfifo(victim)                       # read with O_NONBLOCK: refused, never waited on
+    with pytest.raises(dp.OutputStateError) as e:
+        dp.read_run(out)
+    assert str(victim) in str(e.value) and "(fix:" in str(e.value)
+    run = dp.read_run(out, skip_damaged=True)
+    assert [s.name for s in run.scenes] == [s.name for s in whole.scenes if s.name != victim.parent.name]
+    assert [p for p, _ in run.skipped] == [victim] and "scene.json" in run.skipped[0][1]
+    (out / "scene.0099").mkdir()                # unfinished: no scene.json yet
+    assert dp.read_run(out, skip_damaged=True).skipped == run.skipped

@@ -261,3 +261,27 @@ def test_pickle_depth_counts_what_the_unpickler_builds():
     assert pickle_depth(pickle.dumps(deep), 32) == 33     # stops one past the limit
     assert pickle_depth(_deep_key_pickle(200_000), C.MAX_PICKLE_NESTING) == C.MAX_PICKLE_NESTING + 1
     assert pickle_depth(b"\x80\x04\x8e" + struct.pack("<Q", 2**62) + b"x", 32) is None   # the unpickler's case
+
+
+def test_a_camera_pose_far_away_is_blamed_on_the_pose(tmp_path, assets_dir):
+    """A pose 2^63 m away passed validate and the mesh preflight blamed objects[i].scale ("0 px on
+    the camera image"); the pose is the field at fault."""
+    d = _base(assets_dir)
+    d["camera"]["poses"][0]["location"] = [2.0**63, 0.0, 1.0]
+    _assert_refused(_write_json(tmp_path, d), "camera.poses[0].location", "beyond camera.clip_end")
+    cfg = C.load(_write_json(tmp_path, d))
+    assert not [p for p in cfg.problems() if "scale" in p.path]
+    d["camera"]["poses"][0]["location"] = [0.0, 0.0, 9.0]          # near enough: depth can reach the bin
+    assert "camera.poses[0].location" not in [p.path for p in C.load(_write_json(tmp_path, d)).problems()]
+
+
+@pytest.mark.parametrize("focal,sensor", [(1e-300, 1e308), (1e-300, 1e9)])
+def test_absurd_lens_values_give_the_error_and_no_numpy_warning(tmp_path, assets_dir, focal, sensor):
+    """A bin_view camera with these lenses printed a numpy RuntimeWarning (divide by zero / overflow
+    in the sampler rules) before the field-of-view error."""
+    d = _base(assets_dir)
+    d["camera"].update(focal_length=focal, sensor_width=sensor)
+    d["camera"]["sampler"]["kind"] = "bin_view"
+    r = _cli("validate", _write_json(tmp_path, d))
+    assert r.returncode == 2 and "camera.focal_length" in r.stderr and "(fix:" in r.stderr, r.stderr[-1500:]
+    assert "Warning" not in r.stderr and "Traceback" not in r.stderr, r.stderr[-1500:]

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataPipeError, Problem
+from ..io.input_files import MAX_MESH_BYTES, read_regular
 from ..io.models import read_ply
 
 RANDOM_PACKING_MAX = 0.74   # densest random packing of convex parts (see the module doc), of hull volume
@@ -39,12 +40,13 @@ def mesh_extent(path: str | Path) -> np.ndarray | None:
     try:
         ext = p.suffix.lower()
         if ext == ".obj":
-            pts = [line.split()[1:4] for line in p.read_text(errors="replace").splitlines() if line.startswith("v ")]
+            text = read_regular(p, MAX_MESH_BYTES).decode("utf-8", "replace")
+            pts = [line.split()[1:4] for line in text.splitlines() if line.startswith("v ")]
             v = np.array(pts, dtype=np.float64)
         elif ext == ".ply":
             v = read_ply(p)[0]
         elif ext == ".stl":
-            v = _stl_vertices(p.read_bytes())
+            v = _stl_vertices(read_regular(p, MAX_MESH_BYTES))
         else:
             return None
     except (OSError, ValueError, KeyError, IndexError, struct.error, DataPipeError):

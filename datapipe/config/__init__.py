@@ -18,8 +18,8 @@ from .plan import (FRINGE_SUPERSAMPLE, builds_row_code, camera_distances, fringe
                    fringe_period_camera_px)
 from .limits import (AMBIENT_MODES, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, FRINGE_MODES, MAX_FIELD_OF_VIEW_DEG,
                      MAX_FREE_NESTING, MAX_FRINGE_BYTES, MAX_INSTANCES, MAX_PERIODS, MAX_PICKLE_NESTING,
-                     MAX_RENDERS, MAX_RESOLUTION, MAX_SAMPLES, MAX_SL_SAMPLES, MAX_STEPS, MESH_SUFFIXES,
-                     MIN_FRINGE_CAMERA_PX, OTHER_OBJECTS, OUTPUT_KINDS, REFLECTION_FILTERS, SAMPLER_KINDS,
+                     MAX_INT32, MAX_RENDERS, MAX_RESOLUTION, MAX_SAMPLES, MAX_SL_SAMPLES, MAX_STEPS, MESH_SUFFIXES,
+                     MIN_FRINGE_CAMERA_PX, MIN_POSITIVE, OTHER_OBJECTS, OUTPUT_KINDS, REFLECTION_FILTERS, SAMPLER_KINDS,
                      SCHEMA_VERSION, SENSOR_FITS, UNWRAP_METHODS)
 from .schema import (CameraConfig, CameraPose, CameraSamplerConfig,
                      Config, LightingConfig, ObjectEntry, OutputConfig, ProjectorConfig, RenderConfig,

@@ -3,10 +3,11 @@ number predicates, field paths, message splitting, [min, max] ranges and the fie
 from __future__ import annotations
 
 import math
+import re
 
 from ..errors import Problem
 from ..checks.text_rules import path_problem, short as _short
-from .limits import MAX_FIELD_OF_VIEW_DEG, MAX_RESOLUTION
+from .limits import MAX_FIELD_OF_VIEW_DEG, MAX_RESOLUTION, MIN_POSITIVE
 
 
 class _Checks:
@@ -21,6 +22,15 @@ class _Checks:
     def positive(self, path, v, fix="give a value > 0") -> bool:
         if not (_is_number(v) and math.isfinite(v) and v > 0):
             self.add(path, f"must be > 0, got {_short(v)}", fix)
+            return False
+        return self.not_below(path, v)
+
+    def not_below(self, path, v) -> bool:
+        """The field's smallest value (limits.MIN_POSITIVE: what the sidebar can hold), if it has one."""
+        lo = MIN_POSITIVE.get(re.sub(r"\[\d+\]", "", path))
+        if lo is not None and _is_number(v) and v < lo:
+            self.add(path, f"{v:g} is below {lo:g}, the smallest value DataPipe (and its sidebar) takes",
+                     f"give at least {lo:g}")
             return False
         return True
 
@@ -46,7 +56,7 @@ class _Checks:
         if pos and not all(x > 0 for x in v):
             self.add(path, f"all values must be > 0, got {v}", "give positive sizes")
             return False
-        return True
+        return not pos or self.not_below(path, min(v))
 
     def min_max(self, path, lo_name, hi_name, lo, hi, lo_bound=0) -> bool:
         ok = True

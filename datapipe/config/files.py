@@ -8,7 +8,8 @@ import os
 import pickle
 from pathlib import Path
 
-from ..errors import ConfigError, Problem
+from ..errors import ConfigError, DataPipeError, Problem
+from ..io.input_files import MAX_JSON_BYTES, read_regular
 from ..io.files import write_text_atomic
 from ..checks.pickle_depth import pickle_depth
 from .legacy import from_legacy_dict
@@ -40,13 +41,13 @@ def loads(text: str, *, base_dir=None) -> Config:
 def load(path: str | os.PathLike) -> Config:
     """Load a JSON preset or an original-layout DataPipe pickle (detected by content)."""
     path = Path(path)
-    if not path.is_file():
+    if not os.path.exists(path):
         raise ConfigError(Problem("<file>", f"preset not found: {path}", "give the path of a .json preset or .pickle"))
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise ConfigError(Problem("<file>", f"cannot read {path}: {e.strerror or e}",
-                                  "check the file's permissions")) from None
+    try:                                 # a FIFO or device is refused before a byte is read
+        raw = read_regular(path, MAX_JSON_BYTES)
+    except DataPipeError as e:
+        raise ConfigError(Problem("<file>", str(e), "give a .json preset or .pickle (a regular file within the "
+                                  "limit in docs/INPUT_LIMITS.md)")) from None
     if raw[:1] == b"\x80" or path.suffix.lower() in (".pickle", ".pkl"):
         return load_legacy_pickle(raw, base_dir=path.parent)
     try:

@@ -21,6 +21,23 @@ REFLECTION_FILTERS = ("auto", "local", "global", "off")
 AMBIENT_MODES = ("off", "scene")          # structured_light.ambient (core/fringe_ambient.py)
 OTHER_OBJECTS = ("auto", "hide", "keep")   # scene.other_objects (core/scene.py)   # structured_light.reflection_filter (sl/filters.py)
 MAX_RESOLUTION = 8192
+# The sidebar holds what validate() accepts, and validate() refuses what the sidebar cannot hold, with one
+# message for both (the add-on's Load Preset runs validate() first): Blender's IntProperty is a signed
+# 32-bit integer and its FloatProperty a float32, so integer fields end at MAX_INT32 and fields that
+# must be > 0 start at these smallest values (the sidebar properties' `min`, ui/props/).
+MAX_INT32 = 2**31 - 1              # scene.seed, objects[i].obj_id
+MIN_POSITIVE = {                   # field (objects[i] as "objects") -> smallest value; unit
+    "scene.drop_zone_scale": 1e-4,         # m, half extent (0.1 mm)
+    "scene.bin_wall_thickness": 1e-5,      # m
+    "camera.sensor_width": 1e-3,           # mm
+    "camera.clip_start": 1e-5,             # m
+    "camera.clip_end": 2e-5,               # m (the sidebar keeps clip_end > clip_start by halving/doubling)
+    "projector.sensor_width": 1e-3,        # mm
+    "projector.power": 1e-6,               # W
+    "simulation.settle_speed": 1e-6,       # m/s
+    "objects.scale": 1e-6,                 # file units -> m
+    "objects.mass": 1e-6,                  # kg (1 mg)
+}
 # Upper limits: beyond them a preset is a typo, not a dataset (validate() says so before any work).
 MAX_RENDERS = 1_000_000            # ~12 days of Cycles at 1 s per render (= seeds.MAX_PLAN_RENDERS)
 MAX_SAMPLES = 4096                 # Cycles paths per pixel of the RGB layer

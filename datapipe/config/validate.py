@@ -9,11 +9,13 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import Problem
+from ..errors import DataPipeError, Problem
+from ..io.mesh_refs import mesh_ref_problems
+from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
-from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_RENDERS, MAX_SAMPLES,
+from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS, MAX_SAMPLES,
                      MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS)
 from .validate_sl import _check_projector, _check_structured_light
 
@@ -63,10 +65,10 @@ def _check_scene(ck: _Checks, cfg: Config, check_files: bool) -> None:
     ck.vector("scene.drop_zone_scale", s.drop_zone_scale, 3, pos=True)
     ck.positive("scene.bin_wall_thickness", s.bin_wall_thickness)
     ck.choice("scene.other_objects", s.other_objects, OTHER_OBJECTS)
-    if not 0 <= s.seed < 2**32:
-        ck.add("scene.seed", f"must be in 0..2^32-1, got {s.seed}", "give a non-negative 32-bit integer")
+    if not 0 <= s.seed <= MAX_INT32:      # the sidebar's IntProperty holds no more (limits.MAX_INT32)
+        ck.add("scene.seed", f"must be in 0..{MAX_INT32} (2^31-1), got {s.seed}", f"give a seed from 0 to {MAX_INT32}")
     if s.blend_file and ck.path("scene.blend_file", s.blend_file) and check_files:
-        if not os.path.isfile(s.blend_file):
+        if not os.path.isfile(s.blend_file) or file_problem(s.blend_file, None):   # Blender reads it: any size
             ck.add("scene.blend_file", _not_found(s.blend_file), "give the path of an existing .blend")
         elif not s.blend_file.lower().endswith(".blend"):
             ck.add("scene.blend_file", f"not a .blend file: {s.blend_file}", "give a .blend file")
@@ -81,10 +83,9 @@ def _check_blend_header(ck: _Checks, path: str) -> None:
     """The first bytes of a .blend: a file that is not one fails here, before Blender is started
     (the Blender preflight then reads the file itself: core/preflight.check_blend)."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(12)
-    except OSError as e:
-        ck.add("scene.blend_file", f"cannot read {path}: {e.strerror or e}", "check the file's permissions")
+        head = read_regular(path, None, head=12)
+    except DataPipeError as e:
+        ck.add("scene.blend_file", str(e), "check the file's permissions")
         return
     if not head.startswith(BLEND_MAGICS):
         ck.add("scene.blend_file", f"{path} is not a Blender file (it starts with {_short(head[:7])}, not "
@@ -92,9 +93,9 @@ def _check_blend_header(ck: _Checks, path: str) -> None:
 
 
 def _not_found(path: str) -> str:
-    if os.path.islink(path):
-        return f"file not found: {path} is a symbolic link to nothing (its target is missing, or a loop)"
-    return f"file not found: {path}"
+    """Why an input file cannot be read: missing (or a dangling link), or there but not a regular file
+    (a FIFO would block the reader, a device never end: io/input_files.py)."""
+    return file_problem(path, None) or f"file not found: {path}"
 
 
 def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -> None:
@@ -108,9 +109,15 @@ def _check_mesh_path(ck: _Checks, path: str, filepath: str, check_files: bool) -
         ck.add(path, f"is a folder, not a mesh file: {filepath}", "give the path of one mesh file inside it")
     elif suffix not in MESH_SUFFIXES:
         ck.add(path, f"not a mesh file: {filepath}", f"use one of {', '.join(MESH_SUFFIXES)}")
-    elif check_files and not os.path.isfile(filepath):
-        ck.add(path, _not_found(filepath), "check the path (relative paths are resolved against the "
-               "preset's folder)")
+    elif check_files and file_problem(filepath, MAX_MESH_BYTES):
+        problem = file_problem(filepath, MAX_MESH_BYTES)
+        ck.add(path, problem, "check the path (relative paths are resolved against the preset's folder)"
+               if problem.startswith("file not found") else "give a mesh file (a regular file within the limit "
+               "in docs/INPUT_LIMITS.md)")
+    elif check_files:
+        for problem in mesh_ref_problems(filepath):    # a glTF's buffers, an OBJ's .mtl and textures
+            ck.add(path, problem, "make the files the mesh names regular files beside it (re-export it from a "
+                   "modeller, e.g. as one .glb); see docs/INPUT_LIMITS.md")
 
 
 def _check_bop_entry(ck: _Checks, p: str, o: ObjectEntry, check_files: bool) -> None:
@@ -158,9 +165,9 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
         else:
             _check_mesh_path(ck, f"{p}.filepath", o.filepath, check_files)
         _check_symmetries(ck, p, o.symmetries)
-        if o.obj_id < 0:
-            ck.add(f"{p}.obj_id", f"must be >= 0, got {o.obj_id}", "give a BOP object id >= 1, or 0 for the "
-                   "entry's position + 1")
+        if not 0 <= o.obj_id <= MAX_INT32:
+            ck.add(f"{p}.obj_id", f"must be in 0..{MAX_INT32}, got {o.obj_id}", "give a BOP object id >= 1, or 0 for "
+                   "the entry's position + 1")
         ck.positive(f"{p}.scale", o.scale)
         ck.positive(f"{p}.mass", o.mass)
         ck.choice(f"{p}.collision_shape", o.collision_shape, COLLISION_SHAPES)
@@ -219,6 +226,8 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if c.clip_end <= c.clip_start:
         ck.add("camera.clip_end", f"clip_end ({c.clip_end}) <= clip_start ({c.clip_start})",
                "make clip_end > clip_start")
+    else:
+        ck.not_below("camera.clip_end", c.clip_end)
     _check_field_of_view(ck, "camera", c.focal_length, c.sensor_width, "sensor sees",
                          ": parts would be a few pixels or less",
                          "give a focal length of a real lens (industrial cameras: 4-50 mm)")
@@ -226,7 +235,8 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if not c.poses and pool:
         ck.add("camera.poses", "no camera poses", "add at least one pose (location + quaternion wxyz)")
     for i, pose in enumerate(c.poses):
-        ck.vector(f"camera.poses[{i}].location", pose.location, 3)
+        if ck.vector(f"camera.poses[{i}].location", pose.location, 3) and pool:
+            _check_pose_reaches_bin(ck, cfg, i)
         if ck.vector(f"camera.poses[{i}].rotation", pose.rotation, 4):
             if math.sqrt(sum(q * q for q in pose.rotation)) < 1e-6:
                 ck.add(f"camera.poses[{i}].rotation", "zero quaternion", "give a unit quaternion (w, x, y, z)")
@@ -235,6 +245,35 @@ def _check_camera(ck: _Checks, cfg: Config, check_files: bool) -> None:
                f"{s.max_renders_per_scene} renders per scene but only {len(c.poses)} camera poses "
                "(poses are drawn without replacement within a scene)",
                "add camera poses or lower max_renders_per_scene")
+
+
+def _check_pose_reaches_bin(ck: _Checks, cfg: Config, i: int) -> None:
+    """A pool pose from which no part can be rendered: every point where parts can lie is beyond
+    camera.clip_end in depth. A point seen at angle theta off the optical axis at distance d has depth
+    d cos(theta) >= d cos(theta_max), theta_max the half diagonal field of view; parts lie within a
+    sphere of radius R about the drop zone's centre (twice the zone's half diagonal times the largest
+    bin scale: a margin for parts heaped above the zone), so (distance to the centre - R) cos(theta_max) > clip_end means nothing of the bin is
+    drawn. (A pose 2^63 m away was blamed on objects[i].scale by the mesh preflight: "0 px".)"""
+    c, s = cfg.camera, cfg.scene
+    res = c.resolution
+    if not (len(res) == 2 and min(res) >= 1 and len(s.drop_zone_loc) == 3 and len(s.drop_zone_scale) == 3
+            and c.focal_length > 0 and c.sensor_width > 0 and c.sensor_fit in SENSOR_FITS
+            and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2) or s.blend_file:
+        return                     # their own rules report them; a .blend's drop_zone object moves the bin
+    from ..geometry import intrinsics_from_sensor
+    K = intrinsics_from_sensor(c.focal_length, c.sensor_width, res[0], res[1], c.sensor_fit)
+    fx, fy = float(K[0, 0]), float(K[1, 1])
+    if not (math.isfinite(fx) and math.isfinite(fy) and fx > 0 and fy > 0):
+        return
+    cos_max = math.cos(math.atan(math.hypot(res[0] / 2 / fx, res[1] / 2 / fy)))
+    grow = max(1.0, *s.bin_size_scale, *s.bin_wall_scale)
+    R = 2 * math.sqrt(sum(h * h for h in s.drop_zone_scale)) * grow
+    d = math.dist(c.poses[i].location, s.drop_zone_loc)
+    if math.isfinite(d) and (d - R) * cos_max > c.clip_end:
+        ck.add(f"camera.poses[{i}].location", f"the camera is {d:.3g} m from the drop zone's centre: every part "
+               f"would be beyond camera.clip_end ({c.clip_end:g} m), so nothing of the bin is rendered",
+               "give the camera's location in metres in the world, near the bin (see scene.drop_zone_loc), or "
+               "raise camera.clip_end")
 
 
 def _check_render(ck: _Checks, cfg: Config, check_files: bool) -> None:
@@ -342,7 +381,10 @@ def _sampler_problems(cfg: Config) -> list[Problem]:
         from ..draws.camera_sampler import view_problems
         from ..geometry import camera_intrinsics
         K = camera_intrinsics(c)            # camera.intrinsics when given (a calibration)
-        half_fov = math.degrees(min(math.atan(res[0] / 2 / K[0, 0]), math.atan(res[1] / 2 / K[1, 1])))
+        fx, fy = float(K[0, 0]), float(K[1, 1])
+        if not (math.isfinite(fx) and math.isfinite(fy) and fx > 0 and fy > 0):
+            return out        # a lens of 1e-300 mm: the field-of-view rule refuses it (no numpy warning here)
+        half_fov = math.degrees(min(math.atan(res[0] / 2 / fx), math.atan(res[1] / 2 / fy)))
         s = cfg.scene
         if len(s.drop_zone_scale) == 3 and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2:
             walls = 2 * s.drop_zone_scale[2] * max(s.bin_wall_scale) if s.make_bin else 0.0   # highest walls

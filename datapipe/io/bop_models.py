@@ -20,6 +20,7 @@ import os
 from pathlib import Path
 
 from ..errors import DataPipeError
+from .input_files import MAX_MESH_BYTES, file_problem, read_json_file
 from .layout import MODELS_INFO
 SYMMETRY_KEYS = ("symmetries_discrete", "symmetries_continuous")
 
@@ -29,22 +30,61 @@ def ply_path(models_dir: str | os.PathLike, obj_id: int) -> Path:
 
 
 def read_models_info(models_dir: str | os.PathLike, field: str) -> dict[int, dict]:
-    """{obj_id: entry} of a BOP models folder's models_info.json; DataPipeError naming `field`."""
+    """{obj_id: entry} of a BOP models folder's models_info.json, every entry checked (an object of
+    numbers, symmetries as BOP writes them); DataPipeError naming `field`, the file and the object id."""
     d = Path(models_dir)
     if not d.is_dir():
         raise DataPipeError(f"{field}: no such folder: {d} (fix: give a BOP dataset's models folder, the one "
                             f"holding obj_000001.ply ... and {MODELS_INFO})")
     p = d / MODELS_INFO
-    if not p.is_file():
+    if not os.path.lexists(p):
         raise DataPipeError(f"{field}: {d} has no {MODELS_INFO} (fix: give a BOP models folder; BOP's "
                             "calc_model_info.py writes the file for a folder of obj_XXXXXX.ply)")
+    fix = ("fix: a JSON object {\"1\": {\"diameter\": ..., \"min_x\": ...}, ...} as BOP's calc_model_info.py "
+           "writes it")
     try:
-        raw = json.loads(p.read_text())
-        info = {int(k): v for k, v in raw.items()}
-    except (ValueError, AttributeError, OSError) as e:
-        raise DataPipeError(f"{field}: {p} is not a BOP models_info.json ({e}) (fix: a JSON object "
-                            "{\"1\": {\"diameter\": ...}, ...})") from None
+        raw = read_json_file(p)
+    except DataPipeError as e:
+        raise DataPipeError(f"{field}: {p} is not a BOP {MODELS_INFO}: {e} ({fix})") from None
+    if not isinstance(raw, dict):
+        raise DataPipeError(f"{field}: {p} is not a BOP {MODELS_INFO}: a JSON {type(raw).__name__}, not an "
+                            f"object keyed by object id ({fix})")
+    info = {}
+    for key, entry in raw.items():
+        try:
+            k = int(key)
+        except ValueError:
+            k = 0
+        if k < 1:
+            raise DataPipeError(f"{field}: {p}: key {key!r} is not an object id (an integer >= 1) ({fix})")
+        problem = _entry_problem(entry)
+        if problem is not None:
+            raise DataPipeError(f"{field}: {p}, object {k}: {problem} ({fix})")
+        given = {name: entry[name] for name in SYMMETRY_KEYS if name in entry}
+        if given:
+            from .symmetry import check_symmetries
+            try:
+                check_symmetries(given, f"object {k}")
+            except DataPipeError as e:
+                raise DataPipeError(f"{field}: {p}, {e}") from None
+        info[k] = entry
     return info
+
+
+def _entry_problem(entry) -> str | None:
+    """Why one models_info.json entry is not BOP's (an object; diameter, extents numbers), or None."""
+    import math
+    if not isinstance(entry, dict):
+        return f"the entry is {json.dumps(entry)[:40]}, not an object of diameter, min_x ... size_z"
+    for key in ("diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z"):
+        v = entry.get(key, 0.0)
+        try:
+            finite = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+        except OverflowError:           # an integer past float64 (10**400)
+            finite = False
+        if not finite:
+            return f"{key} is {json.dumps(v)[:40]}, not a finite number (mm)"
+    return None
 
 
 def bop_ids(entry, field: str) -> list[int]:
@@ -61,9 +101,12 @@ def bop_ids(entry, field: str) -> list[int]:
         raise DataPipeError(f"{field}.bop_obj_ids: {missing} not in {entry.bop_models}/{MODELS_INFO} (it has "
                             f"{sorted(info)}) (fix: give ids it lists, or [] for all)")
     for i in ids:
-        if not ply_path(entry.bop_models, i).is_file():
+        problem = file_problem(ply_path(entry.bop_models, i), MAX_MESH_BYTES)
+        if problem is not None and problem.startswith("file not found"):
             raise DataPipeError(f"{field}.bop_obj_ids: object {i} has no {ply_path(entry.bop_models, i).name} in "
                                 f"{entry.bop_models} (fix: drop id {i} or restore the file)")
+        if problem is not None:
+            raise DataPipeError(f"{field}.bop_obj_ids: object {i}: {problem} (fix: drop id {i} or restore the file)")
     if len(set(ids)) != len(ids):
         raise DataPipeError(f"{field}.bop_obj_ids: {ids} lists an id twice (fix: list each id once)")
     return ids

@@ -58,11 +58,13 @@ def render_file(scene_dir: str | os.PathLike, render: dict, kind: str) -> Path:
 
 
 def read_scene(scene_dir: str | os.PathLike) -> dict | None:
-    """scene.json of a scene folder; None when it is missing or unreadable (a scene killed mid-way)."""
+    """scene.json of a scene folder; None when it is missing or unreadable (a scene killed mid-way).
+    Read only as a regular file (io/input_files.py): a FIFO in its place is not waited on."""
+    from ..errors import DataPipeError
+    from .input_files import MAX_JSON_BYTES, read_regular
     try:
-        with open(Path(scene_dir) / SCENE_FILE) as f:
-            scene = json.load(f)
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError, RecursionError):
+        scene = json.loads(read_regular(Path(scene_dir) / SCENE_FILE, MAX_JSON_BYTES).decode("utf-8"))
+    except (DataPipeError, ValueError, RecursionError):      # JSONDecodeError and UnicodeDecodeError are ValueErrors
         return None
     return scene if isinstance(scene, dict) else None      # a foreign file: not a scene of ours
 

@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import DataPipeError
 from . import layout
 from .files import atomic_path, write_json_lines_atomic
+from .input_files import MAX_MESH_BYTES, read_regular
 
 def write_ply(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray,
               normals: np.ndarray | None = None, *, binary: bool = True) -> None:
@@ -56,7 +57,7 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V,3) float64 and triangle faces (F,3) of a PLY (ascii or binary, either byte order).
 
     Polygons with more than 3 corners are fanned into triangles."""
-    raw = Path(path).read_bytes()
+    raw = read_regular(path, MAX_MESH_BYTES)         # never a FIFO or device (io/input_files.py)
     end = raw.find(b"end_header")
     if not raw.startswith(b"ply") or end < 0:
         raise DataPipeError(f"{path}: not a PLY file")

@@ -13,6 +13,7 @@ Image arrays are read on access and not kept, so walking a large run holds one r
 from __future__ import annotations
 
 import errno
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ from ..errors import DataPipeError, OutputStateError
 from .exr import read_depth, read_exr, read_mask, read_normals
 from . import layout
 from .files import read_json
+from .input_files import MAX_JSON_BYTES, read_regular
 
 # scene.json keys that hold matrices: given as numpy arrays
 _MATRICES = ("K", "T_world_cam", "T_world_blcam")
@@ -121,6 +123,8 @@ class Run:
     path: Path
     record: dict                   # run.json as stored
     scenes: list[Scene]
+    skipped: list[tuple[Path, str]] = field(default_factory=list)   # read_run(skip_damaged=True): the
+                                   # damaged scene.json files left out, each with the reason
 
     @property
     def status(self) -> str:
@@ -164,8 +168,14 @@ class Run:
         return self.path / layout.MODELS_DIR / model_filename(obj_id)
 
 
-def read_run(path: str | os.PathLike) -> Run:
+def read_run(path: str | os.PathLike, *, skip_damaged: bool = False) -> Run:
     """The run in folder `path` (a finished one, or what a running / stopped one has completed).
+
+    A scene folder without scene.json (or whose scene.json does not say `"complete": true`) is a scene
+    not finished yet and is not in the result. A scene.json that is there but not a DataPipe record
+    (cut short, a JSON list, a folder or a FIFO in its place, renders without their fields) is never
+    left out silently: OutputStateError naming the file, or with `skip_damaged=True` the scene is left
+    out and listed in `Run.skipped` as (path, reason).
 
     Raises DataPipeError when `path` is not a DataPipe run folder, OutputStateError when its run.json
     or a scene.json is not a DataPipe record."""
@@ -179,10 +189,37 @@ def read_run(path: str | os.PathLike) -> Run:
                             "output folder of a DataPipe run)")
     from .outdir import read_record
     record = read_record(run_file, "run record")
-    scenes = []
-    for sdir, scene in layout.iter_scenes(out):
-        scenes.append(Scene(sdir.name, sdir, scene, [_render(sdir, scene, rd) for rd in _renders(sdir, scene)]))
-    return Run(out, record, scenes)
+    scenes, skipped = [], []
+    for sdir in layout.scene_dirs(out):
+        try:
+            scene = _scene_record(sdir)
+            if scene is not None:
+                scenes.append(Scene(sdir.name, sdir, scene, [_render(sdir, scene, rd) for rd in _renders(sdir, scene)]))
+        except OutputStateError as e:
+            if not skip_damaged:
+                raise
+            skipped.append((sdir / layout.SCENE_FILE, str(e)))
+    return Run(out, record, scenes, skipped)
+
+
+def _scene_record(sdir: Path) -> dict | None:
+    """A complete scene's scene.json; None for a scene not finished (no scene.json, or not complete);
+    OutputStateError for one that is there but not a DataPipe record."""
+    p = sdir / layout.SCENE_FILE
+    if not os.path.lexists(p):
+        return None
+    fix = ("(fix: restore the file from a backup, or make the scene again: `python -m datapipe run PRESET --out "
+           "DIR --resume` after moving the scene folder away; read_run(path, skip_damaged=True) reads the rest)")
+    try:
+        data = json.loads(read_regular(p, MAX_JSON_BYTES).decode("utf-8"))
+    except DataPipeError as e:           # a folder, a FIFO, a device in its place; unreadable
+        raise OutputStateError(f"{p}: not a DataPipe scene.json: {e} {fix}") from None
+    except (ValueError, RecursionError) as e:          # cut short, not UTF-8, nested without end
+        raise OutputStateError(f"{p}: not a DataPipe scene.json: not valid JSON ({type(e).__name__}: "
+                               f"{str(e)[:80]}) {fix}") from None
+    if not isinstance(data, dict):
+        raise OutputStateError(f"{p}: not a DataPipe scene.json: a JSON {type(data).__name__}, not an object {fix}")
+    return data if data.get("complete", False) else None
 
 
 def _renders(sdir: Path, scene: dict) -> list[dict]:
@@ -198,15 +235,22 @@ def _renders(sdir: Path, scene: dict) -> list[dict]:
 
 def _render(sdir: Path, scene: dict, rd: dict) -> Render:
     objects = []
-    for o in rd.get("objects", []):
-        o = dict(o)
-        for k in _OBJECT_MATRICES:
-            if k in o:
-                o[k] = np.asarray(o[k], dtype=np.float64)
-        objects.append(o)
-    files = {kind: layout.render_file(sdir, rd, kind) for kind in layout.RENDER_FILES}
-    W, H = (int(v) for v in rd["resolution"])
-    return Render(scene=sdir.name, name=rd["name"], path=sdir / rd["name"], record=rd,
-                  K=np.asarray(rd["K"], dtype=np.float64), resolution=(W, H),
-                  T_world_cam=np.asarray(rd["T_world_cam"], dtype=np.float64), objects=objects, files=files,
+    if not (isinstance(rd.get("objects", []), list) and all(isinstance(o, dict) for o in rd.get("objects", []))):
+        raise OutputStateError(f"{sdir / layout.SCENE_FILE}: not a DataPipe scene.json: render {rd['name']!r}'s "
+                               "objects are not a list of records (fix: restore the file, or move the scene folder away)")
+    try:
+        for o in rd.get("objects", []):
+            o = dict(o)
+            for k in _OBJECT_MATRICES:
+                if k in o:
+                    o[k] = np.asarray(o[k], dtype=np.float64)
+            objects.append(o)
+        files = {kind: layout.render_file(sdir, rd, kind) for kind in layout.RENDER_FILES}
+        W, H = (int(v) for v in rd["resolution"])
+        K, T = np.asarray(rd["K"], dtype=np.float64), np.asarray(rd["T_world_cam"], dtype=np.float64)
+    except (TypeError, ValueError, AttributeError) as e:
+        raise OutputStateError(f"{sdir / layout.SCENE_FILE}: not a DataPipe scene.json: render {rd['name']!r} has "
+                               f"a malformed field ({e}) (fix: restore the file, or move the scene folder away)") from None
+    return Render(scene=sdir.name, name=rd["name"], path=sdir / rd["name"], record=rd, K=K, resolution=(W, H),
+                  T_world_cam=T, objects=objects, files=files,
                   distortion=rd.get("distortion"))

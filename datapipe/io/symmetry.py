@@ -224,11 +224,16 @@ def check_symmetries(sym: object, where: str) -> dict:
     if unknown:
         raise DataPipeError(f"{where}: unknown keys {sorted(unknown)} (fix: use 'symmetries_discrete' "
                             "(4x4 row-major lists, mm) and 'symmetries_continuous' ({axis, offset}))")
+    for key in ("symmetries_discrete", "symmetries_continuous"):
+        if not isinstance(sym.get(key, []), list):
+            raise DataPipeError(f"{where}.{key}: expected a list, got {type(sym[key]).__name__} (fix: "
+                                + ("a list of 4x4 row-major matrices, translation in mm)" if key.endswith("discrete")
+                                   else "a list of {\"axis\": [x, y, z], \"offset\": [x, y, z]})"))
     for k, T in enumerate(sym.get("symmetries_discrete", [])):
-        M = np.asarray(T, dtype=np.float64) if isinstance(T, list) else np.zeros(0)
-        if M.size != 16 or not np.isfinite(M).all():
-            raise DataPipeError(f"{where}.symmetries_discrete[{k}]: expected 16 numbers (a 4x4 row-major "
-                                "matrix, translation in mm)")
+        M = _finite_array(T, 16)
+        if M is None:
+            raise DataPipeError(f"{where}.symmetries_discrete[{k}]: expected 16 numbers, all finite (fix: a 4x4 "
+                                "row-major matrix, translation in mm)")
         M = M.reshape(4, 4)
         R = M[:3, :3]
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0 or np.abs(M[3] - [0, 0, 0, 1]).max() > 1e-6:
@@ -238,12 +243,25 @@ def check_symmetries(sym: object, where: str) -> dict:
         out["symmetries_discrete"] = [[float(x) for x in T] for T in sym["symmetries_discrete"]]
     for k, c in enumerate(sym.get("symmetries_continuous", [])):
         ok = isinstance(c, dict) and set(c) == {"axis", "offset"}
-        ok = ok and np.asarray(c["axis"]).shape == (3,) and np.asarray(c["offset"]).shape == (3,)
-        if not ok or not np.linalg.norm(np.asarray(c["axis"], dtype=float)) > 0:
-            raise DataPipeError(f"{where}.symmetries_continuous[{k}]: expected {{\"axis\": [x, y, z] (non-zero), "
-                                "\"offset\": [x, y, z] (mm)}")
+        axis, offset = (_finite_array(c["axis"], 3), _finite_array(c["offset"], 3)) if ok else (None, None)
+        if axis is None or offset is None or not np.linalg.norm(axis) > 0:
+            raise DataPipeError(f"{where}.symmetries_continuous[{k}]: expected {{\"axis\": [x, y, z] (finite, "
+                                "non-zero), \"offset\": [x, y, z] (finite, mm)}")
     if "symmetries_continuous" in sym:
         out["symmetries_continuous"] = [{"axis": [float(x) for x in c["axis"]],
                                          "offset": [float(x) for x in c["offset"]]}
                                         for c in sym["symmetries_continuous"]]
     return out
+
+
+def _finite_array(values, n: int) -> np.ndarray | None:
+    """`values` as n finite float64s (a flat list of numbers, not bools), or None."""
+    if not (isinstance(values, list) and len(values) == n
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values)):
+        return None
+    with np.errstate(over="ignore"):             # 10**400 does not fit a float64: refused below
+        try:
+            a = np.asarray(values, dtype=np.float64)
+        except OverflowError:
+            return None
+    return a if np.isfinite(a).all() else None

@@ -121,7 +121,7 @@ CASES_5_6 = {   # defects 5 and 6: validate said OK, the run failed or made a us
                       "objects[0].filepath", "0 faces"),
     "mesh_empty": (lambda c, t: setattr(c.objects[0], "filepath", _obj(t / "e.obj", "")), "objects[0].filepath", ""),
     "scale_1e6": (lambda c, t: setattr(c.objects[0], "scale", 1e6), "objects[0].scale", "drop zone"),
-    "scale_tiny": (lambda c, t: setattr(c.objects[0], "scale", 1e-7), "objects[0].scale", "px on the camera"),
+    "scale_tiny": (lambda c, t: setattr(c.objects[0], "scale", 2e-6), "objects[0].scale", "px on the camera"),
     "outputs_empty": (lambda c, t: setattr(c.render, "outputs", []), "render.outputs", "no outputs"),
     "light_inf": (lambda c, t: setattr(c.render, "light_power", math.inf), "render.light_power", "finite"),
     "proj_rot_nan": (lambda c, t: (setattr(c.structured_light, "enabled", True),

@@ -38,3 +38,20 @@ def test_bop_entry_round_trip_and_preview(ui_props, tmp_path):
     size = max(max(o.dimensions) for o in objs)
     assert size == pytest.approx(0.0346, abs=1e-3)            # the nut (obj 7): 34.6 mm across corners
     bpy.ops.datapipe.object_preview()
+
+
+def test_load_preset_with_a_deep_models_info_names_the_file(ui_props, tmp_path):
+    """A models_info.json nested 200,000 deep gave a RecursionError traceback from the add-on's Load
+    Preset (its missing-files look reads the folder); now the preset loads and Check names the file."""
+    import json
+    src = make_bop_models(tmp_path / "models")
+    (src / "models_info.json").write_text('{"7": ' + "[" * 200_000 + "]" * 200_000 + "}")
+    cfg = C.default_config()
+    cfg.objects = [C.ObjectEntry(bop_models=str(src), bop_obj_ids=[7])]
+    preset = tmp_path / "deep.json"
+    preset.write_text(json.dumps(cfg.to_dict()))
+    bpy.ops.datapipe.preset_load(filepath=str(preset))
+    assert ui_props.objects[0].bop_models == str(src)
+    problems = props_to_config(ui_props).problems()
+    assert any(p.path == "objects[0].bop_models" and "nested too deeply" in p.message
+               and str(src / "models_info.json") in p.message for p in problems), [str(p) for p in problems]

@@ -1,4 +1,5 @@
 """Config <-> properties conversion and JSON presets (built-in read-only, user folder, legacy pickle)."""
+import copy
 import json
 import math
 import pickle
@@ -101,7 +102,7 @@ def test_thesis_sensor_preset():
 def test_config_to_props_refuses_values_the_sidebar_cannot_hold(registered):
     before = dump(registered)
     cfg = C.default_config()
-    cfg.scene.seed = 2**31                       # valid for the Config, beyond Blender's int property
+    cfg.scene.seed = 2**31                       # beyond Blender's int property (validate refuses it too)
     cfg.objects[0].collision_shape = "BLOB"
     with pytest.raises(ConfigError) as e:
         config_to_props(cfg, registered)
@@ -283,3 +284,66 @@ def test_user_dir_fallback_without_extension(monkeypatch):
     monkeypatch.delenv("DATAPIPE_USER_PRESETS", raising=False)
     path = presets.user_dir(create=False)       # plain `import datapipe`: not an extension
     assert path.parts[-2:] == ("datapipe", "presets")
+
+
+def _numeric_fields(props):
+    """(field path, Config getter, property) of every INT / FLOAT property of the sidebar that holds a
+    Config field of the same name."""
+    groups = [(section, getattr(props, section).bl_rna, lambda c, s=section: getattr(c, s))
+              for section in ("scene", "camera", "projector", "structured_light", "render", "simulation", "output")]
+    groups += [("objects[0]", props.bl_rna.properties["objects"].fixed_type, lambda c: c.objects[0]),
+               ("camera.poses[0]", props.camera.bl_rna.properties["poses"].fixed_type, lambda c: c.camera.poses[0]),
+               ("camera.sampler", props.camera.sampler.bl_rna, lambda c: c.camera.sampler),
+               ("lighting", props.lighting.bl_rna, lambda c: c.lighting)]
+    for path, rna, get in groups:
+        for prop in rna.properties:
+            if prop.type in ("INT", "FLOAT"):
+                yield path, get, prop
+
+
+def test_validate_refuses_every_value_the_sidebar_cannot_hold(registered):
+    """Issue 33: the sidebar refused what the CLI accepted (seed 3,000,000,000; mass 1e-40). Each
+    numeric property's hard limit (an IntProperty is a signed 32-bit integer; a float's min) is now
+    one validate() also enforces (config/limits.py MAX_INT32, MIN_POSITIVE): a value just beyond it is
+    refused at that field, so every preset validate accepts can be shown in the sidebar."""
+    base = C.default_config()
+    base.lighting = C.LightingConfig()
+    base.camera.sampler.kind = "bin_view"
+    checked = []
+    for path, get, prop in _numeric_fields(registered):
+        value = getattr(get(base), prop.identifier, None)
+        if not isinstance(value, (int, float, list)) or isinstance(value, bool):
+            continue                                      # no Config field of that name and kind
+        lo, hi = prop.hard_min, prop.hard_max
+        if prop.type == "INT":
+            lo, hi = max(lo, -2**31), min(hi, 2**31 - 1)
+        for beyond in ([lo - 1 if prop.type == "INT" else (lo / 10 if lo > 0 else lo - 1e-3)] if lo > -3e38 else []) + \
+                      ([hi + 1 if prop.type == "INT" else hi * 1.01 + 1e-3] if hi < 3e38 else []):
+            cfg = copy.deepcopy(base)
+            if isinstance(value, list):                   # a vector or a [min, max] range: one end beyond
+                new = list(value)
+                new[0 if beyond < lo else -1] = beyond
+                beyond = new
+            setattr(get(cfg), prop.identifier, beyond)
+            paths = [p.path for p in cfg.problems(check_files=False)]
+            assert any(p.startswith(f"{path}.{prop.identifier}") for p in paths), (path, prop.identifier, beyond, paths)
+            checked.append(f"{path}.{prop.identifier}")
+    assert {"scene.seed", "objects[0].mass", "objects[0].obj_id", "camera.clip_start"} <= set(checked)
+
+
+@pytest.mark.parametrize("field,value", [("seed", 3_000_000_000), ("mass", 1e-40)])
+def test_sidebar_and_cli_refuse_with_the_same_message(registered, tmp_path, field, value):
+    import subprocess
+    import sys
+    data = C.default_config().to_dict()
+    target = data["scene"] if field == "seed" else data["objects"][0]
+    target[field] = value
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(data))
+    r = subprocess.run([sys.executable, "-m", "datapipe", "validate", str(path)], capture_output=True, text=True)
+    problem = [line.strip()[2:] for line in r.stderr.splitlines() if line.strip().startswith("- ")]
+    assert r.returncode == 2 and len(problem) == 1 and "(fix:" in problem[0], r.stderr[-1500:]
+    before = dump(registered)
+    with pytest.raises(RuntimeError) as e:
+        bpy.ops.datapipe.preset_load(filepath=str(path))
+    assert problem[0] in str(e.value) and dump(registered) == before

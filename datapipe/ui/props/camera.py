@@ -51,7 +51,7 @@ class DATAPIPE_PG_camera(PropertyGroup):
         default=default(_K, "focal_length"), update=sync_previews)
     sensor_width: FloatProperty(
         name="Sensor Width", description="Sensor width (millimetres)",
-        subtype="DISTANCE_CAMERA", unit="CAMERA", min=1e-3, soft_min=1.0, soft_max=100.0,
+        subtype="DISTANCE_CAMERA", unit="CAMERA", min=C.MIN_POSITIVE["camera.sensor_width"], soft_min=1.0, soft_max=100.0,
         default=default(_K, "sensor_width"), update=sync_previews)
     sensor_fit: EnumProperty(
         name="Sensor Fit", description="Which image dimension the sensor width applies to",
@@ -61,11 +61,11 @@ class DATAPIPE_PG_camera(PropertyGroup):
         min=1, max=C.MAX_RESOLUTION, default=default(_K, "resolution"), update=sync_previews)
     clip_start: FloatProperty(
         name="Clip Start", description="Nearest rendered distance. Raising it past Clip End moves Clip End",
-        subtype="DISTANCE", unit="LENGTH", min=1e-5, soft_max=10.0, precision=3,
+        subtype="DISTANCE", unit="LENGTH", min=C.MIN_POSITIVE["camera.clip_start"], soft_max=10.0, precision=3,
         default=default(_K, "clip_start"), update=chain(_clip_lo, sync_previews))
     clip_end: FloatProperty(
         name="Clip End", description="Farthest rendered distance. Lowering it below Clip Start moves Clip Start",
-        subtype="DISTANCE", unit="LENGTH", min=2e-5, soft_max=1000.0, precision=3,
+        subtype="DISTANCE", unit="LENGTH", min=C.MIN_POSITIVE["camera.clip_end"], soft_max=1000.0, precision=3,
         default=default(_K, "clip_end"), update=chain(_clip_hi, sync_previews))
     # a calibrated camera (docs/CALIBRATION.md): K and OpenCV lens distortion, each off = the config's null
     use_intrinsics: BoolProperty(

@@ -24,7 +24,7 @@ class DATAPIPE_PG_object(PropertyGroup):
         name="Object IDs", description="BOP object ids to drop, comma separated (empty: all of the folder); "
         "each gets the instance counts and settings of this entry", default="")
     obj_id: IntProperty(name="Object ID", description="The id exported for this part (0: its position in the "
-                        "list + 1)", min=0, default=default(_O, "obj_id"))
+                        "list + 1)", min=0, max=C.MAX_INT32, default=default(_O, "obj_id"))
     symmetries: StringProperty(
         name="Symmetries", description="Written to models_info.json: auto (BOP: the folder's; a mesh file: "
         "detected at 1% of the diameter), detect, none, {\"tolerance\": 0.02}, or JSON with "
@@ -36,9 +36,10 @@ class DATAPIPE_PG_object(PropertyGroup):
                          "without extension)", default=default(_O, "name"))
     scale: FloatProperty(
         name="Scale", description="File units to metres (e.g. 0.001 for a mesh modelled in millimetres)",
-        min=1e-6, soft_max=100.0, precision=4, default=default(_O, "scale"), update=sync_previews)
+        min=C.MIN_POSITIVE["objects.scale"], soft_max=100.0, precision=4, default=default(_O, "scale"),
+        update=sync_previews)
     mass: FloatProperty(name="Mass", description="Mass of each instance", unit="MASS",
-                        min=1e-6, soft_max=100.0, precision=3, default=default(_O, "mass"))
+                        min=C.MIN_POSITIVE["objects.mass"], soft_max=100.0, precision=3, default=default(_O, "mass"))
     collision_shape: EnumProperty(
         name="Collision Shape", description="Rigid-body collision shape (Convex Hull is fast and stable; "
         "Mesh follows concave parts but is slower)",

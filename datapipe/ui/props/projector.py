@@ -34,7 +34,7 @@ class DATAPIPE_PG_projector(PropertyGroup):
         default=default(_J, "focal_length"), update=sync_previews)
     sensor_width: FloatProperty(
         name="Sensor Width", description="Projector image (DMD) width (millimetres)",
-        subtype="DISTANCE_CAMERA", unit="CAMERA", min=1e-3, soft_min=1.0, soft_max=100.0,
+        subtype="DISTANCE_CAMERA", unit="CAMERA", min=C.MIN_POSITIVE["projector.sensor_width"], soft_min=1.0, soft_max=100.0,
         default=default(_J, "sensor_width"), update=sync_previews)
     resolution: IntVectorProperty(
         name="Resolution", description="Projector image size in pixels (width, height)", size=2,
@@ -61,4 +61,4 @@ class DATAPIPE_PG_projector(PropertyGroup):
         name="Rotation", description="Projector rotation relative to the camera (quaternion w, x, y, z)",
         size=4, subtype="QUATERNION", default=_PROJ_QUAT, update=_quaternion_changed)
     power: FloatProperty(name="Strength", description="Emission strength of the projector light's node tree",
-                         min=1e-6, soft_max=100.0, default=default(_J, "power"))
+                         min=C.MIN_POSITIVE["projector.power"], soft_max=100.0, default=default(_J, "power"))

@@ -5,7 +5,6 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
 from bpy.types import PropertyGroup
 
 from ... import config as C
-from ..convert import INT_MAX
 from .fields import default, enum_choices, keep_order, keep_range, material_search, range_property
 
 
@@ -30,14 +29,15 @@ class DATAPIPE_PG_scene(PropertyGroup):
         size=3, subtype="TRANSLATION", unit="LENGTH", default=default(_S, "drop_zone_loc"))
     drop_zone_scale: FloatVectorProperty(
         name="Drop Zone Half Size", description="Half-extents of the drop zone box along X, Y, Z (metres)",
-        size=3, subtype="XYZ_LENGTH", unit="LENGTH", min=1e-4, soft_max=5.0,
+        size=3, subtype="XYZ_LENGTH", unit="LENGTH", min=C.MIN_POSITIVE["scene.drop_zone_scale"], soft_max=5.0,
         default=default(_S, "drop_zone_scale"))
     make_bin: BoolProperty(
         name="Bin Walls", description="Build a floor and walls around the drop zone (off: floor only)",
         default=default(_S, "make_bin"))
     bin_wall_thickness: FloatProperty(
         name="Wall Thickness", description="Thickness of the bin's floor and walls",
-        subtype="DISTANCE", unit="LENGTH", min=1e-5, soft_max=0.1, default=default(_S, "bin_wall_thickness"))
+        subtype="DISTANCE", unit="LENGTH", min=C.MIN_POSITIVE["scene.bin_wall_thickness"], soft_max=0.1,
+        default=default(_S, "bin_wall_thickness"))
     bin_size_scale: range_property("bin_size_scale", "Bin Size Scale", "Per scene, the drop zone's X and Y half "
                            "extents are each multiplied by a factor drawn from this range", _S, lo=0.05, hi=20.0)
     bin_wall_scale: range_property("bin_wall_scale", "Wall Height Scale", "Per scene, the wall height (the drop "
@@ -62,7 +62,7 @@ class DATAPIPE_PG_scene(PropertyGroup):
     seed: IntProperty(
         name="Seed", description="Base seed of the run: scene i derives its own seed from it, so any scene "
         "can be re-made alone and shards match a single run",
-        default=default(_S, "seed"), min=0, max=INT_MAX)
+        default=default(_S, "seed"), min=0, max=C.MAX_INT32)
     bin_material: StringProperty(
         name="Bin Material", description="Floor and walls: file (the built-in grey), a preset (matte_plastic, "
         "dark_plastic, painted, steel, aluminium, rubber) or Principled BSDF values as JSON, e.g. "
@@ -89,7 +89,7 @@ class DATAPIPE_PG_simulation(PropertyGroup):
                             default=default(_M, "max_frames"), min=1, soft_max=2000)
     settle_speed: FloatProperty(
         name="Settle Speed", description="A part moving slower than this is at rest",
-        unit="VELOCITY", min=1e-6, soft_max=1.0, precision=4,
+        unit="VELOCITY", min=C.MIN_POSITIVE["simulation.settle_speed"], soft_max=1.0, precision=4,
         default=default(_M, "settle_speed"))
     settle_frames: IntProperty(name="Settle Frames", description="Consecutive frames at rest before the drop "
                                "counts as settled", default=default(_M, "settle_frames"), min=1, soft_max=100)
