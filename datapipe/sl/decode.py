@@ -101,6 +101,9 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
 
     images: ``(F*N, H, W)`` frequency-major, ``(F, N, H, W)``, or a list of F*N ``(H, W)``
         arrays; uint8/uint16/int/float16/32/64 (linear intensities, e.g. from ``sl.sensor``).
+        ValueError, before any work: another count than F*N, an image without a finite value
+        (single NaN / inf samples are per-pixel INVALID_INPUT), images of another size than P_cam
+        was made for (its principal point outside the central 90% of the images).
     periods: fringe frequencies K (periods across the projector), in stack order.
     steps: phase steps N per frequency (>= 3). shifts: optional N shifts (radians) instead of
         the uniform ``2*pi*n/N``.
