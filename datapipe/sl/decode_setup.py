@@ -15,6 +15,7 @@ from .gamma import gamma_phase_lut
 from .noise import fit_noise_model, variance_function
 from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
+from .response import linearise
 from .triangulate import Triangulator
 from .unwrap import plan_unwrap
 
@@ -151,6 +152,7 @@ class DecodeSetup:
     order_factor: float = 0.0
     order_floor: float | None = None
     noise_model: dict = field(default_factory=dict)
+    response: dict | None = None          # the tone curve undone before decoding (.response), None: none
 
     @property
     def shape(self):
@@ -213,7 +215,7 @@ def _noise_setup(st: DecodeSetup, noise_sigma, min_modulation, order_sigmas, shi
 def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
                    min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
                    max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial,
-                   projector_gamma) -> DecodeSetup:
+                   projector_gamma, response=None) -> DecodeSetup:
     """Check :func:`datapipe.sl.decode.decode`'s arguments (an error names the field, before any work)
     and decide everything its steps need."""
     steps = _check_steps(steps)
@@ -237,6 +239,7 @@ def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noi
             raise bad_value("saturation", "is NaN", "pass the saturation level in image units or None")
         if np.isinf(sat):
             sat = None
+    frames, sat, response_info = linearise(frames, response, steps, shifts, sat)
     gamma = _check_positive("projector_gamma", projector_gamma, allow_none=False, upper=10.0)
     false_valid_rate = _check_positive("false_valid_rate", false_valid_rate, upper=0.5)
     F = len(plan.periods)
@@ -253,6 +256,7 @@ def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noi
                      spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
                      factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
                      row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
+    st.response = response_info
     st.consistency_limits = consistency_limits(F, plan.lattice.d_min if plan.lattice is not None else 1.0)
     min_modulation = _check_positive("min_modulation", min_modulation, strict=False)
     order_sigmas = _check_positive("order_sigmas", order_sigmas, strict=False)
