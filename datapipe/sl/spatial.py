@@ -97,6 +97,12 @@ def _batcher_pairs(n: int) -> list:
 _SORT12 = _batcher_pairs(len(_AXES) + len(_DIRS))
 
 
+def _count_rows(mask):
+    """Per column, the True entries of a (rows <= 255, n) bool array, as int64: a uint8 sum over
+    the rows (``np.count_nonzero(axis=0)`` goes through a slow generic path, ~10x)."""
+    return np.add.reduce(mask.view(np.uint8), axis=0, dtype=np.uint8).astype(np.int64)
+
+
 _LOW = np.float32(-3e18)   # stands for "no prediction": below every coordinate, its square still finite
 
 
@@ -104,19 +110,17 @@ def _nan_median(P):
     """Median over axis 0 ignoring NaN, and the count of finite entries; NaN where all are NaN.
     A copy of P with NaN -> ``_LOW`` (sorts first) is sorted along axis 0 by a sorting network
     (element-wise min / max of rows: ~4x faster than ``np.sort(axis=0)`` on (12, n), same order)."""
-    k = np.count_nonzero(np.isfinite(P), axis=0)
+    k = _count_rows(np.isfinite(P))
     rows = list(np.fmax(P, _LOW))            # fmax(NaN, low) = low: no masked copy
     tmp = np.empty(P.shape[1], P.dtype)
     for a, b in (_SORT12 if P.shape[0] == 12 else _batcher_pairs(P.shape[0])):
         np.minimum(rows[a], rows[b], out=tmp)
         np.maximum(rows[a], rows[b], out=rows[b])
         rows[a], tmp = tmp, rows[a]          # swap buffers instead of copying
-    S = np.stack(rows)
     n = P.shape[0]
     lo = np.minimum(n - k + np.maximum(k - 1, 0) // 2, n - 1)   # the k finite entries are the last k
     hi = np.minimum(n - k + k // 2, n - 1)
-    cols = np.arange(P.shape[1])
-    med = S[lo, cols] + S[hi, cols]
+    med = np.choose(lo, rows) + np.choose(hi, rows)
     med *= np.float32(0.5)
     med[k == 0] = np.nan
     return med, k
@@ -195,7 +199,7 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
             dev2 -= xh
             np.multiply(dev2, dev2, out=dev2)
             dev2 *= agree                         # only the agreeing predictions count
-        n_agree = np.count_nonzero(agree, axis=0)
+        n_agree = _count_rows(agree)
         spread = np.sqrt(np.sum(dev2, 0) / np.maximum(n_agree, 1))
         ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail) & (var_c[f][sel] <= MAX_FINE_NOISE ** 2)
         through = _through(P, SAME_SURFACE * T)
