@@ -10,22 +10,22 @@ grows linearly with the signal (the photon transfer curve of EMVA 1288):
 :func:`fit_noise_model` measures that curve on the fringe stack itself, on a subsample of pixels,
 with statistics whose expectation is sigma^2 times a chi-square variable:
 
-* N >= 4 steps: every frequency's least-squares residual (``chi2(N - 3)`` per pixel and frequency)
-  with what a tone curve puts there removed. A camera's image processor (sRGB-like curves: 2nd
-  harmonics of 11-17% of the fringe, 3rd 2-5%, 4th 0.5-2%) or a projector's gamma is a fixed function
-  of the intensity, so its harmonics alias into the residual as a smooth function of the pixel's
-  offset A, modulation B and phase -- the former statistic counted it as noise and overstated the
-  noise 7-13x on such images (issue #31). A probe on a coarse grid tests, per A-bin, a least-squares
-  fit of the residuals on ``B^p cos(k (phi + d_n))``, ``B^p sin(...)`` (k = 2..4, p = 1, 2, projected
-  on the residual space) against none; where it explains the residuals (an F-test, and 5% of their
-  variance in all) the same regression is fitted on every sample and its residual is the
-  statistic. The phase and modulation in those features come from the pixel's 4-neighbours (the
-  pair along the fringe), not from its own samples: with shot noise the residual correlates with
-  the pixel's own noise, and a regression on its own phase removed a quarter of the true noise.
-* N = 3 (no residual): the spread of the F offsets ``A_i`` (every frequency measures the same mean):
-  ``sum (A_i - mean A)^2 / g`` is ``chi2(F - 1)``, ``g`` the variance of one offset per unit noise
-  (``1/N`` for uniform shifts). A tone curve's 3rd harmonic lands on the offsets there; pass
-  ``noise_sigma`` (or linearise the images first) for such a camera.
+* a linear camera: per pixel, the least-squares residual of every frequency's N-step fit
+  (``chi2(F (N - 3))``) plus the spread of the F offsets ``A_i`` (every frequency measures the same
+  mean): ``sum (A_i - mean A)^2 / g`` is ``chi2(F - 1)``, ``g`` the variance of one offset per unit
+  noise (``1/N`` for uniform shifts). This is all N = 3 sets have.
+* a camera with a tone curve (N >= 4): an image processor's sRGB-like curve (2nd harmonics of
+  11-17% of the fringe, 3rd 2-5%, 4th 0.5-2%) or a projector's gamma is a fixed function of the
+  intensity, so its harmonics alias into each pixel's residual (and offsets) as a smooth function
+  of its offset A, modulation B and phase -- not noise. The statistic above counted them and
+  overstated the noise 7-13x on such images (issue #31). A probe on a coarse grid tests, per
+  A-bin, a least-squares fit of the residuals on ``B^p cos(k (phi + d_n))``, ``B^p sin(...)``
+  (k = 2..4, p = 1, 2, projected on the residual space) against none; where it explains them (an
+  F-test, and 5% of their variance in all) the same regression runs on every pixel and frequency,
+  and the residual it leaves, ``chi2(N - 3)``, is the statistic (no offsets). The phase and
+  modulation in those features come from the pixel's 4-neighbours (the pair along the fringe),
+  not from its own samples: with shot noise the residual correlates with the pixel's own noise,
+  and a regression on its own phase removed a quarter of the true noise.
 
 The samples are sorted into bins equally spaced in sqrt(A); each bin's mean statistic without its
 top 2% (the pixels at depth edges, whose residuals also carry model error), over the same trimmed
@@ -147,6 +147,7 @@ TONE_HARMONICS = range(2, 5)   # the 2nd-4th harmonics of a tone curve (those ab
 TONE_POWERS = (1, 2)           # their amplitude within an A-bin: linear + quadratic in B (c_k ~ B^k for small B)
 TONE_BINS = 48                 # A-bins of that regression (equally spaced in sqrt(A))
 TONE_PROBE_BINS = 12           # A-bins of the probe for a tone curve
+TONE_PROBE_STRIDE = 4          # ... on every 4th row and column of the subsample
 TONE_MIN_OBS = 10              # residual coordinates per regression parameter a bin needs at least
 TONE_FIT_SAMPLES = 4096        # samples per bin the regression is fitted on (evaluated on all)
 TONE_MAX_SPREAD = 0.3          # neighbour pairs further apart than this (~0.3 rad): phase too uncertain for the features
@@ -207,10 +208,10 @@ def _fit_bin(X, y, d, refit=True):
     rss = []
     for _ in range(2 if refit else 1):
         Xw = X * w
-        G = Xw @ X.T
+        G = np.einsum("ik,jk->ij", Xw, X)
         G[np.diag_indices(m)] += 1e-12 * max(float(np.trace(G)), 1e-300)
-        coef = np.linalg.solve(G, Xw @ y)
-        e = (y - coef @ X).reshape(-1, d)
+        coef = np.linalg.solve(G, np.einsum("ik,k->i", Xw, y))
+        e = (y - np.einsum("i,ik->k", coef, X)).reshape(-1, d)
         st = np.sum(e * e, axis=1)
         rss.append(float(np.sum(st)))
         if not refit:
@@ -259,30 +260,31 @@ def _tone_free_rss(res, feats, a):
             continue
         step = max(1, nb // TONE_FIT_SAMPLES)
         coef, _, _ = _fit_bin(feats[:, b0:b1:step].reshape(m, -1), res[b0:b1:step].reshape(-1), d)
-        e = res[b0:b1] - (coef @ feats[:, b0:b1].reshape(m, -1)).reshape(-1, d)
+        e = res[b0:b1] - np.einsum("i,ik->k", coef, feats[:, b0:b1].reshape(m, -1)).reshape(-1, d)
         out[order[b0:b1]] = np.sum(e * e, axis=1) * (nb * d / max(nb * d - m, 1))
     return out
 
 
-def _grid(frames, y0, x0, step, ny, nx):
-    """(len(frames), ny * nx) float64 samples of every frame on the grid y0 + step * j, x0 + step * i."""
-    return np.stack([np.asarray(fr[y0:y0 + step * ny:step, x0:x0 + step * nx:step], np.float64).reshape(-1)
-                     for fr in frames])
-
-
-def _neighbour_phasors(frames, kern, steps, y0, x0, step, ny, nx, ok):
-    """Per frequency, the phasor ``(C, S)`` (2, n) of each grid pixel from its 4-neighbours, not
-    from itself: the mean of the up/down or the left/right pair, whichever pair agrees better
-    (along the fringe the phase hardly changes; across it the pair's mean still has the centre's
-    phase to first order), and that pair's disagreement over its mean (~ the phase step between
-    them; inf where a neighbour is not usable, ``ok``). Taken from the pixel's own samples the tone
-    features would share its noise, and with signal-dependent (shot) noise the residual correlates
-    with that noise: the regression then removed 25% of a shot-noise-limited stack's noise variance."""
+def _neighbour_phasors(frames, kern, steps, rows, cols, ok):
+    """Per frequency, the phasor ``(C, S)`` (2, n) of each pixel of the grid ``rows x cols`` from its
+    4-neighbours, not from itself: the mean of the up/down or the left/right pair, whichever pair
+    agrees better (along the fringe the phase hardly changes; across it the pair's mean still has
+    the centre's phase to first order), and that pair's disagreement over its mean (~ the phase
+    step between them; inf where a neighbour is outside the image or not usable, ``ok``). Taken
+    from the pixel's own samples the tone features would share its noise, and with signal-dependent
+    (shot) noise the residual correlates with that noise: the regression then removed 25% of a
+    shot-noise-limited stack's noise variance."""
+    h, w = frames[0].shape
     f = len(frames) // steps
     cs = kern.coef[1:]
-    nb = {k: _grid(frames, y0 + dy, x0 + dx, step, ny, nx) for k, (dy, dx) in
-          {"u": (-1, 0), "d": (1, 0), "l": (0, -1), "r": (0, 1)}.items()}
-    usable = ok(np.concatenate(list(nb.values())))
+    nb, inside = {}, np.ones(rows.size * cols.size, bool)
+    for k, (dy, dx) in {"u": (-1, 0), "d": (1, 0), "l": (0, -1), "r": (0, 1)}.items():
+        r, c = rows + dy, cols + dx
+        inside &= ((r >= 0) & (r < h))[:, None].repeat(cols.size, 1).ravel() & \
+            np.tile((c >= 0) & (c < w), rows.size)
+        ix = np.ix_(np.clip(r, 0, h - 1), np.clip(c, 0, w - 1))
+        nb[k] = np.stack([np.asarray(fr[ix], np.float64).reshape(-1) for fr in frames])
+    usable = inside & ok(np.concatenate(list(nb.values())))
     out = []
     for i in range(f):
         z = {k: cs @ v[i * steps:(i + 1) * steps] for k, v in nb.items()}
@@ -295,25 +297,25 @@ def _neighbour_phasors(frames, kern, steps, y0, x0, step, ny, nx, ok):
 
 
 def _statistics(frames, steps, shifts, saturation, max_pixels):
-    """Per sample (pixel of a subsample and frequency; N = 3: per pixel): offset A, chi-square
-    statistic / sigma^2 and its dof; plus the images' floor.
+    """Per sample: offset A, chi-square statistic / sigma^2 and its dof; plus the images' floor.
 
-    With N >= 4 steps the statistic is each frequency's least-squares residual, with what a camera
-    or projector tone curve puts there removed (:func:`_tone_free_rss`): a tone curve is a fixed
-    function of the intensity, so its harmonics alias into each pixel's residual as a smooth
-    function of (A, B, phase) -- not noise. A probe on every 3rd row and column of the subsample
-    decides whether there is such a curve; only then are the neighbours of every subsample pixel
-    read (their phasors give the tone features, :func:`_neighbour_phasors`) and the samples whose
-    neighbours do not pin their phase left out. With N = 3 nothing is left of the residual; the
-    spread of the F offsets is then the statistic (a tone curve's 3rd harmonic aliases onto the
-    offset: pass ``noise_sigma``, or linearise the images with ``response``, for such a camera)."""
+    Without a tone curve (a linear camera) the statistic is what it was before issue #31, per pixel
+    of the subsample: the N-step residuals of all frequencies plus the spread of their offsets
+    (``chi2(F (N - 3) + F - 1)``). With N >= 4 a probe on every 4th row and column of the subsample
+    tests for a tone curve (:func:`_tone_present`): it is a fixed function of the intensity, so its
+    harmonics alias into each frequency's residual as a smooth function of (A, B, phase) -- not
+    noise -- and into the offsets too. Where the probe finds one, the statistic is per pixel and
+    frequency instead: the residual with the tone curve's part regressed out
+    (:func:`_tone_free_rss`, features from the neighbours' phasors, :func:`_neighbour_phasors`),
+    ``chi2(N - 3)``, leaving out the samples whose neighbours do not pin their phase and the
+    offsets. With N = 3 nothing is left of the residual: a tone curve's 3rd harmonic aliases onto
+    the offsets; pass ``noise_sigma``, or linearise the images with ``response``, for such a camera."""
     steps = int(steps)
     f = len(frames) // steps
     h, w = frames[0].shape
     s = max(1, int(np.ceil(np.sqrt(h * w / max_pixels))))
-    o = 1 if h >= 3 and w >= 3 else 0             # rows / columns 1 .. n-2: every pixel has 4 neighbours
-    ny, nx = len(range(o, h - o, s)), len(range(o, w - o, s))
-    sub = _grid(frames, o, o, s, ny, nx)
+    sub = [np.asarray(fr[::s, ::s], dtype=np.float64).ravel() for fr in frames]
+    rows, cols = np.arange(0, h, s), np.arange(0, w, s)
     if shifts is None:
         shifts = phase_shifts(steps)
     shifts = np.asarray(shifts, np.float64)
@@ -329,44 +331,45 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
             g &= (samples < sat).all(0)
         return g
 
-    good = ok(sub)
-    fits = [kern.coef @ sub[i * steps:(i + 1) * steps][:, good] for i in range(f)]
-    offs = np.stack([acs[0] for acs in fits]) if fits else np.zeros((0, 0))
+    good = ok(np.stack(sub))
+    offs = []
+    rss = np.zeros(sub[0].size)
+    for i in range(f):            # the former statistic, kept as it was where no tone curve is found
+        y = np.stack(sub[i * steps:(i + 1) * steps])
+        y = np.where(np.isfinite(y), y, 0.0)
+        acs = kern.coef @ y
+        rss += np.sum((y - kern.design @ acs) ** 2, axis=0)
+        offs.append(acs[0])
+    offs = np.stack(offs)
     a = offs.mean(0)
-    if steps > 3 and a.size:
+    dof = f * (steps - 3) + f - 1
+    if f > 1:            # offsets of the F frequencies: one mean, noise g sigma^2 each
+        g = float(np.sum(kern.coef[0] ** 2))
+        rss += np.sum((offs - a) ** 2, axis=0) / g
+    a, rss = a[good], rss[good]
+    if steps > 3 and a.size and min(rows.size, cols.size) >= 3:
         Qt = _residual_basis(kern).T                         # (N-3, N): orthogonal to the design
-        res = np.concatenate([(Qt @ sub[i * steps:(i + 1) * steps][:, good]).T for i in range(f)])
+        res = np.concatenate([np.einsum("jn,nk->kj", Qt, np.stack(sub[i * steps:(i + 1) * steps])[:, good])
+                              for i in range(f)])              # einsum: no BLAS threads for a (N-3) x N product
         a_all = np.tile(a, f)
         n = a.size
         pos = np.cumsum(good) - 1                            # grid pixel -> its column among the good ones
-        if o and min(ny, nx) >= 3:
-            pgrid = np.zeros((ny, nx), bool)
-            pgrid[::3, ::3] = True
-            sel = (pgrid.ravel() & good)[pgrid.ravel()]      # probe pixels among the coarse grid's
-            pnb = _neighbour_phasors(frames, kern, steps, o, o, 3 * s, len(range(0, ny, 3)),
-                                     len(range(0, nx, 3)), ok)
-            pidx = pos[np.flatnonzero(pgrid.ravel() & good)]
-            probe = np.concatenate([i * n + pidx for i in range(f)])
-            pz = np.concatenate([z[:, sel] for z, _ in pnb], axis=1)
-            psp = np.concatenate([sp[sel] for _, sp in pnb])
-            keep = psp <= TONE_MAX_SPREAD
-            tone = _tone_present(res[probe[keep]], _tone_features(Qt, shifts, pz[:, keep]), a_all[probe[keep]])
-        else:
-            tone = False
-        rss = np.sum(res * res, axis=1)
-        if tone:
-            nbs = _neighbour_phasors(frames, kern, steps, o, o, s, ny, nx, ok)
+        pgrid = np.zeros((rows.size, cols.size), bool)
+        pgrid[::TONE_PROBE_STRIDE, ::TONE_PROBE_STRIDE] = True
+        sel = (pgrid.ravel() & good)[pgrid.ravel()]          # probe pixels among the coarse grid's
+        pnb = _neighbour_phasors(frames, kern, steps, rows[::TONE_PROBE_STRIDE], cols[::TONE_PROBE_STRIDE], ok)
+        pidx = pos[np.flatnonzero(pgrid.ravel() & good)]
+        probe = np.concatenate([i * n + pidx for i in range(f)])
+        pz = np.concatenate([z[:, sel] for z, _ in pnb], axis=1)
+        psp = np.concatenate([sp[sel] for _, sp in pnb])
+        pk = psp <= TONE_MAX_SPREAD
+        if _tone_present(res[probe[pk]], _tone_features(Qt, shifts, pz[:, pk]), a_all[probe[pk]]):
+            nbs = _neighbour_phasors(frames, kern, steps, rows, cols, ok)
             z = np.concatenate([zz[:, good] for zz, _ in nbs], axis=1)
-            sp = np.concatenate([spp[good] for _, spp in nbs])
-            keep = sp <= TONE_MAX_SPREAD     # the others' phase is not pinned: their tone residue stays
-            if np.count_nonzero(keep) >= MIN_BIN:
+            keep = np.concatenate([sp[good] for _, sp in nbs]) <= TONE_MAX_SPREAD
+            if np.count_nonzero(keep) >= MIN_BIN:            # one statistic per kept pixel and frequency
                 rss = _tone_free_rss(res[keep], _tone_features(Qt, shifts, z[:, keep]), a_all[keep])
-                a_all = a_all[keep]
-        a, dof = a_all, steps - 3               # one statistic per pixel and frequency
-    else:                # offsets of the F frequencies: one mean, noise g sigma^2 each
-        g = float(np.sum(kern.coef[0] ** 2))
-        rss = np.sum((offs - a) ** 2, axis=0) / g if a.size else a
-        dof = f - 1
+                a, dof = a_all[keep], steps - 3
     eps = np.finfo(work_dtype_for([fr.dtype for fr in frames])).eps
     bright = float(np.percentile(np.abs(a), 99)) if a.size else 0.0
     floor = 16 * eps * bright                       # arithmetic rounding of the fit itself
