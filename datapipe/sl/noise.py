@@ -278,11 +278,17 @@ def _neighbour_phasors(frames, kern, steps, rows, cols, ok):
     f = len(frames) // steps
     cs = kern.coef[1:]
     nb, inside = {}, np.ones(rows.size * cols.size, bool)
+    sliced = rows[0] >= 1 and cols[0] >= 1 and rows[-1] + 1 < h and cols[-1] + 1 < w and \
+        np.all(np.diff(rows) == rows[1] - rows[0]) and np.all(np.diff(cols) == cols[1] - cols[0])
     for k, (dy, dx) in {"u": (-1, 0), "d": (1, 0), "l": (0, -1), "r": (0, 1)}.items():
-        r, c = rows + dy, cols + dx
-        inside &= ((r >= 0) & (r < h))[:, None].repeat(cols.size, 1).ravel() & \
-            np.tile((c >= 0) & (c < w), rows.size)
-        ix = np.ix_(np.clip(r, 0, h - 1), np.clip(c, 0, w - 1))
+        if sliced:                       # every neighbour inside: strided views, no index arrays
+            ix = (slice(rows[0] + dy, rows[-1] + dy + 1, rows[1] - rows[0]),
+                  slice(cols[0] + dx, cols[-1] + dx + 1, cols[1] - cols[0]))
+        else:
+            r, c = rows + dy, cols + dx
+            inside &= ((r >= 0) & (r < h))[:, None].repeat(cols.size, 1).ravel() & \
+                np.tile((c >= 0) & (c < w), rows.size)
+            ix = np.ix_(np.clip(r, 0, h - 1), np.clip(c, 0, w - 1))
         nb[k] = np.stack([np.asarray(fr[ix], np.float64).reshape(-1) for fr in frames])
     usable = inside & ok(np.concatenate(list(nb.values())))
     out = []
@@ -354,10 +360,13 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
         a_all = np.tile(a, f)
         n = a.size
         pos = np.cumsum(good) - 1                            # grid pixel -> its column among the good ones
+        pr = np.arange(1, rows.size, TONE_PROBE_STRIDE)    # from the 2nd row / column: all neighbours inside
+        pc = np.arange(1, cols.size, TONE_PROBE_STRIDE)
+        pr, pc = pr[rows[pr] + 1 < h], pc[cols[pc] + 1 < w]
         pgrid = np.zeros((rows.size, cols.size), bool)
-        pgrid[::TONE_PROBE_STRIDE, ::TONE_PROBE_STRIDE] = True
+        pgrid[np.ix_(pr, pc)] = True
         sel = (pgrid.ravel() & good)[pgrid.ravel()]          # probe pixels among the coarse grid's
-        pnb = _neighbour_phasors(frames, kern, steps, rows[::TONE_PROBE_STRIDE], cols[::TONE_PROBE_STRIDE], ok)
+        pnb = _neighbour_phasors(frames, kern, steps, rows[pr], cols[pc], ok)
         pidx = pos[np.flatnonzero(pgrid.ravel() & good)]
         probe = np.concatenate([i * n + pidx for i in range(f)])
         pz = np.concatenate([z[:, sel] for z, _ in pnb], axis=1)
