@@ -12,6 +12,7 @@ from .metrics import (depth_error_stats, effective_period, pixel_depth_sigma, th
 from .noise import estimate_noise_sigma
 from .patterns import fringe_patterns, phase_shifts
 from .phase import PhaseResult, phase_shift
+from .response import Response, fit_response
 from .scanner import Scan, Scanner
 from .sensor import PRESETS, SensorModel
 from .triangulate import (Triangulator, TriangulationResult, intrinsics_from_blender, intrinsics_from_blender_camera,
@@ -26,6 +27,7 @@ __all__ = [
     "projection_matrix",
     "SensorModel", "PRESETS",
     "decode", "DecodeResult", "Reason", "VALID_REASONS", "NEIGHBOUR_RISK", "estimate_noise_sigma",
+    "Response", "fit_response",
     "modulation_floor_factor",
     "depth_error_stats", "theoretical_phase_sigma", "theoretical_depth_sigma", "effective_period",
     "pixel_depth_sigma", "edge_speckle_filter", "multipath_filter", "reflection_filter",

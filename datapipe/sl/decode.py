@@ -70,12 +70,13 @@ def _assemble(st: DecodeSetup, out: DecodeMaps) -> DecodeResult:
     valid = reason == 0
     filled = np.logical_and(out.filled, valid, out=out.filled)
     reason[filled] = Reason.NEIGHBOUR_ORDER
-    inv = ~valid
-    nan = np.float32(np.nan)
+    # NaN fill by adding 0 (valid) or NaN (not): three plain passes instead of three masked copies
+    with np.errstate(invalid="ignore"):
+        nan_or_0 = np.divide(np.float32(0), valid, dtype=np.float32)
     for a in (out.depth, out.proj_x, out.phase):
-        np.copyto(a, nan, where=inv)
+        a += nan_or_0
     conf = np.subtract(np.float32(1), out.p_wrong, out=out.p_wrong)   # in place: p_wrong is not returned
-    np.nan_to_num(conf, copy=False, nan=0.0)
+    np.fmax(conf, np.float32(0), out=conf)                             # NaN (no order) -> 0; conf >= 0
     if filled.any():
         conf[filled] = np.maximum(conf[filled] - np.float32(NEIGHBOUR_RISK), 0)
     plan = st.plan
@@ -84,7 +85,8 @@ def _assemble(st: DecodeSetup, out: DecodeMaps) -> DecodeResult:
                         order_error=out.order_error, confidence=conf, periods=plan.periods, steps=st.steps,
                         method=plan.method, noise_sigma=st.sigma_scalar, modulation_floor=st.floor_scalar,
                         extras={"order_floor": st.order_floor, "noise_gain": plan.noise_gain(),
-                                "max_wrong": st.max_wrong, "noise_model": st.noise_model},
+                                "max_wrong": st.max_wrong, "noise_model": st.noise_model,
+                                **({"response": st.response} if st.response else {})},
                         triangulator=st.tri)
 
 
@@ -95,11 +97,14 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
            order_sigmas: float | None = None, max_depth_slope: float | None = None, shifts=None,
            axis: str = "x", check_other_axis: bool = True, triangulator: Triangulator | None = None,
            slab_pixels: int = 1 << 16, max_wrong: float = 1e-3, spatial: bool = True,
-           projector_gamma: float = 1.0) -> DecodeResult:
+           projector_gamma: float = 1.0, response=None) -> DecodeResult:
     """Decode phase-shifted fringe images into depth (see the module doc).
 
     images: ``(F*N, H, W)`` frequency-major, ``(F, N, H, W)``, or a list of F*N ``(H, W)``
         arrays; uint8/uint16/int/float16/32/64 (linear intensities, e.g. from ``sl.sensor``).
+        ValueError, before any work: another count than F*N, an image without a finite value
+        (single NaN / inf samples are per-pixel INVALID_INPUT), images of another size than P_cam
+        was made for (its principal point outside the central 90% of the images).
     periods: fringe frequencies K (periods across the projector), in stack order.
     steps: phase steps N per frequency (>= 3). shifts: optional N shifts (radians) instead of
         the uniform ``2*pi*n/N``.
@@ -123,10 +128,14 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
     triangulator: reuse a :class:`Triangulator` (default: a cached one per geometry).
     projector_gamma: the projector's response exponent (patterns ``a = b = 0.5`` emitted as
         ``p ** gamma``); != 1 corrects the phase ripple it causes (:mod:`datapipe.sl.gamma`).
+    response: the camera's tone curve undone before decoding (:mod:`datapipe.sl.response`): None
+        (the images are linear), ``'fit'`` (a power law fitted to the stack, N >= 4), a 1-D table
+        indexed by the raw integer value, or a callable ``linear = response(values)``.
     """
     st = prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
                         min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
-                        max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial, projector_gamma)
+                        max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial, projector_gamma,
+                        response)
     H, W = st.shape
     out = DecodeMaps.allocate(H, W, len(st.plan.periods))
     st.tri.coefficients  # compute (or reuse) the per-pixel coefficients before the loop

@@ -14,9 +14,14 @@ from .spatial import correct_orders
 __all__ = ["neighbour_pass"]
 
 
-def _any_supported(st: DecodeSetup, out: DecodeMaps, idx) -> bool:
+def _any_supported(st: DecodeSetup, out: DecodeMaps, idx, chunk: int = 4096) -> bool:
     """Has some candidate two confident 8-neighbours (the least any prediction pair needs)? Read at
-    the candidates' neighbours only, so scattered noise pixels in a shadow cost no full-image pass."""
+    the candidates' neighbours only, so scattered noise pixels in a shadow cost no full-image pass;
+    in chunks, so that a large uncertain region answers after its first few thousand pixels."""
+    return any(_chunk_supported(st, out, idx[i:i + chunk]) for i in range(0, idx.size, chunk))
+
+
+def _chunk_supported(st: DecodeSetup, out: DecodeMaps, idx) -> bool:
     H, W = st.shape
     r, c = np.divmod(idx, W)
     n = np.zeros(idx.size, np.int8)
@@ -69,7 +74,9 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
     out.filled.ravel()[ia] = True
     out.phase.ravel()[ia] = xa * (2 * np.pi * max(st.plan.periods) / st.wcoded)
     H, W = st.shape
-    rows = np.unique(ia // W)
+    hit_rows = np.zeros(H, bool)
+    hit_rows[ia // W] = True
+    rows = np.flatnonzero(hit_rows)
     # re-triangulate the touched rows (contiguous runs), keep the result only for corrected pixels
     hit = np.zeros((H, W), bool)
     hit.ravel()[ia] = True

@@ -15,6 +15,7 @@ from .gamma import gamma_phase_lut
 from .noise import fit_noise_model, variance_function
 from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
+from .response import linearise
 from .triangulate import Triangulator
 from .unwrap import plan_unwrap
 
@@ -74,7 +75,36 @@ def _frames(images, n_expected: int, periods, steps):
             raise bad_value("images", f"mixes image shapes {shape} and {f.shape}", "pass equally sized images")
     if min(shape) < 1:
         raise bad_value("images", f"has empty images of shape {shape}", "pass non-empty images")
+    _check_some_finite(frames, periods, steps)
     return frames
+
+
+FINITE_STRIDE = 16    # the non-finite check reads every 16th row and column (1/256 of the samples)
+
+
+def _check_some_finite(frames, periods, steps):
+    """A float image without one finite sample on a sparse grid is a broken capture (a failed
+    conversion, an unlit EXR layer read as NaN), not a scene: name it instead of returning a map of
+    INVALID_INPUT. Single NaN / inf samples stay a per-pixel INVALID_INPUT (a dead pixel)."""
+    for i, f in enumerate(frames):
+        if f.dtype.kind == "f" and not np.isfinite(f[::FINITE_STRIDE, ::FINITE_STRIDE]).any():
+            raise bad_value("images", f"image {i} (period {periods[i // steps]:g}, step {i % steps}) has only "
+                            "NaN or inf values", "pass finite intensities (check the conversion or the file "
+                            "this image was read from)")
+
+
+def _check_image_size(tri: Triangulator, W: int, H: int):
+    """The camera matrix must be the images' own: its principal point (K's cx, cy) lies in the
+    central 90% of the image for any real lens (a Blender lens shift of 0.45 of the sensor is the
+    most it moves). Images resized or cropped after calibration (half size: cx at the right edge)
+    or a P_cam of another camera would otherwise triangulate every pixel along a wrong ray."""
+    cx, cy = float(tri.K_cam[0, 2]), float(tri.K_cam[1, 2])
+    fx, fy = cx / W, cy / H
+    if not (0.05 <= fx <= 0.95 and 0.05 <= fy <= 0.95):
+        raise bad_value("P_cam", f"has its principal point at ({cx:.1f}, {cy:.1f}) px, {100 * fx:.0f}% / "
+                        f"{100 * fy:.0f}% across the {W}x{H} images: it was made for images of another size",
+                        "pass the camera matrix of the images' resolution (scale K's first two rows by the "
+                        "resize factor, shift cx, cy by a crop) or the images P_cam was calibrated for")
 
 
 def _check_positive(name, v, allow_none=True, upper=None, strict=True):
@@ -122,6 +152,7 @@ class DecodeSetup:
     order_factor: float = 0.0
     order_floor: float | None = None
     noise_model: dict = field(default_factory=dict)
+    response: dict | None = None          # the tone curve undone before decoding (.response), None: none
 
     @property
     def shape(self):
@@ -184,7 +215,7 @@ def _noise_setup(st: DecodeSetup, noise_sigma, min_modulation, order_sigmas, shi
 def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
                    min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
                    max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial,
-                   projector_gamma) -> DecodeSetup:
+                   projector_gamma, response=None) -> DecodeSetup:
     """Check :func:`datapipe.sl.decode.decode`'s arguments (an error names the field, before any work)
     and decide everything its steps need."""
     steps = _check_steps(steps)
@@ -208,6 +239,7 @@ def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noi
             raise bad_value("saturation", "is NaN", "pass the saturation level in image units or None")
         if np.isinf(sat):
             sat = None
+    frames, sat, response_info = linearise(frames, response, steps, shifts, sat)
     gamma = _check_positive("projector_gamma", projector_gamma, allow_none=False, upper=10.0)
     false_valid_rate = _check_positive("false_valid_rate", false_valid_rate, upper=0.5)
     F = len(plan.periods)
@@ -224,7 +256,13 @@ def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noi
                      spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
                      factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
                      row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
+    st.response = response_info
     st.consistency_limits = consistency_limits(F, plan.lattice.d_min if plan.lattice is not None else 1.0)
-    _noise_setup(st, noise_sigma, _check_positive("min_modulation", min_modulation, strict=False),
-                 _check_positive("order_sigmas", order_sigmas, strict=False), shifts)
+    min_modulation = _check_positive("min_modulation", min_modulation, strict=False)
+    order_sigmas = _check_positive("order_sigmas", order_sigmas, strict=False)
+    if noise_sigma is not None:                      # the given noise's checks before the geometry's
+        _noise_setup(st, noise_sigma, min_modulation, order_sigmas, shifts)
+    _check_image_size(tri, W, H)
+    if noise_sigma is None:                          # the fit: the first work on the pixels
+        _noise_setup(st, noise_sigma, min_modulation, order_sigmas, shifts)
     return st

@@ -7,15 +7,27 @@ grows linearly with the signal (the photon transfer curve of EMVA 1288):
 
     sigma^2(A) = read_var + A / gain           (DN^2, A = the pixel's mean intensity)
 
-:func:`fit_noise_model` measures that curve on the fringe stack itself. Per pixel of a subsample
-it pools two statistics whose expectation is sigma^2 times a chi-square variable:
+:func:`fit_noise_model` measures that curve on the fringe stack itself, on a subsample of pixels,
+with statistics whose expectation is sigma^2 times a chi-square variable:
 
-* the least-squares residual of every frequency's N-step fit: ``chi2(F (N - 3))`` (none for N = 3);
-* the spread of the F offsets ``A_i`` (every frequency measures the same mean, the pattern's
-  offset times the albedo): ``sum (A_i - mean A)^2 / g`` is ``chi2(F - 1)``, ``g`` the variance
-  of one offset per unit noise (``1/N`` for uniform shifts). This is what N = 3 sets have.
+* a linear camera: per pixel, the least-squares residual of every frequency's N-step fit
+  (``chi2(F (N - 3))``) plus the spread of the F offsets ``A_i`` (every frequency measures the same
+  mean): ``sum (A_i - mean A)^2 / g`` is ``chi2(F - 1)``, ``g`` the variance of one offset per unit
+  noise (``1/N`` for uniform shifts). This is all N = 3 sets have.
+* a camera with a tone curve (N >= 4): an image processor's sRGB-like curve (2nd harmonics of
+  11-17% of the fringe, 3rd 2-5%, 4th 0.5-2%) or a projector's gamma is a fixed function of the
+  intensity, so its harmonics alias into each pixel's residual (and offsets) as a smooth function
+  of its offset A, modulation B and phase -- not noise. The statistic above counted them and
+  overstated the noise 7-13x on such images (issue #31). A probe on a coarse grid tests, per
+  A-bin, a least-squares fit of the residuals on ``B^p cos(k (phi + d_n))``, ``B^p sin(...)``
+  (k = 2..4, p = 1, 2, projected on the residual space) against none; where it explains them (an
+  F-test, and 5% of their variance in all) the same regression runs on every pixel and frequency,
+  and the residual it leaves, ``chi2(N - 3)``, is the statistic (no offsets). The phase and
+  modulation in those features come from the pixel's 4-neighbours (the pair along the fringe),
+  not from its own samples: with shot noise the residual correlates with the pixel's own noise,
+  and a regression on its own phase removed a quarter of the true noise.
 
-The pixels are sorted into bins equally spaced in sqrt(A); each bin's mean statistic without its
+The samples are sorted into bins equally spaced in sqrt(A); each bin's mean statistic without its
 top 2% (the pixels at depth edges, whose residuals also carry model error), over the same trimmed
 mean of the chi-square law, estimates sigma^2 at the bin's A. Between the bins sigma^2 is
 interpolated linearly, so the curve follows the data where the sensor is not linear (a sensor
@@ -131,29 +143,204 @@ def variance_function(noise_sigma, a_scale: float, factor: float):
     return generic
 
 
+TONE_HARMONICS = range(2, 5)   # the 2nd-4th harmonics of a tone curve (those above are < 1% of the fringe)
+TONE_POWERS = (1, 2)           # their amplitude within an A-bin: linear + quadratic in B (c_k ~ B^k for small B)
+TONE_BINS = 48                 # A-bins of that regression (equally spaced in sqrt(A))
+TONE_PROBE_BINS = 12           # A-bins of the probe for a tone curve
+TONE_PROBE_STRIDE = 4          # ... on every 4th row and column of the subsample
+TONE_MIN_OBS = 10              # residual coordinates per regression parameter a bin needs at least
+TONE_FIT_SAMPLES = 4096        # samples per bin the regression is fitted on (evaluated on all)
+TONE_MAX_SPREAD = 0.3          # neighbour pairs further apart than this (~0.3 rad): phase too uncertain for the features
+TONE_P = 1e-3                  # F-test level of the probe for a tone curve (a linear camera: 1 in 1000 bins flags)
+TONE_MIN_SHARE = 0.05          # ... and the share of the probe's residual variance the curve must explain
+
+
+def _residual_basis(kern) -> np.ndarray:
+    """(N, N-3) orthonormal basis of the N-step fit's residual space (orthogonal to 1, cos, sin)."""
+    q, _ = np.linalg.qr(kern.design, mode="complete")
+    return q[:, 3:]
+
+
+def _tone_features(Qt, shifts, z) -> np.ndarray:
+    """(m, n, N-3) features of a tone curve in the residual coordinates of n samples: for every
+    harmonic k of TONE_HARMONICS whose aliases reach the residual space and every power p of
+    TONE_POWERS, ``B^p cos(k (phi + d_n))`` and ``B^p sin(k (phi + d_n))`` projected on it
+    (``cos(k (phi + d)) = cos(k phi) cos(k d) - sin(k phi) sin(k d)``: two fixed vectors per k;
+    ``cos(k phi) + i sin(k phi) = (z / |z|)^k`` with ``z = C + i S``)."""
+    C, S = z[0], z[1]                         # the phasor (C, S) of each sample (2, n)
+    B = np.hypot(C, S)
+    inv = 1.0 / np.where(B > 0, B, 1.0)
+    c1, s1 = C * inv, S * inv                 # cos(phi), sin(phi)
+    bmax = max(float(np.percentile(B, 99)), 1e-12)
+    pw = [(B * (1.0 / bmax)) ** p for p in TONE_POWERS]
+    feats = []
+    ck_, sk_ = c1, s1
+    for k in range(2, max(TONE_HARMONICS) + 1):
+        ck_, sk_ = ck_ * c1 - sk_ * s1, sk_ * c1 + ck_ * s1     # cos(k phi), sin(k phi) by angle addition
+        if k not in TONE_HARMONICS:
+            continue
+        ck, sk = Qt @ np.cos(k * shifts), Qt @ np.sin(k * shifts)
+        if max(np.abs(ck).max(), np.abs(sk).max()) < 1e-9:
+            continue                 # aliases onto the offset or the fundamental: not in the residual
+        for w in pw:
+            wc, ws = w * ck_, w * sk_
+            feats.append(np.multiply.outer(wc, ck) - np.multiply.outer(ws, sk))
+            feats.append(np.multiply.outer(ws, ck) + np.multiply.outer(wc, sk))
+    return np.stack(feats)
+
+
+def _bin_order(a, bins=None):
+    """Samples sorted by ``bins`` (TONE_BINS) bins equally spaced in sqrt(A): (order, bounds)."""
+    bins = bins or TONE_BINS
+    r = np.sqrt(np.maximum(a, 0.0))
+    top = float(np.percentile(r, 99.9)) if r.size else 0.0
+    edges = np.linspace(0.0, top if top > 0 else 1.0, bins + 1)
+    which = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, bins - 1).astype(np.int16)
+    order = np.argsort(which, kind="stable")          # int16: a radix sort
+    return order, np.searchsorted(which[order], np.arange(bins + 1))
+
+
+def _fit_bin(X, y, d, refit=True):
+    """Least squares y ~ coef @ X (X: (m, n d)) by the normal equations, refitted once without the
+    2% largest per-sample squared residuals; returns (coef, rss of the first fit, of no fit)."""
+    m = X.shape[0]
+    w = np.ones(y.size)
+    rss = []
+    for _ in range(2 if refit else 1):
+        Xw = X * w
+        G = np.einsum("ik,jk->ij", Xw, X)
+        G[np.diag_indices(m)] += 1e-12 * max(float(np.trace(G)), 1e-300)
+        coef = np.linalg.solve(G, np.einsum("ik,k->i", Xw, y))
+        e = (y - np.einsum("i,ik->k", coef, X)).reshape(-1, d)
+        st = np.sum(e * e, axis=1)
+        rss.append(float(np.sum(st)))
+        if not refit:
+            break
+        k = int(np.ceil((1.0 - TRIM) * st.size)) - 1
+        w = np.repeat(st <= np.partition(st, k)[k], d).astype(np.float64)
+    return coef, rss[0], float(np.sum(y * y))
+
+
+def _tone_present(res, feats, a) -> bool:
+    """Does a tone curve explain the residuals ``res`` (n, N-3) of this probe? Per A-bin the tone
+    regression against none, an F-test at TONE_P in some bin, and over all tested bins at least
+    TONE_MIN_SHARE of the residual variance explained: a curve that bends only a few clipped
+    shadow pixels is not worth the full fit (their noise stays overestimated, as without it)."""
+    n, d = res.shape
+    m = feats.shape[0]
+    order, bounds = _bin_order(a, TONE_PROBE_BINS)
+    significant, explained, total = False, 0.0, 0.0
+    for b0, b1 in zip(bounds[:-1], bounds[1:]):
+        nobs = (b1 - b0) * d
+        if nobs < TONE_MIN_OBS * m:
+            continue
+        sel = order[b0:b1]
+        _, rss1, rss0 = _fit_bin(feats[:, sel].reshape(m, -1), res[sel].reshape(-1), d, refit=False)
+        significant |= (rss0 - rss1) / m > scipy.stats.f.isf(TONE_P, m, nobs - m) * rss1 / (nobs - m)
+        explained += rss0 - rss1
+        total += rss0
+    return bool(significant and explained >= TONE_MIN_SHARE * total)
+
+
+def _tone_free_rss(res, feats, a):
+    """Residual coordinates ``res`` (n, N-3) less what a tone curve explains: per A-bin, least
+    squares of the residuals on the tone features ``feats`` (m, n, N-3) (:func:`_tone_features`;
+    fitted on at most TONE_FIT_SAMPLES evenly spread samples, refitted once without their 2%
+    largest: depth edges). Returns the per-sample squared residual, scaled by
+    ``n_obs / (n_obs - m)`` so that it stays unbiased for noise alone (the fit absorbs m of the
+    n_obs degrees of freedom)."""
+    n, d = res.shape
+    m = feats.shape[0]
+    out = np.sum(res * res, axis=1)
+    order, bounds = _bin_order(a)
+    feats, res = feats[:, order], res[order]          # each bin a contiguous slice from here on
+    for b0, b1 in zip(bounds[:-1], bounds[1:]):
+        nb = b1 - b0
+        if nb * d < TONE_MIN_OBS * m:
+            continue
+        step = max(1, nb // TONE_FIT_SAMPLES)
+        coef, _, _ = _fit_bin(feats[:, b0:b1:step].reshape(m, -1), res[b0:b1:step].reshape(-1), d)
+        e = res[b0:b1] - np.einsum("i,ik->k", coef, feats[:, b0:b1].reshape(m, -1)).reshape(-1, d)
+        out[order[b0:b1]] = np.sum(e * e, axis=1) * (nb * d / max(nb * d - m, 1))
+    return out
+
+
+def _neighbour_phasors(frames, kern, steps, rows, cols, ok):
+    """Per frequency, the phasor ``(C, S)`` (2, n) of each pixel of the grid ``rows x cols`` from its
+    4-neighbours, not from itself: the mean of the up/down or the left/right pair, whichever pair
+    agrees better (along the fringe the phase hardly changes; across it the pair's mean still has
+    the centre's phase to first order), and that pair's disagreement over its mean (~ the phase
+    step between them; inf where a neighbour is outside the image or not usable, ``ok``). Taken
+    from the pixel's own samples the tone features would share its noise, and with signal-dependent
+    (shot) noise the residual correlates with that noise: the regression then removed 25% of a
+    shot-noise-limited stack's noise variance."""
+    h, w = frames[0].shape
+    f = len(frames) // steps
+    cs = kern.coef[1:]
+    nb, inside = {}, np.ones(rows.size * cols.size, bool)
+    sliced = rows[0] >= 1 and cols[0] >= 1 and rows[-1] + 1 < h and cols[-1] + 1 < w and \
+        np.all(np.diff(rows) == rows[1] - rows[0]) and np.all(np.diff(cols) == cols[1] - cols[0])
+    for k, (dy, dx) in {"u": (-1, 0), "d": (1, 0), "l": (0, -1), "r": (0, 1)}.items():
+        if sliced:                       # every neighbour inside: strided views, no index arrays
+            ix = (slice(rows[0] + dy, rows[-1] + dy + 1, rows[1] - rows[0]),
+                  slice(cols[0] + dx, cols[-1] + dx + 1, cols[1] - cols[0]))
+        else:
+            r, c = rows + dy, cols + dx
+            inside &= ((r >= 0) & (r < h))[:, None].repeat(cols.size, 1).ravel() & \
+                np.tile((c >= 0) & (c < w), rows.size)
+            ix = np.ix_(np.clip(r, 0, h - 1), np.clip(c, 0, w - 1))
+        nb[k] = np.stack([np.asarray(fr[ix], np.float64).reshape(-1) for fr in frames])
+    usable = inside & ok(np.concatenate(list(nb.values())))
+    out = []
+    for i in range(f):
+        z = {k: cs @ v[i * steps:(i + 1) * steps] for k, v in nb.items()}
+        dv = np.hypot(*(z["u"] - z["d"]))
+        dh = np.hypot(*(z["l"] - z["r"]))
+        zz = np.where(dv <= dh, z["u"] + z["d"], z["l"] + z["r"]) * 0.5
+        spread = np.minimum(dv, dh) / np.maximum(np.hypot(*zz), 1e-300)
+        out.append((zz, np.where(usable, spread, np.inf)))
+    return out
+
+
 def _statistics(frames, steps, shifts, saturation, max_pixels):
-    """Per pixel of a subsample: offset A, pooled chi-square statistic / sigma^2 sum, and its dof;
-    plus the bright offset and the images' floor."""
+    """Per sample: offset A, chi-square statistic / sigma^2 and its dof; plus the images' floor.
+
+    Without a tone curve (a linear camera) the statistic is what it was before issue #31, per pixel
+    of the subsample: the N-step residuals of all frequencies plus the spread of their offsets
+    (``chi2(F (N - 3) + F - 1)``). With N >= 4 a probe on every 4th row and column of the subsample
+    tests for a tone curve (:func:`_tone_present`): it is a fixed function of the intensity, so its
+    harmonics alias into each frequency's residual as a smooth function of (A, B, phase) -- not
+    noise -- and into the offsets too. Where the probe finds one, the statistic is per pixel and
+    frequency instead: the residual with the tone curve's part regressed out
+    (:func:`_tone_free_rss`, features from the neighbours' phasors, :func:`_neighbour_phasors`),
+    ``chi2(N - 3)``, leaving out the samples whose neighbours do not pin their phase and the
+    offsets. With N = 3 nothing is left of the residual: a tone curve's 3rd harmonic aliases onto
+    the offsets; pass ``noise_sigma``, or linearise the images with ``response``, for such a camera."""
     steps = int(steps)
     f = len(frames) // steps
     h, w = frames[0].shape
     s = max(1, int(np.ceil(np.sqrt(h * w / max_pixels))))
     sub = [np.asarray(fr[::s, ::s], dtype=np.float64).ravel() for fr in frames]
+    rows, cols = np.arange(0, h, s), np.arange(0, w, s)
     if shifts is None:
         shifts = phase_shifts(steps)
+    shifts = np.asarray(shifts, np.float64)
     kern = PhaseKernel(shifts)
     is_int = np.dtype(frames[0].dtype).kind in "iu"
     sat = saturation
     if sat is None and is_int:
         sat = float(np.iinfo(frames[0].dtype).max)
-    good = np.ones(sub[0].size, bool)
-    for x in sub:
-        good &= np.isfinite(x)
+
+    def ok(samples):
+        g = np.isfinite(samples).all(0)
         if sat is not None and np.isfinite(sat):
-            good &= x < sat
+            g &= (samples < sat).all(0)
+        return g
+
+    good = ok(np.stack(sub))
     offs = []
     rss = np.zeros(sub[0].size)
-    for i in range(f):
+    for i in range(f):            # the former statistic, kept as it was where no tone curve is found
         y = np.stack(sub[i * steps:(i + 1) * steps])
         y = np.where(np.isfinite(y), y, 0.0)
         acs = kern.coef @ y
@@ -161,23 +348,55 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
         offs.append(acs[0])
     offs = np.stack(offs)
     a = offs.mean(0)
+    dof = f * (steps - 3) + f - 1
     if f > 1:            # offsets of the F frequencies: one mean, noise g sigma^2 each
         g = float(np.sum(kern.coef[0] ** 2))
         rss += np.sum((offs - a) ** 2, axis=0) / g
+    a, rss = a[good], rss[good]
+    if steps > 3 and a.size and min(rows.size, cols.size) >= 3:
+        Qt = _residual_basis(kern).T                         # (N-3, N): orthogonal to the design
+        res = np.concatenate([np.einsum("jn,nk->kj", Qt, np.stack(sub[i * steps:(i + 1) * steps])[:, good])
+                              for i in range(f)])              # einsum: no BLAS threads for a (N-3) x N product
+        a_all = np.tile(a, f)
+        n = a.size
+        pos = np.cumsum(good) - 1                            # grid pixel -> its column among the good ones
+        pr = np.arange(1, rows.size, TONE_PROBE_STRIDE)    # from the 2nd row / column: all neighbours inside
+        pc = np.arange(1, cols.size, TONE_PROBE_STRIDE)
+        pr, pc = pr[rows[pr] + 1 < h], pc[cols[pc] + 1 < w]
+        pgrid = np.zeros((rows.size, cols.size), bool)
+        pgrid[np.ix_(pr, pc)] = True
+        sel = (pgrid.ravel() & good)[pgrid.ravel()]          # probe pixels among the coarse grid's
+        pnb = _neighbour_phasors(frames, kern, steps, rows[pr], cols[pc], ok)
+        pidx = pos[np.flatnonzero(pgrid.ravel() & good)]
+        probe = np.concatenate([i * n + pidx for i in range(f)])
+        pz = np.concatenate([z[:, sel] for z, _ in pnb], axis=1)
+        psp = np.concatenate([sp[sel] for _, sp in pnb])
+        pk = psp <= TONE_MAX_SPREAD
+        if _tone_present(res[probe[pk]], _tone_features(Qt, shifts, pz[:, pk]), a_all[probe[pk]]):
+            nbs = _neighbour_phasors(frames, kern, steps, rows, cols, ok)
+            z = np.concatenate([zz[:, good] for zz, _ in nbs], axis=1)
+            keep = np.concatenate([sp[good] for _, sp in nbs]) <= TONE_MAX_SPREAD
+            if np.count_nonzero(keep) >= MIN_BIN:            # one statistic per kept pixel and frequency
+                rss = _tone_free_rss(res[keep], _tone_features(Qt, shifts, z[:, keep]), a_all[keep])
+                a, dof = a_all[keep], steps - 3
     eps = np.finfo(work_dtype_for([fr.dtype for fr in frames])).eps
-    bright = float(np.percentile(np.abs(a[good]), 99)) if good.any() else 0.0
+    bright = float(np.percentile(np.abs(a), 99)) if a.size else 0.0
     floor = 16 * eps * bright                       # arithmetic rounding of the fit itself
     if is_int:
         floor = max(floor, 1.0 / np.sqrt(12.0))
-    elif f * (steps - 3) + f - 1 == 0:
+    elif dof == 0:
         floor = max(floor, 1e-3 * bright)
-    return a[good], rss[good], f * (steps - 3) + f - 1, max(floor, 1e-12)
+    return a, rss, dof, max(floor, 1e-12)
 
 
 def fit_noise_model(frames: Sequence[np.ndarray], steps: int, *, shifts=None, saturation=None,
                     max_pixels: int = 1 << 15) -> NoiseModel:
     """sigma^2(A) from the stack itself (module doc); frames frequency-major."""
-    a, stat, dof, floor = _statistics(frames, steps, shifts, saturation, max_pixels)
+    return _fit(*_statistics(frames, steps, shifts, saturation, max_pixels))
+
+
+def _fit(a, stat, dof, floor) -> NoiseModel:
+    """:func:`fit_noise_model` from the statistics of :func:`_statistics`."""
     if dof == 0 or a.size == 0:
         return NoiseModel(floor * floor, 0.0, kind="floor", pixels=int(a.size), dof=dof)
     # per bin: the mean of the statistic without its top TRIM (pixels at depth edges, whose residual
@@ -219,11 +438,10 @@ def fit_noise_model(frames: Sequence[np.ndarray], steps: int, *, shifts=None, sa
 
 def estimate_noise_sigma(frames: Sequence[np.ndarray], steps: int, *, shifts=None, saturation=None,
                          max_pixels: int = 1 << 16) -> float:
-    """One global noise sigma (image units): the median over the subsample of the pooled statistic
-    of :func:`fit_noise_model`. Between the shadows' and the bright pixels' noise in shot-noise
-    limited images; the decoder uses the per-pixel :func:`fit_noise_model` instead."""
+    """One global noise sigma (image units): :func:`fit_noise_model`'s sigma at the median offset A
+    of the subsample. Between the shadows' and the bright pixels' noise in shot-noise limited
+    images; the decoder uses the per-pixel :func:`fit_noise_model` instead."""
     a, stat, dof, floor = _statistics(frames, steps, shifts, saturation, max_pixels)
     if dof == 0 or a.size == 0:
         return float(floor)
-    med = float(np.median(stat / dof))
-    return float(max(np.sqrt(med / (scipy.stats.chi2.median(dof) / dof)), floor))
+    return float(max(np.sqrt(_fit(a, stat, dof, floor).variance(np.median(a))), floor))

@@ -116,6 +116,47 @@ class _Row:
                 np.add(out, tmp, out=out)
         return out
 
+    def direct(self, frames, out, tmp):
+        """The same row from the raw integer / float32 frames into float32 ``out`` with OpenCV's
+        converting add / subtract / addWeighted (``dtype=CV_32F``): each pass reads the uint8 or
+        uint16 samples once, no float copy of the frames. Sums of +-1 weights are exact integer
+        sums (as the numpy path's); other weights round once per pair in float32."""
+        plan = self.plan
+        f32 = _cv2.CV_32F
+        i = 0
+        dst = out
+        while i < len(plan):
+            if i + 1 < len(plan):
+                (n0, w0), (n1, w1) = plan[i], plan[i + 1]
+                a, b = frames[n0], frames[n1]
+                if w0 == 1.0 and w1 == 1.0:
+                    _cv2.add(a, b, dst=dst, dtype=f32)
+                elif w0 == 1.0 and w1 == -1.0:
+                    _cv2.subtract(a, b, dst=dst, dtype=f32)
+                else:
+                    _cv2.addWeighted(a, w0, b, w1, 0.0, dst=dst, dtype=f32)
+                i += 2
+            else:
+                n0, w0 = plan[i]
+                np.multiply(frames[n0], np.float32(w0), out=dst)
+                i += 1
+            if dst is tmp:
+                _cv2.add(out, tmp, dst=out)
+            dst = tmp
+        return out
+
+
+_DIRECT_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.int16), np.dtype(np.float32))
+
+
+def _direct_ok(frames, work) -> bool:
+    """Rows straight from the raw frames (OpenCV, :meth:`_Row.direct`): float32 work, 2-D C-contiguous
+    frames of one dtype OpenCV converts (uint8, uint16, int16, float32)."""
+    if _cv2 is None or work != np.float32:
+        return False
+    dt = frames[0].dtype
+    return dt in _DIRECT_DTYPES and all(f.dtype == dt and f.ndim == 2 and f.flags.c_contiguous for f in frames)
+
 
 class PhaseKernel:
     """Precomputed least-squares weights for one set of shifts; computes slabs of frames.
@@ -145,15 +186,18 @@ class PhaseKernel:
         """
         work = np.dtype(work_dtype)
         wt = work.type
-        fr = [f if f.dtype == work else f.astype(work) for f in frames]
-        shape = fr[0].shape
+        shape = frames[0].shape
         a = np.empty(shape, work)
         c = np.empty(shape, work)
         s = np.empty(shape, work)
         tmp = np.empty(shape, work)
-        self.row_a(fr, a, tmp)
-        self.row_c(fr, c, tmp)
-        self.row_s(fr, s, tmp)
+        if _direct_ok(frames, work):          # read the integer samples once, no float copy of them
+            for row, dst in ((self.row_a, a), (self.row_c, c), (self.row_s, s)):
+                row.direct(frames, dst, tmp)
+        else:
+            fr = [f if f.dtype == work else f.astype(work) for f in frames]
+            for row, dst in ((self.row_a, a), (self.row_c, c), (self.row_s, s)):
+                row(fr, dst, tmp)
         if out_mod is None or out_mod.dtype != work:
             b = _magnitude(c, s, tmp)
         else:

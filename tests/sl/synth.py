@@ -352,3 +352,35 @@ def fringes(render, periods, steps, proj_length, *, a=0.5, b=0.5, ambient=0.0, d
         for n in range(steps):
             out[i * steps + n] = alb * (np.where(lit, a + b * np.cos(base + shifts[n]), 0.0) + ambient * hit)
     return out
+
+
+# ------------------------------------------------------------------ real cameras' tone curves
+def srgb_encode(lin):
+    """The sRGB transfer function (IEC 61966-2-1: 12.92 L up to L = 0.0031308, else
+    1.055 L^(1/2.4) - 0.055), the tone curve of a colour camera's image processor when nothing else
+    is known. On fringes a + b cos of albedo 0.1-0.8 over ambient 0.02-0.2 it makes 2nd harmonics
+    of 11-17% of the fundamental, 3rd 2-5%, 4th 0.5-2% (a 4096-sample FFT of the curve)."""
+    lin = np.clip(lin, 0.0, 1.0)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
+def tone_curve_stack(render, curve, *, full_scale=255.0, ambient=0.05, noise_dn=1.5, seed=0,
+                     noise_before_curve=False):
+    """uint8 camera images of a render through a tone curve: linear radiance ``albedo * pattern +
+    ambient * albedo`` (clipped to [0, 1]) -> ``curve`` -> ``full_scale`` DN, Gaussian noise of
+    ``noise_dn`` DN added after the curve (an image processor's output noise; with
+    ``noise_before_curve`` it is added to the linear signal, scaled to ``noise_dn`` DN at full
+    scale) and rounding. Returns (images, true noise sigma in DN of the output, incl. the 1/12 DN^2
+    of rounding; for noise before the curve: an (F*N, H, W) map of each sample's sigma)."""
+    rng = np.random.default_rng(seed)
+    lin = render.images + ambient * render.albedo * np.isfinite(render.depth)
+    if noise_before_curve:
+        lin_n = lin + rng.standard_normal(lin.shape) * (noise_dn / full_scale)
+        out = full_scale * curve(lin_n)
+        eps = 1e-4
+        slope = (curve(np.clip(lin + eps, 0, 1)) - curve(np.clip(lin - eps, 0, 1))) / (2 * eps)
+        true = np.sqrt((slope * noise_dn) ** 2 + 1 / 12)
+    else:
+        out = full_scale * curve(lin) + rng.standard_normal(lin.shape) * noise_dn
+        true = float(np.sqrt(noise_dn ** 2 + 1 / 12))
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8), true

@@ -1,0 +1,199 @@
+"""Decoder speed at 1080p (issue #31): today's decoder, the decoder before issue #31 and OpenCV, in one run.
+
+Run as a script (not a test):  .venv/bin/python benchmarks/bench_sl_speed.py [--repeat 7]
+
+Stack: issue #19's adversarial bin-like scene (tests/sl/synth.py `dark_step_scene`: tilted floor,
+boxes 0.13 / 0.25 m high, two spheres, projector shadows, a dark box top of albedo 0.04 beside the
+tall step), camera 1920x1080 at 1 m, projector 1280x800, baseline 5 cm; read 1 DN + shot noise
+(40 e-/DN), rounded to uint8; periods (1, 8, 64) x 4. The decoder before issue #31 is the package
+as of commit BEFORE, extracted with `git archive` into a temporary folder and imported under another
+name, so both run in this process on the same stack, in turns (round robin), CPU time
+(`time.process_time`, all threads) and wall time, median of `--repeat` runs. OpenCV:
+`structured_light.SinusoidalPattern` PSP on the 3 images of K = 64 plus its spatial
+`unwrapPhaseMap` (its design: 3 images, one period set, relative phase, no depth).
+
+Writes benchmarks/results/sl_speed.md and sl_speed.csv (with the hand-written sl_speed_notes.md).
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import importlib
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests" / "sl"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import synth  # noqa: E402
+from report_util import write_rows_csv, write_with_notes  # noqa: E402
+from datapipe import sl  # noqa: E402
+decode_mod = importlib.import_module("datapipe.sl.decode")   # the module (datapipe.sl.decode is also the function)
+from datapipe.sl.decode_neighbours import neighbour_pass  # noqa: E402
+from datapipe.sl.decode_setup import prepare_decode  # noqa: E402
+from datapipe.sl.decode_slab import DecodeMaps, decode_slab  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+BEFORE = "e769423"          # main when issue #31's decoder work began
+PERIODS, STEPS = (1, 8, 64), 4
+
+
+def frozen_decoder(commit: str, tmp: Path):
+    """`datapipe.sl` as of `commit`, importable beside today's (package renamed datapipe_before)."""
+    tar = subprocess.run(["git", "-C", str(ROOT), "archive", commit, "datapipe"], check=True,
+                         capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tmp)], input=tar, check=True)
+    (tmp / "datapipe").rename(tmp / "datapipe_before")
+    sys.path.insert(0, str(tmp))
+    return importlib.import_module("datapipe_before.sl")
+
+
+def stack_1080p():
+    cam, proj = synth.make_rig(cam_size=(1920, 1080), proj_size=(1280, 800), distance=1.0, baseline=0.05)
+    gt = synth.render(synth.dark_step_scene(), cam, proj, PERIODS, STEPS)
+    u8 = np.clip(np.rint(synth.sensor_stack(gt, seed=0)), 0, 255).astype(np.uint8)
+    return u8, gt, cam, proj
+
+
+def opencv_run(u8_3, proj_size, cam_size, K=64):
+    p = cv2.structured_light.SinusoidalPattern.Params()
+    p.width, p.height = proj_size
+    p.nbrOfPeriods = K
+    p.methodId = cv2.structured_light.PSP
+    pat = cv2.structured_light.SinusoidalPattern.create(p)
+    wrapped, mask = pat.computePhaseMap(list(u8_3))
+    return pat.unwrapPhaseMap(wrapped, cam_size, shadowMask=mask)
+
+
+def round_robin(fns: dict, repeat: int) -> dict:
+    """Median and best CPU / wall ms of each callable, run in turns after one warm-up each."""
+    for f in fns.values():
+        f()
+    t = {k: ([], []) for k in fns}
+    for _ in range(repeat):
+        for k, f in fns.items():
+            gc.collect()
+            c0, w0 = time.process_time(), time.perf_counter()
+            f()
+            t[k][0].append((time.process_time() - c0) * 1e3)
+            t[k][1].append((time.perf_counter() - w0) * 1e3)
+    return {k: dict(cpu_med=float(np.median(c)), cpu_best=min(c), wall_med=float(np.median(w)), wall_best=min(w))
+            for k, (c, w) in t.items()}
+
+
+def stages(images, kw, repeat):
+    """CPU ms of today's decode by stage (median): setup incl. the noise fit, the slab loop (phase,
+    noise, order decision, triangulation, reasons), the neighbour pass, the assembly."""
+    acc = {"setup + noise fit": [], "slabs": [], "neighbour pass": [], "assemble": []}
+    for _ in range(repeat + 1):
+        c = [time.process_time()]
+        st = prepare_decode(images, kw["periods"], kw["steps"], kw["P_cam"], kw["P_proj"], kw["proj_size"], "auto",
+                            None, None, None, 0.05, 1e-3, None, None, 1e-3, None, None, "x", True, None, True, 1.0)
+        c.append(time.process_time())
+        H, W = st.shape
+        out = DecodeMaps.allocate(H, W, len(st.plan.periods))
+        st.tri.coefficients
+        coefs = st.plan.stage_coefs()
+        rows = max(1, (1 << 16) // W)
+        with np.errstate(all="ignore"):
+            for r0 in range(0, H, rows):
+                decode_slab(st, out, r0, min(H, r0 + rows), coefs)
+            c.append(time.process_time())
+            neighbour_pass(st, out)
+        c.append(time.process_time())
+        decode_mod._assemble(st, out)
+        c.append(time.process_time())
+        for k, a, b in zip(acc, c[:-1], c[1:]):
+            acc[k].append((b - a) * 1e3)
+    return {k: float(np.median(v[1:])) for k, v in acc.items()}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeat", type=int, default=7)
+    args = ap.parse_args()
+    u8, gt, cam, proj = stack_1080p()
+    kw = dict(periods=PERIODS, steps=STEPS, P_cam=cam.P, P_proj=proj.P, proj_size=proj.size)
+    u8_3 = np.clip(np.rint(synth.sensor_stack(synth.render(synth.dark_step_scene(), cam, proj, (64,), 3),
+                                              seed=1)), 0, 255).astype(np.uint8)
+    with tempfile.TemporaryDirectory() as tmp:
+        before = frozen_decoder(BEFORE, Path(tmp))
+        fns = {"today": lambda: sl.decode(u8, **kw),
+               "today, no neighbour pass": lambda: sl.decode(u8, **kw, spatial=False),
+               f"before (git {BEFORE})": lambda: before.decode(u8, **kw),
+               f"before, no neighbour pass": lambda: before.decode(u8, **kw, spatial=False),
+               "OpenCV PSP + unwrapPhaseMap (3 images, K = 64)": lambda: opencv_run(u8_3, proj.size, cam.size)}
+        times = round_robin(fns, args.repeat)
+        half = proj.size[0] / max(PERIODS) / 2
+        quality = {}
+        for name, dec in (("today", sl.decode), (f"before (git {BEFORE})", before.decode)):
+            for spatial in (True, False):
+                r = dec(u8, **kw, spatial=spatial)
+                right = np.abs(r.proj_x - gt.proj_x) < half
+                quality[name if spatial else name.split(" (")[0] + ", no neighbour pass"] = (
+                    float(np.mean((r.valid & right)[gt.lit])), int(np.sum(r.valid & ~right)), int(r.valid.sum()))
+        # the same maps? with the noise given (only the speed work differs) and fitted from the stack
+        same = {}
+        for label, extra in (("noise given (noise_sigma=1.2)", dict(noise_sigma=1.2)), ("noise fitted", {})):
+            a = sl.decode(u8, **kw, **extra)
+            b = before.decode(u8, **kw, **extra)
+            same[label] = dict(reason=int(np.sum(a.reason != b.reason)),
+                               depth=float(np.nanmax(np.abs(a.depth - b.depth))),
+                               confidence=float(np.max(np.abs(a.confidence - b.confidence))),
+                               phase=float(max(np.max(np.abs(x.astype(np.float64) - y))
+                                               for x, y in zip(a.wrapped, b.wrapped))))
+    st = stages(u8, kw, args.repeat)
+    rows = [dict(decoder=k, **{m: round(v, 1) for m, v in t.items()},
+                 correct_of_lit=quality.get(k, (np.nan,))[0])
+            for k, t in times.items()]
+    write_rows_csv(RESULTS / "sl_speed.csv", rows)
+    md = [
+        "# Decoder speed, 1920x1080 (1, 8, 64) x 4 uint8 (issue #31)",
+        "",
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared with other jobs), "
+        f"numpy {np.__version__}, OpenCV {cv2.__version__}, load average {os.getloadavg()[0]:.1f} at the end of the run "
+        "(other engineers' jobs: wall times are inflated by it, CPU times less). Generated by `benchmarks/bench_sl_speed.py` "
+        f"(stack and method in its module doc). Median (best) of {args.repeat} runs in turns; CPU = process time of "
+        "all threads, the figure other jobs on this shared machine inflate least.",
+        "",
+        "| decoder | CPU ms | wall ms | correct / lit | wrong / decoded |",
+        "|---|---|---|---|---|",
+    ]
+    for k, t in times.items():
+        q = quality.get(k)
+        qs = f"{q[0]:.4f} | {q[1]} / {q[2]}" if q else "- | -"
+        md.append(f"| {k} | {t['cpu_med']:.0f} ({t['cpu_best']:.0f}) | {t['wall_med']:.0f} ({t['wall_best']:.0f}) | {qs} |")
+    md += [
+        "",
+        "Where today's decode spends its CPU time (median ms, same stack; `decode`'s own steps timed one by one):",
+        "",
+        "| stage | CPU ms |",
+        "|---|---|",
+    ] + [f"| {k} | {v:.0f} |" for k, v in st.items()] + [
+        "",
+        "Same outputs, today's against the former decoder's maps on this stack:",
+        "",
+        "| noise | reason codes differing | max depth difference m | max confidence difference | max wrapped phase difference rad |",
+        "|---|---|---|---|---|",
+    ] + [f"| {k} | {v['reason']} | {v['depth']:.1e} | {v['confidence']:.1e} | {v['phase']:.1e} |" for k, v in same.items()] + [
+        "",
+        "(The noise fit keeps its former statistic on a linear camera's stack like this one; it differs only where "
+        "it finds a tone curve, see the notes.)",
+        "",
+    ]
+    write_with_notes(RESULTS / "sl_speed.md", md)
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()
