@@ -1,0 +1,218 @@
+"""Fringe orders of uncertain pixels from the pooled evidence of their surface (issue #31).
+
+A pixel whose own frequencies leave its order uncertain (a dark surface: phase SNR of a few) still
+knows its *finest* phase well enough to say how its coordinate differs from its neighbours' by a
+fraction of a period. On one smooth surface those differences chain the pixels' finest orders
+together (spatial unwrapping of the finest phase), leaving a single unknown integer per surface:
+its offset ``m``. Every pixel's coarse phases then vote on that one integer, and the votes add up:
+the log-likelihood of ``m`` is the sum over the pixels of their temporal log-likelihoods, so a patch
+of n pixels has sqrt(n) times the coarse SNR of one pixel. This is the maximum-likelihood decision
+for the patch under the same Gaussian phase-noise model that :mod:`.confidence` uses per pixel.
+
+Steps (all vectorised; only the uncertain pixels take part, so a scene without them costs nothing):
+
+1. Links: 4-neighbours that are both uncertain (their orders undecided but their finest phase
+   precise: ``sigma_c <= MAX_FINE_NOISE`` cycles) and whose finest phases differ by at most
+   ``LINK_MAX`` cycles. The relative finest order across a link is ``-round(c_q - c_p)``: exact
+   while the true difference is below half a period (a smooth surface sampled finer than the
+   fringe), wrong only across a depth step.
+2. Components of the link graph (:func:`scipy.sparse.csgraph.connected_components`); relative
+   orders along a breadth-first tree (pointer jumping, log(depth) vectorised passes). A link that
+   disagrees with the tree (a loop whose steps do not sum to zero) means a step inside the
+   component: the whole component is refused.
+3. Blocks = component x ``TILE`` x ``TILE`` tile. Per block and candidate offset ``m`` (the
+   finest frequency's ``K_f`` hypotheses; integer periods repeat after the width) the summed cost
+   ``sum_q min(chi2_q(m), ROBUST_CAP)`` with ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W -
+   c_i)^2 / (v_i + (K_i / K_f)^2 v_f)``. The block's probability of a wrong offset is the posterior
+   mass of the other offsets, ``sum_{m != m*} exp(-(S_m - S_m*) / 2)`` (flat prior).
+4. Safety: blocks of one component that are each sure of their offset must name the same one
+   (a depth step of a whole number of periods inside a component splits it into two surfaces
+   whose blocks disagree: the component is refused); a pixel's own frequencies must not contradict
+   the chosen offset (``chi2_q(m*)`` below the 1e-4 tail); the block must hold at least
+   ``MIN_BLOCK`` pixels.
+
+Accepted pixels get the order, the block's probability as their ``p_wrong`` and come out as
+NEIGHBOUR_ORDER (their order rests on the same-surface assumption: the decoder lowers their
+confidence by ``NEIGHBOUR_RISK``). Why only uncertain pixels form the components: a confident
+neighbour across a depth step of about one period (issue #19: a dark box top beside a bright floor
+on a 5 cm baseline) would otherwise outvote the patch's own coarse phases; here the patch decides
+from its own evidence, which pooled over hundreds of pixels is decisive.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.stats import chi2
+
+__all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
+
+MAX_FINE_NOISE = 0.06   # cycles: finest-phase noise of a pixel that may link (link errors need > 5 sigma)
+LINK_MAX = 0.35         # cycles: largest finest-phase difference of a link
+TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
+MIN_BLOCK = 8           # pixels in a block before it decides
+ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
+LOCAL = 7               # pixels: window whose pooled pixels must prefer the offset by themselves
+OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
+
+
+def _links(ok, cf):
+    """4-neighbour links (flat index pairs) among ``ok`` pixels with close finest phases."""
+    H, W = ok.shape
+    idx = np.arange(H * W).reshape(H, W)
+    pa, pb = [], []
+    for a, b, ia, ib in ((ok[:, :-1], ok[:, 1:], idx[:, :-1], idx[:, 1:]),
+                         (ok[:-1, :], ok[1:, :], idx[:-1, :], idx[1:, :])):
+        both = a & b
+        i, j = ia[both], ib[both]
+        d = cf.ravel()[j] - cf.ravel()[i]
+        keep = np.abs(d - np.rint(d)) <= LINK_MAX
+        pa.append(i[keep])
+        pb.append(j[keep])
+    return np.concatenate(pa), np.concatenate(pb)
+
+
+def _relative_orders(n, a, b, cf):
+    """Components and relative finest orders of n nodes linked by (a, b) (local node numbers)."""
+    step = (-np.rint(cf[b] - cf[a])).astype(np.int64)          # N_b - N_a along the link
+    ncomp, comp = csgraph.connected_components(
+        sparse.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n)), directed=False)
+    # a virtual root joined to the first node of every component: one breadth-first tree for all
+    first = np.full(ncomp, -1, np.int64)
+    first[comp[::-1]] = np.arange(n)[::-1]
+    root = n
+    rows = np.concatenate([a, b, np.full(ncomp, root)])
+    cols = np.concatenate([b, a, first])
+    g = sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n + 1, n + 1))
+    _, pred = csgraph.breadth_first_order(g, root, directed=True, return_predecessors=True)
+    pred = pred.astype(np.int64)
+    pred[root] = root
+    # delta of every tree edge pred -> node from the link list (both directions)
+    lut = sparse.csr_matrix((np.concatenate([step, -step]).astype(float) + 0.5,
+                             (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n))
+    acc = np.zeros(n + 1, np.int64)
+    child = np.flatnonzero(pred[:n] != root)
+    if child.size:
+        acc[child] = np.rint(np.asarray(lut[pred[child], child]).ravel() - 0.5).astype(np.int64)
+    ptr = pred.copy()
+    while np.any(ptr[:n] != root):
+        acc = acc + acc[ptr]
+        ptr = ptr[ptr]
+    rel = acc[:n]
+    bad_comp = np.unique(comp[a[(rel[b] - rel[a]) != step]])
+    return comp, ncomp, rel, bad_comp
+
+
+def _local_support(flat, capped, mq, shape):
+    """Per pixel: the least, over the other offsets d, of the summed cost difference
+    ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window, i.e.
+    twice the log-likelihood ratio by which its own neighbourhood prefers its block's offset."""
+    import cv2
+
+    Kf, n = capped.shape
+    H, W = shape
+    r, c = np.divmod(flat, W)
+    r0, c0 = r.min(), c.min()
+    h, w = r.max() - r0 + 1, c.max() - c0 + 1
+    rr, cc = r - r0, c - c0
+    cols = np.arange(n)
+    base = capped[mq, cols]
+    worst = np.full(n, np.inf, np.float32)
+    img = np.zeros((h, w), np.float32)
+    for d in range(1, Kf):
+        img[rr, cc] = capped[(mq + d) % Kf, cols] - base
+        s = cv2.boxFilter(img, -1, (LOCAL, LOCAL), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        np.minimum(worst, s[rr, cc], out=worst)
+    return worst
+
+
+def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong):
+    """Decide the orders of uncertain pixels from their surface's pooled evidence (module doc).
+
+    cand: sorted flat indices of the uncertain pixels (order undecided, finest phase precise,
+    consistent); cyc, var_c: per frequency 1D arrays over ``cand`` (cycles, cycles^2); periods:
+    integer frequencies; length: coded projector width (pixels); shape: (H, W).
+    Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
+    in pixels, probability that the order is wrong)."""
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
+    per = np.asarray(periods, np.float64)
+    F = per.size
+    f = int(np.argmax(per))
+    Kf = int(round(per[f]))
+    if F < 2 or cand.size < MIN_BLOCK:
+        return empty
+    H, W = shape
+    ok_local = var_c[f] <= MAX_FINE_NOISE ** 2
+    cand = cand[ok_local]
+    cyc = [c[ok_local] for c in cyc]
+    var_c = [v[ok_local] for v in var_c]
+    n = cand.size
+    if n < MIN_BLOCK:
+        return empty
+    ok = np.zeros(H * W, bool)
+    ok[cand] = True
+    cf_full = np.zeros(H * W, np.float32)
+    cf_full[cand] = cyc[f]
+    ga, gb = _links(ok.reshape(H, W), cf_full.reshape(H, W))
+    if ga.size == 0:
+        return empty
+    a = np.searchsorted(cand, ga)
+    b = np.searchsorted(cand, gb)
+    comp, ncomp, rel, bad_comp = _relative_orders(n, a, b, cyc[f])
+    # blocks: component x tile; singletons (no link) never decide
+    r, c = np.divmod(cand, W)
+    ntx = (W + TILE - 1) // TILE
+    tile = (r // TILE) * ntx + c // TILE
+    sizes = np.bincount(comp, minlength=ncomp)
+    use = (sizes[comp] >= MIN_BLOCK) & ~np.isin(comp, bad_comp)
+    if not use.any():
+        return empty
+    sel = np.flatnonzero(use)
+    bkey = comp[sel].astype(np.int64) * (tile.max() + 1) + tile[sel]
+    ublk, binv = np.unique(bkey, return_inverse=True)
+    nb = ublk.size
+    # cost of every candidate offset m for every pixel: x_q(m) = (rel_q + m + c_f) T
+    fine = (rel[sel] + cyc[f][sel]).astype(np.float64)          # finest cycles, up to the offset
+    m = np.arange(Kf, dtype=np.float64)[:, None]
+    cost = np.zeros((Kf, sel.size), np.float64)
+    vf = var_c[f][sel].astype(np.float64)
+    for i in range(F):
+        if i == f:
+            continue
+        ratio = per[i] / per[f]
+        t = ratio * (fine[None, :] + m) - cyc[i][sel][None, :]
+        t -= np.rint(t)
+        cost += t * t / (var_c[i][sel].astype(np.float64) + ratio * ratio * vf)[None, :]
+    capped = np.minimum(cost, ROBUST_CAP)
+    order = np.argsort(binv, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(binv[order]) != 0])
+    S = np.add.reduceat(capped[:, order], starts, axis=1)      # (Kf, nb)
+    best = np.argmin(S, 0)
+    sb = S[best, np.arange(nb)]
+    p_blk = np.sum(np.exp(-0.5 * (S - sb[None, :])), 0) - 1.0
+    p_blk = p_blk / (1.0 + p_blk)
+    nblk = np.bincount(binv, minlength=nb)
+    sure = (p_blk <= max_wrong) & (nblk >= MIN_BLOCK)
+    # blocks of one component that are sure must agree on the offset
+    bcomp = ublk // (tile.max() + 1)
+    sure_c, sure_m = bcomp[sure], best[sure]
+    lo = np.full(ncomp, Kf, np.int64)
+    hi = np.full(ncomp, -1, np.int64)
+    np.minimum.at(lo, sure_c, sure_m)
+    np.maximum.at(hi, sure_c, sure_m)
+    split = (hi >= 0) & (lo != hi)
+    sure &= ~split[bcomp]
+    mq = best[binv]
+    cols = np.arange(sel.size)
+    own = cost[mq, cols]
+    acc = sure[binv] & (own <= chi2.isf(OWN_P, max(1, F - 1)))
+    if acc.any():
+        acc &= _local_support(cand[sel], capped, mq, (H, W)) >= 2.0 * np.log(1.0 / max_wrong)
+    if not acc.any():
+        return empty
+    pick = sel[acc]
+    T = length / per[f]
+    xf = ((fine[acc] + mq[acc]) * T) % length
+    lo_edge = -0.5
+    xf = np.where(xf >= length + lo_edge, xf - length, xf)
+    return cand[pick], xf.astype(np.float32), p_blk[binv[acc]].astype(np.float32)
