@@ -38,9 +38,14 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
     """Uncertain pixels take their order from the pooled evidence of their surface
     (:mod:`.orders`), then the rest take / confirm it from confident neighbours (:mod:`.spatial`);
     both are triangulated again."""
-    if not out.candidates:
+    if not out.candidates and not out.dim:
         return
-    idx = np.concatenate(out.candidates)
+    idx = np.concatenate(out.candidates + out.dim)
+    n_cand = sum(c.size for c in out.candidates)
+    dim = np.zeros(idx.size, bool)
+    dim[n_cand:] = True
+    srt = np.argsort(idx, kind="stable")
+    idx, dim = idx[srt], dim[srt]
     F = len(st.plan.periods)
     if st.sigma_fn is not None:
         sig = np.asarray(st.sigma_fn(np.maximum(out.offset.ravel()[idx].astype(np.float64), 0)), np.float64)
@@ -52,16 +57,17 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
     cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
     var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     if st.plan.integer:
-        ia, xf, pa = pooled_orders(idx, cyc, var_c, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong)
+        ia, xf, pa = pooled_orders(idx, cyc, var_c, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
+                                   dim=dim)
         if ia.size:
             pos = np.searchsorted(idx, ia)
             xa = _combine_from_fine(xf.astype(np.float64), [c[pos].astype(np.float64) for c in cyc],
                                     np.asarray(st.plan.periods, float), float(st.wcoded),
                                     _kept_weights(st.plan.periods)).astype(np.float32)
             _apply(st, out, ia, xa, pa)
-            rest = np.ones(idx.size, bool)
-            rest[pos] = False
-            idx, cyc, var_c = idx[rest], [c[rest] for c in cyc], [v[rest] for v in var_c]
+            dim[pos] = True                  # decided: not for the neighbour pass
+    rest = ~dim
+    idx, cyc, var_c = idx[rest], [c[rest] for c in cyc], [v[rest] for v in var_c]
     if idx.size == 0 or not _any_supported(st, out, idx):
         return
     # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): not good

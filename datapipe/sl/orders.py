@@ -47,10 +47,14 @@ from scipy.stats import chi2
 
 __all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
 
-MAX_FINE_NOISE = 0.06   # cycles: finest-phase noise of a pixel that may link (link errors need > 5 sigma)
+MAX_FINE_NOISE = 0.1    # cycles: finest-phase noise (estimated) of a pixel that may take part
 LINK_MAX = 0.35         # cycles: largest finest-phase difference of a link
 TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
-MIN_BLOCK = 8           # pixels in a block before it decides
+MIN_BLOCK = 32           # pixels in a block before it decides
+SPLIT_REFUSES = False
+HALF_MIN = 8            # pooled pixels a half window needs to speak
+LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
+DIM_FALSE_RATE = 0.05    # NO_LIGHT pixels that pure noise passes at most this often may join a pooled surface
 ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
 LOCAL = 7               # pixels: window whose pooled pixels must prefer the offset by themselves
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
@@ -70,6 +74,23 @@ def _links(ok, cf):
         pa.append(i[keep])
         pb.append(j[keep])
     return np.concatenate(pa), np.concatenate(pb)
+
+
+def _smoothed_fine(cand, cf, shape):
+    """Finest phase (cycles) of the candidates averaged as unit phasors over their 3 x 3 candidate
+    neighbours: the links and relative orders rest on it (noise / ~3 on a surface; a phase ramp of
+    g cycles per pixel keeps its centre value, symmetric window)."""
+    import cv2
+
+    H, W = shape
+    zr = np.zeros(H * W, np.float32)
+    zi = np.zeros(H * W, np.float32)
+    ang = (2 * np.pi) * cf.astype(np.float32)
+    zr[cand] = np.cos(ang)
+    zi[cand] = np.sin(ang)
+    sr = cv2.boxFilter(zr.reshape(H, W), -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT).ravel()[cand]
+    si = cv2.boxFilter(zi.reshape(H, W), -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT).ravel()[cand]
+    return np.mod(np.arctan2(si, sr) * np.float32(1 / (2 * np.pi)), np.float32(1)).astype(np.float32)
 
 
 def _relative_orders(n, a, b, cf):
@@ -99,14 +120,15 @@ def _relative_orders(n, a, b, cf):
         acc = acc + acc[ptr]
         ptr = ptr[ptr]
     rel = acc[:n]
-    bad_comp = np.unique(comp[a[(rel[b] - rel[a]) != step]])
-    return comp, ncomp, rel, bad_comp
+    return comp, ncomp, rel, (rel[b] - rel[a]) != step
 
 
 def _local_support(flat, capped, mq, shape):
     """Per pixel: the least, over the other offsets d, of the summed cost difference
-    ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window, i.e.
-    twice the log-likelihood ratio by which its own neighbourhood prefers its block's offset."""
+    ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window
+    (twice the log-likelihood ratio by which its neighbourhood prefers its block's offset), and the
+    least of the same over the window's four halves that contain the pixel (top, bottom, left,
+    right: at a depth step the half on the pixel's own side of it speaks for its own surface)."""
     import cv2
 
     Kf, n = capped.shape
@@ -118,15 +140,26 @@ def _local_support(flat, capped, mq, shape):
     cols = np.arange(n)
     base = capped[mq, cols]
     worst = np.full(n, np.inf, np.float32)
+    worst_half = np.full(n, np.inf, np.float32)
     img = np.zeros((h, w), np.float32)
+    cnt = np.zeros((h, w), np.float32)
+    cnt[rr, cc] = 1
+    L, k = LOCAL, LOCAL // 2
+    halves = [((L, k + 1), (k, k)), ((L, k + 1), (k, 0)), ((k + 1, L), (k, k)), ((k + 1, L), (0, k))]
+    border = cv2.BORDER_CONSTANT
+    enough = [cv2.boxFilter(cnt, -1, size, anchor=a, normalize=False, borderType=border)[rr, cc] >= HALF_MIN
+              for size, a in halves]
     for d in range(1, Kf):
         img[rr, cc] = capped[(mq + d) % Kf, cols] - base
-        s = cv2.boxFilter(img, -1, (LOCAL, LOCAL), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        s = cv2.boxFilter(img, -1, (L, L), normalize=False, borderType=border)
         np.minimum(worst, s[rr, cc], out=worst)
-    return worst
+        for ((sw, sh), a), ok in zip(halves, enough):
+            s = cv2.boxFilter(img, -1, (sw, sh), anchor=a, normalize=False, borderType=border)[rr, cc]
+            np.minimum(worst_half, np.where(ok, s, np.inf), out=worst_half)
+    return worst, worst_half
 
 
-def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong):
+def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong, dim=None):
     """Decide the orders of uncertain pixels from their surface's pooled evidence (module doc).
 
     cand: sorted flat indices of the uncertain pixels (order undecided, finest phase precise,
@@ -144,27 +177,41 @@ def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong):
     H, W = shape
     ok_local = var_c[f] <= MAX_FINE_NOISE ** 2
     cand = cand[ok_local]
+    dim = np.zeros(cand.size, bool) if dim is None else dim[ok_local]
     cyc = [c[ok_local] for c in cyc]
     var_c = [v[ok_local] for v in var_c]
     n = cand.size
     if n < MIN_BLOCK:
         return empty
-    ok = np.zeros(H * W, bool)
-    ok[cand] = True
+    cs = _smoothed_fine(cand, cyc[f], (H, W))
     cf_full = np.zeros(H * W, np.float32)
-    cf_full[cand] = cyc[f]
-    ga, gb = _links(ok.reshape(H, W), cf_full.reshape(H, W))
-    if ga.size == 0:
-        return empty
-    a = np.searchsorted(cand, ga)
-    b = np.searchsorted(cand, gb)
-    comp, ncomp, rel, bad_comp = _relative_orders(n, a, b, cyc[f])
+    cf_full[cand] = cs
+    alive = np.ones(n, bool)
+    for _ in range(LOOP_ROUNDS):
+        ok = np.zeros(H * W, bool)
+        ok[cand[alive]] = True
+        ga, gb = _links(ok.reshape(H, W), cf_full.reshape(H, W))
+        if ga.size == 0:
+            return empty
+        a = np.searchsorted(cand, ga)
+        b = np.searchsorted(cand, gb)
+        comp, ncomp, rel, bad = _relative_orders(n, a, b, cs)
+        if not bad.any():
+            break
+        # a link that contradicts the tree closes a loop whose order steps do not sum to zero (a slip
+        # of the finest phase, or a step): its ends leave, which cuts the loop; then again
+        alive[a[bad]] = False
+        alive[b[bad]] = False
+    else:
+        comp = comp.copy()
+        comp[np.isin(comp, np.unique(comp[a[bad]]))] = -1
+    comp[~alive] = -1
     # blocks: component x tile; singletons (no link) never decide
     r, c = np.divmod(cand, W)
     ntx = (W + TILE - 1) // TILE
     tile = (r // TILE) * ntx + c // TILE
-    sizes = np.bincount(comp, minlength=ncomp)
-    use = (sizes[comp] >= MIN_BLOCK) & ~np.isin(comp, bad_comp)
+    sizes = np.bincount(comp[comp >= 0], minlength=ncomp)
+    use = (comp >= 0) & (sizes[np.maximum(comp, 0)] >= MIN_BLOCK)
     if not use.any():
         return empty
     sel = np.flatnonzero(use)
@@ -172,7 +219,8 @@ def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong):
     ublk, binv = np.unique(bkey, return_inverse=True)
     nb = ublk.size
     # cost of every candidate offset m for every pixel: x_q(m) = (rel_q + m + c_f) T
-    fine = (rel[sel] + cyc[f][sel]).astype(np.float64)          # finest cycles, up to the offset
+    own = cyc[f][sel].astype(np.float64) - cs[sel]
+    fine = rel[sel] + cs[sel] + (own - np.rint(own))             # finest cycles, up to the offset
     m = np.arange(Kf, dtype=np.float64)[:, None]
     cost = np.zeros((Kf, sel.size), np.float64)
     vf = var_c[f][sel].astype(np.float64)
@@ -201,13 +249,18 @@ def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong):
     np.minimum.at(lo, sure_c, sure_m)
     np.maximum.at(hi, sure_c, sure_m)
     split = (hi >= 0) & (lo != hi)
-    sure &= ~split[bcomp]
+    if SPLIT_REFUSES:
+        sure &= ~split[bcomp]
     mq = best[binv]
     cols = np.arange(sel.size)
     own = cost[mq, cols]
     acc = sure[binv] & (own <= chi2.isf(OWN_P, max(1, F - 1)))
+    if dim[sel].any():                   # below the modulation floor: only inside the surface (4 linked neighbours)
+        deg = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
+        acc &= ~dim[sel] | (deg[sel] >= 4)
     if acc.any():
-        acc &= _local_support(cand[sel], capped, mq, (H, W)) >= 2.0 * np.log(1.0 / max_wrong)
+        full, half = _local_support(cand[sel], capped, mq, (H, W))
+        acc &= (full >= 2.0 * np.log(1.0 / max_wrong)) & (half >= 0)
     if not acc.any():
         return empty
     pick = sel[acc]
