@@ -57,7 +57,8 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
     cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
     var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     if st.plan.integer:
-        ia, xf, pa = pooled_orders(idx, cyc, var_c, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
+        snr = [np.square(out.modulation[i].ravel()[idx] / np.maximum(s, np.float32(1e-30))) for i in range(F)]
+        ia, xf, pa = pooled_orders(idx, cyc, snr, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
                                    dim=dim)
         if ia.size:
             pos = np.searchsorted(idx, ia)

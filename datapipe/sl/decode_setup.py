@@ -16,7 +16,6 @@ from .noise import fit_noise_model, variance_function
 from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
 from .triangulate import Triangulator
-from .orders import DIM_FALSE_RATE
 from .unwrap import plan_unwrap
 
 __all__ = ["DecodeSetup", "prepare_decode", "modulation_floor_factor"]
@@ -113,7 +112,6 @@ class DecodeSetup:
     factor: float
     row_sigma: float
     joint_q2: float             # 2 * Gamma(F) quantile of the joint modulation test (module doc)
-    dim_q2: float = 0.0         # the same at orders.DIM_FALSE_RATE: NO_LIGHT pixels above it may join a pooled surface
     consistency_limits: tuple = ()
     min_modulation: float | None = None
     floor_scalar: float | None = None
@@ -225,8 +223,7 @@ def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noi
                      max_order_error=_check_positive("max_order_error", max_order_error, upper=0.5),
                      spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
                      factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
-                     row_sigma=_row_sigma(shifts=shifts), joint_q2=q2,
-                     dim_q2=2.0 * float(gammainccinv(F, max(DIM_FALSE_RATE, false_valid_rate))))
+                     row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
     st.consistency_limits = consistency_limits(F, plan.lattice.d_min if plan.lattice is not None else 1.0)
     _noise_setup(st, noise_sigma, _check_positive("min_modulation", min_modulation, strict=False),
                  _check_positive("order_sigmas", order_sigmas, strict=False), shifts)

@@ -38,8 +38,8 @@ class DecodeMaps:
     wrapped: list
     candidates: list = field(default_factory=list)   # per slab: flat indices of the pixels the neighbour pass
                                                       # may fill (above max_wrong, order decoded, fine phase precise)
-    dim: list = field(default_factory=list)          # per slab: NO_LIGHT by the joint floor alone, above the looser
-                                                      # one of DecodeSetup.dim_q2: the pooled decision may take them
+    dim: list = field(default_factory=list)          # per slab: NO_LIGHT by the joint floor alone: the pooled
+                                                      # decision (sl.orders) may find them lit, with their surface
 
     @classmethod
     def allocate(cls, H, W, F):
@@ -122,7 +122,7 @@ def decode_slab(st: DecodeSetup, out: DecodeMaps, r0: int, r1: int, coefs):
     if st.min_modulation is None:
         floor = np.less_equal(qsum, wt(st.joint_q2))
         if st.spatial and st.plan.integer:   # dim but lit? the pooled decision (sl.orders) may tell
-            dim = floor & np.greater(qsum, wt(st.dim_q2)) & np.less_equal(var_c[st.plan.finest], wt(POOL_FINE_NOISE ** 2))
+            dim = floor.copy()
             if nolight is not None:
                 dim &= ~nolight
         nolight = floor if nolight is None else np.logical_or(nolight, floor, out=nolight)

@@ -43,7 +43,10 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
+from scipy.special import gammainccinv
 from scipy.stats import chi2
+
+from .confidence import phase_var_from_snr
 
 __all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
 
@@ -54,7 +57,7 @@ MIN_BLOCK = 32           # pixels in a block before it decides
 SPLIT_REFUSES = False
 HALF_MIN = 8            # pooled pixels a half window needs to speak
 LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
-DIM_FALSE_RATE = 0.05    # NO_LIGHT pixels that pure noise passes at most this often may join a pooled surface
+DIM_FALSE_RATE = 1e-3   # a NO_LIGHT pixel joins when its 3 x 3 candidates pass the joint modulation test at this rate
 ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
 LOCAL = 7               # pixels: window whose pooled pixels must prefer the offset by themselves
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
@@ -74,6 +77,24 @@ def _links(ok, cf):
         pa.append(i[keep])
         pb.append(j[keep])
     return np.concatenate(pa), np.concatenate(pb)
+
+
+def _smoothed(cand, snr, shape):
+    """Per frequency the mean of ``B_hat^2 / s^2`` over each candidate's 3 x 3 candidate neighbours
+    (the phase noise follows from it far more precisely than from one pixel's B_hat), and their
+    count."""
+    import cv2
+
+    H, W = shape
+    k = dict(ksize=(3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    m = np.zeros(H * W, np.float32)
+    m[cand] = 1
+    count = cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand]
+    out = []
+    for q in snr:
+        m[cand] = q
+        out.append((cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand] / count).astype(np.float32))
+    return out, count
 
 
 def _smoothed_fine(cand, cf, shape):
@@ -159,14 +180,15 @@ def _local_support(flat, capped, mq, shape):
     return worst, worst_half
 
 
-def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong, dim=None):
+def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None):
     """Decide the orders of uncertain pixels from their surface's pooled evidence (module doc).
 
-    cand: sorted flat indices of the uncertain pixels (order undecided, finest phase precise,
-    consistent); cyc, var_c: per frequency 1D arrays over ``cand`` (cycles, cycles^2); periods:
-    integer frequencies; length: coded projector width (pixels); shape: (H, W).
-    Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
-    in pixels, probability that the order is wrong)."""
+    cand: sorted flat indices of the candidate pixels (order undecided and consistent, or NO_LIGHT
+    by the joint modulation floor alone: ``dim``); cyc: per frequency 1D arrays over ``cand``, the
+    wrapped phases in cycles; snr: per frequency ``B_hat^2 / s^2`` (modulation over the noise of
+    the least-squares coefficients); periods: integer frequencies; length: coded projector width
+    (pixels); shape: (H, W). Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices,
+    finest-frequency coordinate in pixels, probability that the order is wrong)."""
     empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
     per = np.asarray(periods, np.float64)
     F = per.size
@@ -175,11 +197,16 @@ def pooled_orders(cand, cyc, var_c, periods, length, shape, *, max_wrong, dim=No
     if F < 2 or cand.size < MIN_BLOCK:
         return empty
     H, W = shape
-    ok_local = var_c[f] <= MAX_FINE_NOISE ** 2
-    cand = cand[ok_local]
-    dim = np.zeros(cand.size, bool) if dim is None else dim[ok_local]
-    cyc = [c[ok_local] for c in cyc]
-    var_c = [v[ok_local] for v in var_c]
+    dim = np.zeros(cand.size, bool) if dim is None else dim
+    qbar, count = _smoothed(cand, snr, (H, W))
+    var_c = [phase_var_from_snr(q) for q in qbar]
+    keep = var_c[f] <= MAX_FINE_NOISE ** 2
+    if dim.any():                        # lit after all? the 3 x 3 candidates' joint modulation test
+        lit = 0.5 * count * sum(qbar) > gammainccinv(F * count, DIM_FALSE_RATE)
+        keep &= ~dim | lit
+    cand, dim = cand[keep], dim[keep]
+    cyc = [c[keep] for c in cyc]
+    var_c = [v[keep] for v in var_c]
     n = cand.size
     if n < MIN_BLOCK:
         return empty
