@@ -58,8 +58,11 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
     var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     if st.plan.integer:
         snr = [np.square(out.modulation[i].ravel()[idx] / np.maximum(s, np.float32(1e-30))) for i in range(F)]
+        with np.errstate(invalid="ignore"):
+            sure = (out.p_wrong <= np.float32(st.max_wrong)) & ~out.inconsistent & (out.reason == 0)
+        x_sure = np.where(sure, out.proj_x, np.float32(np.nan))
         ia, xf, pa = pooled_orders(idx, cyc, snr, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
-                                   dim=dim)
+                                   dim=dim, x_sure=x_sure)
         if ia.size:
             pos = np.searchsorted(idx, ia)
             xa = _combine_from_fine(xf.astype(np.float64), [c[pos].astype(np.float64) for c in cyc],

@@ -180,14 +180,16 @@ def _local_support(flat, capped, mq, shape):
     return worst, worst_half
 
 
-def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None):
+def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None, x_sure=None):
     """Decide the orders of uncertain pixels from their surface's pooled evidence (module doc).
 
     cand: sorted flat indices of the candidate pixels (order undecided and consistent, or NO_LIGHT
     by the joint modulation floor alone: ``dim``); cyc: per frequency 1D arrays over ``cand``, the
     wrapped phases in cycles; snr: per frequency ``B_hat^2 / s^2`` (modulation over the noise of
     the least-squares coefficients); periods: integer frequencies; length: coded projector width
-    (pixels); shape: (H, W). Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices,
+    (pixels); shape: (H, W); x_sure: optional (H, W) coordinates of the pixels decided on their own
+    (NaN elsewhere): a pooled pixel more than half a finest period away from one of its 4-neighbours
+    there is refused (a depth step between them, or a wrong order on one side). Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices,
     finest-frequency coordinate in pixels, probability that the order is wrong)."""
     empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
     per = np.asarray(periods, np.float64)
@@ -293,6 +295,27 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     pick = sel[acc]
     T = length / per[f]
     xf = ((fine[acc] + mq[acc]) * T) % length
-    lo_edge = -0.5
-    xf = np.where(xf >= length + lo_edge, xf - length, xf)
-    return cand[pick], xf.astype(np.float32), p_blk[binv[acc]].astype(np.float32)
+    xf = np.where(xf >= length - 0.5, xf - length, xf)
+    flat = cand[pick]
+    if x_sure is not None:
+        agree = _agrees_with_sure(flat, xf, x_sure, 0.5 * T)
+        flat, xf, pick, acc_idx = flat[agree], xf[agree], pick[agree], np.flatnonzero(acc)[agree]
+    else:
+        acc_idx = np.flatnonzero(acc)
+    return flat, xf.astype(np.float32), p_blk[binv[acc_idx]].astype(np.float32)
+
+
+def _agrees_with_sure(flat, x, x_sure, tol):
+    """False where a 4-neighbour decided on its own lies more than ``tol`` away from ``x``."""
+    H, W = x_sure.shape
+    r, c = np.divmod(flat, W)
+    ok = np.ones(flat.size, bool)
+    xs = x_sure.ravel()
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        rr, cc = r + dr, c + dc
+        inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        nb = np.full(flat.size, np.nan, np.float32)
+        nb[inside] = xs[rr[inside] * W + cc[inside]]
+        with np.errstate(invalid="ignore"):
+            ok &= ~(np.abs(nb - x) > tol)
+    return ok
