@@ -51,10 +51,11 @@ from .confidence import phase_var_from_snr
 __all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
 
 MAX_FINE_NOISE = 0.1    # cycles: finest-phase noise (estimated) of a pixel that may take part
-LINK_MAX = 0.35         # cycles: largest finest-phase difference of a link
+LINK_MAX = 0.25         # cycles: largest misfit of a link's finest-phase difference to the local gradient
 TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
 MIN_BLOCK = 32           # pixels in a block before it decides
 SPLIT_REFUSES = False
+GRAD = 5                # pixels: window of the finest-phase gradient estimate
 HALF_MIN = 8            # pooled pixels a half window needs to speak
 LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
 DIM_FALSE_RATE = 1e-3   # a NO_LIGHT pixel joins when its 3 x 3 candidates pass the joint modulation test at this rate
@@ -63,20 +64,42 @@ LOCAL = 7               # pixels: window whose pooled pixels must prefer the off
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
 
 
+def _gradient(ok, cf):
+    """Finest-phase gradient (cycles per pixel, along x and y) at every pixel: the angle of the
+    summed phasors of the wrapped differences between neighbouring ``ok`` pixels in a ``GRAD`` x
+    ``GRAD`` window (a surface's fringe gradient varies slowly; one pixel pair is too noisy)."""
+    import cv2
+
+    k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    out = []
+    for both, diff, pad in ((ok[:, :-1] & ok[:, 1:], cf[:, 1:] - cf[:, :-1], ((0, 0), (0, 1))),
+                            (ok[:-1, :] & ok[1:, :], cf[1:, :] - cf[:-1, :], ((0, 1), (0, 0)))):
+        ang = np.float32(2 * np.pi) * diff
+        zr = np.pad(np.where(both, np.cos(ang), 0).astype(np.float32), pad)
+        zi = np.pad(np.where(both, np.sin(ang), 0).astype(np.float32), pad)
+        g = np.arctan2(cv2.boxFilter(zi, -1, **k), cv2.boxFilter(zr, -1, **k)) * np.float32(1 / (2 * np.pi))
+        out.append(g.astype(np.float32))
+    return out
+
+
 def _links(ok, cf):
-    """4-neighbour links (flat index pairs) among ``ok`` pixels with close finest phases."""
+    """4-neighbour links among ``ok`` pixels whose finest-phase difference fits the local gradient
+    within ``LINK_MAX`` cycles: (a, b, step), flat indices and ``step = N_b - N_a`` (finest orders)."""
     H, W = ok.shape
+    gx, gy = _gradient(ok, cf)
     idx = np.arange(H * W).reshape(H, W)
-    pa, pb = [], []
-    for a, b, ia, ib in ((ok[:, :-1], ok[:, 1:], idx[:, :-1], idx[:, 1:]),
-                         (ok[:-1, :], ok[1:, :], idx[:-1, :], idx[1:, :])):
-        both = a & b
-        i, j = ia[both], ib[both]
-        d = cf.ravel()[j] - cf.ravel()[i]
-        keep = np.abs(d - np.rint(d)) <= LINK_MAX
-        pa.append(i[keep])
-        pb.append(j[keep])
-    return np.concatenate(pa), np.concatenate(pb)
+    pa, pb, ps = [], [], []
+    for both, ca, cb, g, ia, ib in ((ok[:, :-1] & ok[:, 1:], cf[:, :-1], cf[:, 1:], gx[:, :-1] + gx[:, 1:],
+                                     idx[:, :-1], idx[:, 1:]),
+                                    (ok[:-1, :] & ok[1:, :], cf[:-1, :], cf[1:, :], gy[:-1, :] + gy[1:, :],
+                                     idx[:-1, :], idx[1:, :])):
+        t = (ca + np.float32(0.5) * g - cb)[both]      # = N_b - N_a + noise on one smooth surface
+        k = np.rint(t)
+        keep = np.abs(t - k) <= LINK_MAX
+        pa.append(ia[both][keep])
+        pb.append(ib[both][keep])
+        ps.append(k[keep].astype(np.int64))
+    return np.concatenate(pa), np.concatenate(pb), np.concatenate(ps)
 
 
 def _smoothed(cand, snr, shape):
@@ -97,26 +120,8 @@ def _smoothed(cand, snr, shape):
     return out, count
 
 
-def _smoothed_fine(cand, cf, shape):
-    """Finest phase (cycles) of the candidates averaged as unit phasors over their 3 x 3 candidate
-    neighbours: the links and relative orders rest on it (noise / ~3 on a surface; a phase ramp of
-    g cycles per pixel keeps its centre value, symmetric window)."""
-    import cv2
-
-    H, W = shape
-    zr = np.zeros(H * W, np.float32)
-    zi = np.zeros(H * W, np.float32)
-    ang = (2 * np.pi) * cf.astype(np.float32)
-    zr[cand] = np.cos(ang)
-    zi[cand] = np.sin(ang)
-    sr = cv2.boxFilter(zr.reshape(H, W), -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT).ravel()[cand]
-    si = cv2.boxFilter(zi.reshape(H, W), -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT).ravel()[cand]
-    return np.mod(np.arctan2(si, sr) * np.float32(1 / (2 * np.pi)), np.float32(1)).astype(np.float32)
-
-
-def _relative_orders(n, a, b, cf):
+def _relative_orders(n, a, b, step):
     """Components and relative finest orders of n nodes linked by (a, b) (local node numbers)."""
-    step = (-np.rint(cf[b] - cf[a])).astype(np.int64)          # N_b - N_a along the link
     ncomp, comp = csgraph.connected_components(
         sparse.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n)), directed=False)
     # a virtual root joined to the first node of every component: one breadth-first tree for all
@@ -212,19 +217,18 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     n = cand.size
     if n < MIN_BLOCK:
         return empty
-    cs = _smoothed_fine(cand, cyc[f], (H, W))
     cf_full = np.zeros(H * W, np.float32)
-    cf_full[cand] = cs
+    cf_full[cand] = cyc[f]
     alive = np.ones(n, bool)
     for _ in range(LOOP_ROUNDS):
         ok = np.zeros(H * W, bool)
         ok[cand[alive]] = True
-        ga, gb = _links(ok.reshape(H, W), cf_full.reshape(H, W))
+        ga, gb, step = _links(ok.reshape(H, W), cf_full.reshape(H, W))
         if ga.size == 0:
             return empty
         a = np.searchsorted(cand, ga)
         b = np.searchsorted(cand, gb)
-        comp, ncomp, rel, bad = _relative_orders(n, a, b, cs)
+        comp, ncomp, rel, bad = _relative_orders(n, a, b, step)
         if not bad.any():
             break
         # a link that contradicts the tree closes a loop whose order steps do not sum to zero (a slip
@@ -248,8 +252,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     ublk, binv = np.unique(bkey, return_inverse=True)
     nb = ublk.size
     # cost of every candidate offset m for every pixel: x_q(m) = (rel_q + m + c_f) T
-    own = cyc[f][sel].astype(np.float64) - cs[sel]
-    fine = rel[sel] + cs[sel] + (own - np.rint(own))             # finest cycles, up to the offset
+    fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
     m = np.arange(Kf, dtype=np.float64)[:, None]
     cost = np.zeros((Kf, sel.size), np.float64)
     vf = var_c[f][sel].astype(np.float64)
