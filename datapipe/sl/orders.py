@@ -149,12 +149,13 @@ def _relative_orders(n, a, b, step):
     return comp, ncomp, rel, (rel[b] - rel[a]) != step
 
 
-def _local_support(flat, capped, mq, shape):
+def _local_support(flat, capped, mq, shape, shifts):
     """Per pixel: the least, over the other offsets d, of the summed cost difference
     ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window
     (twice the log-likelihood ratio by which its neighbourhood prefers its block's offset), and the
     least of the same over the window's four halves that contain the pixel (top, bottom, left,
-    right: at a depth step the half on the pixel's own side of it speaks for its own surface)."""
+    right: at a depth step the half on the pixel's own side of it speaks for its own surface).
+    Only the offsets ``shifts`` (relative to m*) are tried: those some block cannot rule out by far."""
     import cv2
 
     Kf, n = capped.shape
@@ -175,7 +176,7 @@ def _local_support(flat, capped, mq, shape):
     border = cv2.BORDER_CONSTANT
     enough = [cv2.boxFilter(cnt, -1, size, anchor=a, normalize=False, borderType=border)[rr, cc] >= HALF_MIN
               for size, a in halves]
-    for d in range(1, Kf):
+    for d in shifts:
         img[rr, cc] = capped[(mq + d) % Kf, cols] - base
         s = cv2.boxFilter(img, -1, (L, L), normalize=False, borderType=border)
         np.minimum(worst, s[rr, cc], out=worst)
@@ -253,16 +254,20 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     nb = ublk.size
     # cost of every candidate offset m for every pixel: x_q(m) = (rel_q + m + c_f) T
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
-    m = np.arange(Kf, dtype=np.float64)[:, None]
-    cost = np.zeros((Kf, sel.size), np.float64)
-    vf = var_c[f][sel].astype(np.float64)
+    m = np.arange(Kf, dtype=np.float32)[:, None]
+    cost = np.zeros((Kf, sel.size), np.float32)
+    vf = var_c[f][sel]
     for i in range(F):
         if i == f:
             continue
         ratio = per[i] / per[f]
-        t = ratio * (fine[None, :] + m) - cyc[i][sel][None, :]
+        # the phase each offset predicts, reduced to one cycle first (float32 keeps 1e-7 of a cycle)
+        t0 = ratio * fine - cyc[i][sel]
+        t = np.float32(ratio) * m + (t0 - np.rint(t0)).astype(np.float32)[None, :]
         t -= np.rint(t)
-        cost += t * t / (var_c[i][sel].astype(np.float64) + ratio * ratio * vf)[None, :]
+        t *= t
+        t *= (np.float32(1) / (var_c[i][sel] + np.float32(ratio * ratio) * vf))[None, :]
+        cost += t
     capped = np.minimum(cost, ROBUST_CAP)
     order = np.argsort(binv, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(binv[order]) != 0])
@@ -291,7 +296,14 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
         deg = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
         acc &= ~dim[sel] | (deg[sel] >= 4)
     if acc.any():
-        full, half = _local_support(cand[sel], capped, mq, (H, W))
+        # offsets worth a look: those some sure block prefers m* to by less than 8 x the local threshold,
+        # scaled to a window's share of the block (the local test is far from binding for the others)
+        gain = (S - sb[None, :]) * np.minimum(1.0, LOCAL * LOCAL / np.maximum(nblk, 1))[None, :]
+        near = np.zeros(Kf, bool)
+        for d in range(1, Kf):
+            near[d] = np.any(gain[(best + d) % Kf, np.arange(nb)][sure] < 8 * 2.0 * np.log(1.0 / max_wrong))
+        near[[1, Kf - 1]] = True
+        full, half = _local_support(cand[sel], capped, mq, (H, W), np.flatnonzero(near))
         acc &= (full >= 2.0 * np.log(1.0 / max_wrong)) & (half >= 0)
     if not acc.any():
         return empty
