@@ -50,7 +50,7 @@ from .confidence import phase_var_from_snr
 
 __all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
 
-MAX_FINE_NOISE = 0.1    # cycles: finest-phase noise (estimated) of a pixel that may take part
+MAX_FINE_NOISE = 0.12    # cycles: finest-phase noise (estimated) of a pixel that may take part
 LINK_MAX = 0.25         # cycles: largest misfit of a link's finest-phase difference to the local gradient
 TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
 MIN_BLOCK = 32           # pixels in a block before it decides
@@ -60,7 +60,8 @@ HALF_MIN = 8            # pooled pixels a half window needs to speak
 LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
 DIM_FALSE_RATE = 1e-3   # a NO_LIGHT pixel joins when its 3 x 3 candidates pass the joint modulation test at this rate
 ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
-LOCAL = 7               # pixels: window whose pooled pixels must prefer the offset by themselves
+LOCAL = 11              # pixels: window whose pooled pixels must prefer the offset by themselves
+HALF = 7                # pixels: the window whose halves must not prefer another offset
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
 
 
@@ -153,7 +154,7 @@ def _local_support(flat, capped, mq, shape, shifts):
     """Per pixel: the least, over the other offsets d, of the summed cost difference
     ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window
     (twice the log-likelihood ratio by which its neighbourhood prefers its block's offset), and the
-    least of the same over the window's four halves that contain the pixel (top, bottom, left,
+    least of the same over the four halves of its ``HALF`` x ``HALF`` window that contain the pixel (top, bottom, left,
     right: at a depth step the half on the pixel's own side of it speaks for its own surface).
     Only the offsets ``shifts`` (relative to m*) are tried: those some block cannot rule out by far."""
     import cv2
@@ -171,14 +172,14 @@ def _local_support(flat, capped, mq, shape, shifts):
     img = np.zeros((h, w), np.float32)
     cnt = np.zeros((h, w), np.float32)
     cnt[rr, cc] = 1
-    L, k = LOCAL, LOCAL // 2
+    L, k = HALF, HALF // 2
     halves = [((L, k + 1), (k, k)), ((L, k + 1), (k, 0)), ((k + 1, L), (k, k)), ((k + 1, L), (0, k))]
     border = cv2.BORDER_CONSTANT
     enough = [cv2.boxFilter(cnt, -1, size, anchor=a, normalize=False, borderType=border)[rr, cc] >= HALF_MIN
               for size, a in halves]
     for d in shifts:
         img[rr, cc] = capped[(mq + d) % Kf, cols] - base
-        s = cv2.boxFilter(img, -1, (L, L), normalize=False, borderType=border)
+        s = cv2.boxFilter(img, -1, (LOCAL, LOCAL), normalize=False, borderType=border)
         np.minimum(worst, s[rr, cc], out=worst)
         for ((sw, sh), a), ok in zip(halves, enough):
             s = cv2.boxFilter(img, -1, (sw, sh), anchor=a, normalize=False, borderType=border)[rr, cc]
