@@ -19,7 +19,8 @@ phases (computed here from the noisy stack: N-step least squares) under the *tru
 the noise-free offset A): for every order of the finest frequency the other orders are rounded at
 the weighted least-squares coordinate (twice), and the cost ``sum_i (K_i u - c_i - n_i)^2 / v_i``
 is minimised. It decides every lit pixel; coverage = share of lit pixels whose coordinate is within
-half a finest period of the truth (projector-width wrap counts as right, for both).
+half a finest period of the truth (the oracle's coordinate folded into the decoder's range
+``[-0.5, W - 0.5)``, so both meet the same ambiguity at the projector's edge).
 
 Run: ``PYTHONPATH=$PWD python benchmarks/bench_sl_coverage.py`` (about 2 minutes on one core).
 """
@@ -99,12 +100,14 @@ def oracle_x(cyc, var, periods):
         better = cost < best_cost
         best_cost = np.where(better, cost, best_cost)
         best_u = np.where(better, u, best_u)
-    return best_u * WP
+    x = best_u * WP
+    return np.where(x >= WP - 0.5, x - WP, x)            # the decoder's range [-0.5, W - 0.5)
 
 
 def circ_err(x, truth):
-    d = np.abs(x - truth)
-    return np.minimum(d, WP - d)
+    """|x - truth| (NaN where either is NaN): a coordinate folded across the projector's edge is wrong
+    (its depth is), for the oracle as for the decoder."""
+    return np.abs(x - truth)
 
 
 def run_case(name, baseline, scene, alb, periods, steps, read, seed, decode_kw=None, log=print):

@@ -308,10 +308,18 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
         acc &= (full >= 2.0 * np.log(1.0 / max_wrong)) & (half >= 0)
     if not acc.any():
         return empty
-    pick = sel[acc]
+    # integer periods repeat after the projector width: bring each block whole into the projector's
+    # range by its median, and refuse its pixels that noise puts past an edge (a fold there would
+    # move them a whole width)
     T = length / per[f]
-    xf = ((fine[acc] + mq[acc]) * T) % length
-    xf = np.where(xf >= length - 0.5, xf - length, xf)
+    xr = (fine + mq) * T
+    med = np.array([np.median(v) for v in np.split(xr[order], starts[1:])])
+    xr -= np.floor((med[binv] + 0.5) / length) * length
+    acc &= (xr >= -0.5) & (xr < length - 0.5)
+    if not acc.any():
+        return empty
+    pick = sel[acc]
+    xf = xr[acc]
     flat = cand[pick]
     if x_sure is not None:
         agree = _agrees_with_sure(flat, xf, x_sure, 0.5 * T)
