@@ -65,41 +65,48 @@ HALF = 7                # pixels: the window whose halves must not prefer anothe
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
 
 
-def _gradient(ok, cf):
-    """Finest-phase gradient (cycles per pixel, along x and y) at every pixel: the angle of the
-    summed phasors of the wrapped differences between neighbouring ``ok`` pixels in a ``GRAD`` x
-    ``GRAD`` window (a surface's fringe gradient varies slowly; one pixel pair is too noisy)."""
+def _pairs(ok, W):
+    """Flat indices (a, b) of the horizontal and the vertical neighbour pairs of ``ok`` pixels (flat
+    bool of an image W wide), per direction."""
+    idx = np.flatnonzero(ok)
+    right = idx[(idx % W != W - 1)]
+    right = right[ok[right + 1]]
+    down = idx[idx + W < ok.size]
+    down = down[ok[down + W]]
+    return (right, right + 1), (down, down + W)
+
+
+def _links(ok, cf, shape):
+    """4-neighbour links among ``ok`` pixels whose finest-phase difference fits the local gradient
+    within ``LINK_MAX`` cycles: (a, b, step), flat indices and ``step = N_b - N_a`` (finest orders).
+
+    The gradient (cycles per pixel, per axis) at a pixel is the angle of the summed phasors of the
+    wrapped differences of the pairs in its ``GRAD`` x ``GRAD`` window (a surface's fringe gradient
+    varies slowly; one pair is too noisy). Work is done at the pairs only, not over the image."""
     import cv2
 
+    H, W = shape
     k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    out = []
-    for both, diff, pad in ((ok[:, :-1] & ok[:, 1:], cf[:, 1:] - cf[:, :-1], ((0, 0), (0, 1))),
-                            (ok[:-1, :] & ok[1:, :], cf[1:, :] - cf[:-1, :], ((0, 1), (0, 0)))):
-        ang = np.float32(2 * np.pi) * diff
-        zr = np.pad(np.where(both, np.cos(ang), 0).astype(np.float32), pad)
-        zi = np.pad(np.where(both, np.sin(ang), 0).astype(np.float32), pad)
-        g = np.arctan2(cv2.boxFilter(zi, -1, **k), cv2.boxFilter(zr, -1, **k)) * np.float32(1 / (2 * np.pi))
-        out.append(g.astype(np.float32))
-    return out
-
-
-def _links(ok, cf):
-    """4-neighbour links among ``ok`` pixels whose finest-phase difference fits the local gradient
-    within ``LINK_MAX`` cycles: (a, b, step), flat indices and ``step = N_b - N_a`` (finest orders)."""
-    H, W = ok.shape
-    gx, gy = _gradient(ok, cf)
-    idx = np.arange(H * W).reshape(H, W)
     pa, pb, ps = [], [], []
-    for both, ca, cb, g, ia, ib in ((ok[:, :-1] & ok[:, 1:], cf[:, :-1], cf[:, 1:], gx[:, :-1] + gx[:, 1:],
-                                     idx[:, :-1], idx[:, 1:]),
-                                    (ok[:-1, :] & ok[1:, :], cf[:-1, :], cf[1:, :], gy[:-1, :] + gy[1:, :],
-                                     idx[:-1, :], idx[1:, :])):
-        t = (ca + np.float32(0.5) * g - cb)[both]      # = N_b - N_a + noise on one smooth surface
-        k = np.rint(t)
-        keep = np.abs(t - k) <= LINK_MAX
-        pa.append(ia[both][keep])
-        pb.append(ib[both][keep])
-        ps.append(k[keep].astype(np.int64))
+    zr = np.zeros(H * W, np.float32)
+    zi = np.zeros(H * W, np.float32)
+    for a, b in _pairs(ok, W):
+        d = cf[b] - cf[a]
+        ang = np.float32(2 * np.pi) * d
+        zr[:] = 0
+        zi[:] = 0
+        zr[a] = np.cos(ang)
+        zi[a] = np.sin(ang)
+        sr = cv2.boxFilter(zr.reshape(H, W), -1, **k).ravel()
+        si = cv2.boxFilter(zi.reshape(H, W), -1, **k).ravel()
+        # the pair's gradient: the mean of its two ends' (windows centred on a and on b)
+        g = (np.arctan2(si[a] + si[b], sr[a] + sr[b]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
+        t = g - d                                    # = N_b - N_a + noise on one smooth surface
+        n = np.rint(t)
+        keep = np.abs(t - n) <= LINK_MAX
+        pa.append(a[keep])
+        pb.append(b[keep])
+        ps.append(n[keep].astype(np.int64))
     return np.concatenate(pa), np.concatenate(pb), np.concatenate(ps)
 
 
@@ -225,7 +232,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     for _ in range(LOOP_ROUNDS):
         ok = np.zeros(H * W, bool)
         ok[cand[alive]] = True
-        ga, gb, step = _links(ok.reshape(H, W), cf_full.reshape(H, W))
+        ga, gb, step = _links(ok, cf_full, (H, W))
         if ga.size == 0:
             return empty
         a = np.searchsorted(cand, ga)
