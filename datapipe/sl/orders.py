@@ -9,27 +9,36 @@ the log-likelihood of ``m`` is the sum over the pixels of their temporal log-lik
 of n pixels has sqrt(n) times the coarse SNR of one pixel. This is the maximum-likelihood decision
 for the patch under the same Gaussian phase-noise model that :mod:`.confidence` uses per pixel.
 
-Steps (all vectorised; only the uncertain pixels take part, so a scene without them costs nothing):
+Steps (all vectorised; only the candidates take part: a scene without uncertain or dim pixels
+costs next to nothing):
 
-1. Links: 4-neighbours that are both uncertain (their orders undecided but their finest phase
-   precise: ``sigma_c <= MAX_FINE_NOISE`` cycles) and whose finest phases differ by at most
-   ``LINK_MAX`` cycles. The relative finest order across a link is ``-round(c_q - c_p)``: exact
-   while the true difference is below half a period (a smooth surface sampled finer than the
-   fringe), wrong only across a depth step.
+0. Candidates: pixels whose orders stayed uncertain (and consistent), and pixels NO_LIGHT by the
+   joint modulation floor alone (``dim``). The phase noise of each comes from the mean of
+   ``B_hat^2 / s^2`` over its 3 x 3 candidate neighbours (one pixel's B_hat is too noisy); the
+   finest phase must be precise (``sigma_c <= MAX_FINE_NOISE`` cycles); a dim pixel's 3 x 3
+   candidates must pass the joint modulation test at ``DIM_FALSE_RATE`` (pure noise: 1e-3).
+1. Links: 4-neighbour candidates whose finest-phase difference fits the local fringe gradient
+   (phasor mean of the pair differences in a ``GRAD`` x ``GRAD`` window) within ``LINK_MAX``
+   cycles. The relative finest order across a link is ``round(c_p + g - c_q)``: exact on a smooth
+   surface sampled finer than the fringe, unknowable across a depth step.
 2. Components of the link graph (:func:`scipy.sparse.csgraph.connected_components`); relative
    orders along a breadth-first tree (pointer jumping, log(depth) vectorised passes). A link that
-   disagrees with the tree (a loop whose steps do not sum to zero) means a step inside the
-   component: the whole component is refused.
-3. Blocks = component x ``TILE`` x ``TILE`` tile. Per block and candidate offset ``m`` (the
-   finest frequency's ``K_f`` hypotheses; integer periods repeat after the width) the summed cost
-   ``sum_q min(chi2_q(m), ROBUST_CAP)`` with ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W -
-   c_i)^2 / (v_i + (K_i / K_f)^2 v_f)``. The block's probability of a wrong offset is the posterior
-   mass of the other offsets, ``sum_{m != m*} exp(-(S_m - S_m*) / 2)`` (flat prior).
-4. Safety: blocks of one component that are each sure of their offset must name the same one
-   (a depth step of a whole number of periods inside a component splits it into two surfaces
-   whose blocks disagree: the component is refused); a pixel's own frequencies must not contradict
-   the chosen offset (``chi2_q(m*)`` below the 1e-4 tail); the block must hold at least
-   ``MIN_BLOCK`` pixels.
+   disagrees with the tree closes a loop whose steps do not sum to zero: its two ends leave and the
+   components are built again (``LOOP_ROUNDS`` times).
+3. Blocks = component x ``TILE`` x ``TILE`` tile, of at least ``MIN_BLOCK`` pixels. Per block and
+   offset ``m`` (the finest frequency's ``K_f`` hypotheses; integer periods repeat after the width)
+   the summed cost ``S_m = sum_q min(chi2_q(m), ROBUST_CAP)`` with ``chi2_q(m) = sum_{i != f}
+   wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2 v_f)``. The block's probability of a wrong
+   offset is the posterior mass of the others, ``sum_{m != m*} exp(-(S_m - S_m*) / 2)`` (flat prior);
+   it decides when that is <= ``max_wrong``.
+4. Per pixel (a depth step of about a whole period inside a block is what these catch): its own
+   frequencies must not contradict the offset (``chi2_q(m*)`` below the ``OWN_P`` tail); its own
+   ``LOCAL`` x ``LOCAL`` neighbourhood must prefer the offset by a likelihood ratio of
+   ``1 / max_wrong`` and no half of its ``HALF`` x ``HALF`` window may prefer another (at a step,
+   the half on the pixel's side speaks for its surface); a dim pixel needs all 4 links; a pixel
+   more than half a period from a 4-neighbour decided on its own is refused (the caller's
+   ``x_sure``); the block is placed in the projector's range by its median and pixels past an edge
+   are refused.
 
 Accepted pixels get the order, the block's probability as their ``p_wrong`` and come out as
 NEIGHBOUR_ORDER (their order rests on the same-surface assumption: the decoder lowers their
@@ -54,7 +63,6 @@ MAX_FINE_NOISE = 0.12    # cycles: finest-phase noise (estimated) of a pixel tha
 LINK_MAX = 0.25         # cycles: largest misfit of a link's finest-phase difference to the local gradient
 TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
 MIN_BLOCK = 32           # pixels in a block before it decides
-SPLIT_REFUSES = False
 GRAD = 5                # pixels: window of the finest-phase gradient estimate
 HALF_MIN = 8            # pooled pixels a half window needs to speak
 LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
@@ -202,116 +210,47 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     wrapped phases in cycles; snr: per frequency ``B_hat^2 / s^2`` (modulation over the noise of
     the least-squares coefficients); periods: integer frequencies; length: coded projector width
     (pixels); shape: (H, W); x_sure: optional (H, W) coordinates of the pixels decided on their own
-    (NaN elsewhere): a pooled pixel more than half a finest period away from one of its 4-neighbours
-    there is refused (a depth step between them, or a wrong order on one side). Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices,
-    finest-frequency coordinate in pixels, probability that the order is wrong)."""
+    (NaN elsewhere): a pooled pixel more than half a finest period away from one of its
+    4-neighbours there is refused (a depth step between them, or a wrong order on one side).
+    Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
+    in pixels, probability that the order is wrong)."""
     empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
     per = np.asarray(periods, np.float64)
-    F = per.size
-    f = int(np.argmax(per))
-    Kf = int(round(per[f]))
+    F, f = per.size, int(np.argmax(per))
     if F < 2 or cand.size < MIN_BLOCK:
         return empty
     H, W = shape
     dim = np.zeros(cand.size, bool) if dim is None else dim
-    qbar, count = _smoothed(cand, snr, (H, W))
-    var_c = [phase_var_from_snr(q) for q in qbar]
-    keep = var_c[f] <= MAX_FINE_NOISE ** 2
-    if dim.any():                        # lit after all? the 3 x 3 candidates' joint modulation test
-        lit = 0.5 * count * sum(qbar) > gammainccinv(F * count, DIM_FALSE_RATE)
-        keep &= ~dim | lit
+    keep, var_c = _precise_and_lit(cand, snr, dim, (H, W), f)
     cand, dim = cand[keep], dim[keep]
     cyc = [c[keep] for c in cyc]
     var_c = [v[keep] for v in var_c]
-    n = cand.size
-    if n < MIN_BLOCK:
+    if cand.size < MIN_BLOCK:
         return empty
-    cf_full = np.zeros(H * W, np.float32)
-    cf_full[cand] = cyc[f]
-    alive = np.ones(n, bool)
-    for _ in range(LOOP_ROUNDS):
-        ok = np.zeros(H * W, bool)
-        ok[cand[alive]] = True
-        ga, gb, step = _links(ok, cf_full, (H, W))
-        if ga.size == 0:
-            return empty
-        a = np.searchsorted(cand, ga)
-        b = np.searchsorted(cand, gb)
-        comp, ncomp, rel, bad = _relative_orders(n, a, b, step)
-        if not bad.any():
-            break
-        # a link that contradicts the tree closes a loop whose order steps do not sum to zero (a slip
-        # of the finest phase, or a step): its ends leave, which cuts the loop; then again
-        alive[a[bad]] = False
-        alive[b[bad]] = False
-    else:
-        comp = comp.copy()
-        comp[np.isin(comp, np.unique(comp[a[bad]]))] = -1
-    comp[~alive] = -1
-    # blocks: component x tile; singletons (no link) never decide
+    surf = _surfaces(cand, cyc[f], (H, W))
+    if surf is None:
+        return empty
+    comp, ncomp, rel, a, b = surf
+    # blocks: component x tile; small components never decide
     r, c = np.divmod(cand, W)
-    ntx = (W + TILE - 1) // TILE
-    tile = (r // TILE) * ntx + c // TILE
+    ntiles = ((H + TILE - 1) // TILE) * ((W + TILE - 1) // TILE)
+    tile = (r // TILE) * ((W + TILE - 1) // TILE) + c // TILE
     sizes = np.bincount(comp[comp >= 0], minlength=ncomp)
-    use = (comp >= 0) & (sizes[np.maximum(comp, 0)] >= MIN_BLOCK)
-    if not use.any():
+    sel = np.flatnonzero((comp >= 0) & (sizes[np.maximum(comp, 0)] >= MIN_BLOCK))
+    if sel.size == 0:
         return empty
-    sel = np.flatnonzero(use)
-    bkey = comp[sel].astype(np.int64) * (tile.max() + 1) + tile[sel]
-    ublk, binv = np.unique(bkey, return_inverse=True)
-    nb = ublk.size
-    # cost of every candidate offset m for every pixel: x_q(m) = (rel_q + m + c_f) T
+    _, binv = np.unique(comp[sel].astype(np.int64) * ntiles + tile[sel], return_inverse=True)
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
-    m = np.arange(Kf, dtype=np.float32)[:, None]
-    cost = np.zeros((Kf, sel.size), np.float32)
-    vf = var_c[f][sel]
-    for i in range(F):
-        if i == f:
-            continue
-        ratio = per[i] / per[f]
-        # the phase each offset predicts, reduced to one cycle first (float32 keeps 1e-7 of a cycle)
-        t0 = ratio * fine - cyc[i][sel]
-        t = np.float32(ratio) * m + (t0 - np.rint(t0)).astype(np.float32)[None, :]
-        t -= np.rint(t)
-        t *= t
-        t *= (np.float32(1) / (var_c[i][sel] + np.float32(ratio * ratio) * vf))[None, :]
-        cost += t
-    capped = np.minimum(cost, ROBUST_CAP)
-    order = np.argsort(binv, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(binv[order]) != 0])
-    S = np.add.reduceat(capped[:, order], starts, axis=1)      # (Kf, nb)
-    best = np.argmin(S, 0)
-    sb = S[best, np.arange(nb)]
-    p_blk = np.sum(np.exp(-0.5 * (S - sb[None, :])), 0) - 1.0
-    p_blk = p_blk / (1.0 + p_blk)
-    nblk = np.bincount(binv, minlength=nb)
-    sure = (p_blk <= max_wrong) & (nblk >= MIN_BLOCK)
-    # blocks of one component that are sure must agree on the offset
-    bcomp = ublk // (tile.max() + 1)
-    sure_c, sure_m = bcomp[sure], best[sure]
-    lo = np.full(ncomp, Kf, np.int64)
-    hi = np.full(ncomp, -1, np.int64)
-    np.minimum.at(lo, sure_c, sure_m)
-    np.maximum.at(hi, sure_c, sure_m)
-    split = (hi >= 0) & (lo != hi)
-    if SPLIT_REFUSES:
-        sure &= ~split[bcomp]
-    mq = best[binv]
-    cols = np.arange(sel.size)
-    own = cost[mq, cols]
-    acc = sure[binv] & (own <= chi2.isf(OWN_P, max(1, F - 1)))
+    cost = _offset_costs(fine, [c_[sel] for c_ in cyc], [v[sel] for v in var_c], per)
+    blk = _block_posterior(np.minimum(cost, ROBUST_CAP), binv, max_wrong)
+    mq = blk["best"][binv]
+    acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= chi2.isf(OWN_P, max(1, F - 1)))
     if dim[sel].any():                   # below the modulation floor: only inside the surface (4 linked neighbours)
-        deg = np.bincount(a, minlength=n) + np.bincount(b, minlength=n)
+        deg = np.bincount(a, minlength=cand.size) + np.bincount(b, minlength=cand.size)
         acc &= ~dim[sel] | (deg[sel] >= 4)
     if acc.any():
-        # offsets worth a look: those some sure block prefers m* to by less than 8 x the local threshold,
-        # scaled to a window's share of the block (the local test is far from binding for the others)
-        gain = (S - sb[None, :]) * np.minimum(1.0, LOCAL * LOCAL / np.maximum(nblk, 1))[None, :]
-        near = np.zeros(Kf, bool)
-        for d in range(1, Kf):
-            near[d] = np.any(gain[(best + d) % Kf, np.arange(nb)][sure] < 8 * 2.0 * np.log(1.0 / max_wrong))
-        near[[1, Kf - 1]] = True
-        full, half = _local_support(cand[sel], capped, mq, (H, W), np.flatnonzero(near))
+        full, half = _local_support(cand[sel], np.minimum(cost, ROBUST_CAP), mq, (H, W),
+                                    _shifts_to_check(blk, max_wrong))
         acc &= (full >= 2.0 * np.log(1.0 / max_wrong)) & (half >= 0)
     if not acc.any():
         return empty
@@ -320,20 +259,105 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     # move them a whole width)
     T = length / per[f]
     xr = (fine + mq) * T
-    med = np.array([np.median(v) for v in np.split(xr[order], starts[1:])])
+    med = np.array([np.median(v) for v in np.split(xr[blk["order"]], blk["starts"][1:])])
     xr -= np.floor((med[binv] + 0.5) / length) * length
     acc &= (xr >= -0.5) & (xr < length - 0.5)
+    if x_sure is not None:
+        acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, 0.5 * T)
     if not acc.any():
         return empty
-    pick = sel[acc]
-    xf = xr[acc]
-    flat = cand[pick]
-    if x_sure is not None:
-        agree = _agrees_with_sure(flat, xf, x_sure, 0.5 * T)
-        flat, xf, pick, acc_idx = flat[agree], xf[agree], pick[agree], np.flatnonzero(acc)[agree]
+    return cand[sel[acc]], xr[acc].astype(np.float32), blk["p"][binv[acc]].astype(np.float32)
+
+
+def _precise_and_lit(cand, snr, dim, shape, f):
+    """(keep mask, per-frequency phase variances in cycles^2 from the 3x3 mean SNR): the finest
+    phase precise enough to link, and a ``dim`` pixel's 3x3 candidates passing the joint
+    modulation test at ``DIM_FALSE_RATE``."""
+    qbar, count = _smoothed(cand, snr, shape)
+    var_c = [phase_var_from_snr(q) for q in qbar]
+    keep = var_c[f] <= MAX_FINE_NOISE ** 2
+    if dim.any():                        # lit after all? the 3 x 3 candidates' joint modulation test
+        lit = 0.5 * count * sum(qbar) > gammainccinv(len(snr) * count, DIM_FALSE_RATE)
+        keep &= ~dim | lit
+    return keep, var_c
+
+
+def _surfaces(cand, cf, shape):
+    """Components of linked candidates and their relative finest orders; links that close a loop
+    whose order steps do not sum to zero (a slip of the finest phase, or a step) lose both ends,
+    ``LOOP_ROUNDS`` times; a component still inconsistent then is dropped (-1). Returns (comp,
+    ncomp, rel, a, b) over the candidates, or None without links."""
+    H, W = shape
+    n = cand.size
+    cf_full = np.zeros(H * W, np.float32)
+    cf_full[cand] = cf
+    alive = np.ones(n, bool)
+    for _ in range(LOOP_ROUNDS):
+        ok = np.zeros(H * W, bool)
+        ok[cand[alive]] = True
+        ga, gb, step = _links(ok, cf_full, (H, W))
+        if ga.size == 0:
+            return None
+        a, b = np.searchsorted(cand, ga), np.searchsorted(cand, gb)
+        comp, ncomp, rel, bad = _relative_orders(n, a, b, step)
+        if not bad.any():
+            break
+        alive[a[bad]] = False
+        alive[b[bad]] = False
     else:
-        acc_idx = np.flatnonzero(acc)
-    return flat, xf.astype(np.float32), p_blk[binv[acc_idx]].astype(np.float32)
+        comp = comp.copy()
+        comp[np.isin(comp, np.unique(comp[a[bad]]))] = -1
+    comp[~alive] = -1
+    return comp, ncomp, rel, a, b
+
+
+def _offset_costs(fine, cyc, var_c, per):
+    """(K_f, n) float32: ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2
+    v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest frequency."""
+    f = int(np.argmax(per))
+    m = np.arange(int(round(per[f])), dtype=np.float32)[:, None]
+    cost = np.zeros((m.size, fine.size), np.float32)
+    for i in range(per.size):
+        if i == f:
+            continue
+        ratio = per[i] / per[f]
+        # the phase each offset predicts, reduced to one cycle first (float32 keeps 1e-7 of a cycle)
+        t0 = ratio * fine - cyc[i]
+        t = np.float32(ratio) * m + (t0 - np.rint(t0)).astype(np.float32)[None, :]
+        t -= np.rint(t)
+        t *= t
+        t *= (np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f]))[None, :]
+        cost += t
+    return cost
+
+
+def _block_posterior(capped, binv, max_wrong):
+    """Per block: summed costs S (K_f, nb), best offset, probability that it is wrong (posterior
+    mass of the others, flat prior), size, and whether it decides (sure)."""
+    order = np.argsort(binv, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(binv[order]) != 0])
+    S = np.add.reduceat(capped[:, order], starts, axis=1)
+    nb = S.shape[1]
+    best = np.argmin(S, 0)
+    sb = S[best, np.arange(nb)]
+    p = np.sum(np.exp(-0.5 * (S - sb[None, :])), 0) - 1.0
+    p = p / (1.0 + p)
+    size = np.bincount(binv, minlength=nb)
+    return dict(S=S, sb=sb, best=best, p=p, size=size, sure=(p <= max_wrong) & (size >= MIN_BLOCK),
+                order=order, starts=starts)
+
+
+def _shifts_to_check(blk, max_wrong):
+    """Offsets (relative to m*) worth a local look: those some sure block prefers m* to by less than
+    8 x the local threshold, scaled to a window's share of the block; always +-1."""
+    S, sb, best, size, sure = blk["S"], blk["sb"], blk["best"], blk["size"], blk["sure"]
+    Kf, nb = S.shape
+    gain = (S - sb[None, :]) * np.minimum(1.0, LOCAL * LOCAL / np.maximum(size, 1))[None, :]
+    near = np.zeros(Kf, bool)
+    for d in range(1, Kf):
+        near[d] = np.any(gain[(best + d) % Kf, np.arange(nb)][sure] < 8 * 2.0 * np.log(1.0 / max_wrong))
+    near[[1, Kf - 1]] = True
+    return np.flatnonzero(near)
 
 
 def _agrees_with_sure(flat, x, x_sure, tol):
