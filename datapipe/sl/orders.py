@@ -68,7 +68,7 @@ HALF_MIN = 8            # pooled pixels a half window needs to speak
 LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
 DIM_FALSE_RATE = 1e-3   # a NO_LIGHT pixel joins when its 3 x 3 candidates pass the joint modulation test at this rate
 ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
-LOCAL = 11              # pixels: window whose pooled pixels must prefer the offset by themselves
+LOCAL = 15              # pixels: window whose pooled pixels must prefer the offset by themselves
 HALF = 7                # pixels: the window whose halves must not prefer another offset
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
 
