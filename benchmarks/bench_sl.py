@@ -13,7 +13,7 @@ Writes benchmarks/results/sl_decoder.md, sl_decoder.csv and sl_error_vs_images.p
 step, dark patches of albedo 0.05-0.15 and an albedo ramp, 1% noise, uint8) for `decode` at every
 `max_wrong` (with and without the neighbour pass), the former worst-case rules, the per-pixel
 oracle and OpenCV's PSP + spatial unwrapping at every modulation threshold, plus the decode time
-at 1920x1080 on that scene: benchmarks/results/sl_coverage.md, .csv and sl_coverage.png.
+at 1920x1080 on that scene: benchmarks/results/sl_coverage_curves.md, .csv and .png.
 """
 from __future__ import annotations
 
@@ -378,12 +378,12 @@ def coverage_main(rep=3):
 
 
 def _write_coverage(rows, curves, points, lines, speed, rep):
-    draw_curve(os.path.join(RESULTS, "sl_coverage.png"), curves, points,
+    draw_curve(os.path.join(RESULTS, "sl_coverage_curves.png"), curves, points,
                "dark-patch box scene, 1% noise, uint8: correct coverage vs wrong orders")
     keys = []
     for r in rows:
         keys += [k for k in r if k not in keys]
-    with open(os.path.join(RESULTS, "sl_coverage.csv"), "w", newline="") as fh:
+    with open(os.path.join(RESULTS, "sl_coverage_curves.csv"), "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=keys)
         w.writeheader()
         for r in rows:
@@ -408,7 +408,7 @@ def _write_coverage(rows, curves, points, lines, speed, rep):
         "|---|---|---|---|---|---|",
     ] + lines + [
         "",
-        "## Curves (sl_coverage.png, sl_coverage.csv)",
+        "## Curves (sl_coverage_curves.png, sl_coverage_curves.csv)",
         "",
         "Ours: `max_wrong` swept over 1e-9 .. 1 (the decoder's probability that an order is wrong, "
         "`1 - DecodeResult.confidence`), with and without the neighbour pass. OpenCV: `SinusoidalPattern` PSP on "
@@ -435,7 +435,7 @@ def _write_coverage(rows, curves, points, lines, speed, rep):
         "| scene | periods x 4 | neighbour pass | best ms | median ms | CPU ms | correct / lit |",
         "|---|---|---|---|---|---|---|",
     ] + speed + [""]
-    write_with_notes(Path(RESULTS) / "sl_coverage.md", md)
+    write_with_notes(Path(RESULTS) / "sl_coverage_curves.md", md)
     print("\n".join(md))
 
 

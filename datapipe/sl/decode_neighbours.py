@@ -9,7 +9,8 @@ from .confidence import phase_var_cycles
 from .decode_result import Reason
 from .decode_setup import DecodeSetup
 from .decode_slab import DecodeMaps
-from .spatial import correct_orders
+from .orders import pooled_orders
+from .spatial import _combine_from_fine, correct_orders
 
 __all__ = ["neighbour_pass"]
 
@@ -39,12 +40,44 @@ def _chunk_supported(st: DecodeSetup, out: DecodeMaps, idx) -> bool:
 
 
 def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
-    """Uncertain pixels take / confirm their order from confident neighbours, then are
-    triangulated again (see :mod:`.spatial`)."""
-    if not out.candidates:
+    """Uncertain pixels take their order from the pooled evidence of their surface
+    (:mod:`.orders`), then the rest take / confirm it from confident neighbours (:mod:`.spatial`);
+    both are triangulated again."""
+    if not out.candidates and not out.dim:
         return
-    idx = np.concatenate(out.candidates)
-    if not _any_supported(st, out, idx):
+    idx = np.concatenate(out.candidates + out.dim)
+    n_cand = sum(c.size for c in out.candidates)
+    dim = np.zeros(idx.size, bool)
+    dim[n_cand:] = True
+    srt = np.argsort(idx, kind="stable")
+    idx, dim = idx[srt], dim[srt]
+    F = len(st.plan.periods)
+    if st.sigma_fn is not None:
+        sig = np.asarray(st.sigma_fn(np.maximum(out.offset.ravel()[idx].astype(np.float64), 0)), np.float64)
+    elif st.sigma_map is not None:
+        sig = st.sigma_map.ravel()[idx].astype(np.float64)
+    else:
+        sig = np.full(idx.size, st.sigma_scalar)
+    s = (sig * st.row_sigma).astype(np.float32)
+    cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
+    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
+    if st.plan.integer:
+        snr = [np.square(out.modulation[i].ravel()[idx] / np.maximum(s, np.float32(1e-30))) for i in range(F)]
+        with np.errstate(invalid="ignore"):
+            sure = (out.p_wrong <= np.float32(st.max_wrong)) & ~out.inconsistent & (out.reason == 0)
+        x_sure = np.where(sure, out.proj_x, np.float32(np.nan))
+        ia, xf, pa = pooled_orders(idx, cyc, snr, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
+                                   dim=dim, x_sure=x_sure)
+        if ia.size:
+            pos = np.searchsorted(idx, ia)
+            xa = _combine_from_fine(xf.astype(np.float64), [c[pos].astype(np.float64) for c in cyc],
+                                    np.asarray(st.plan.periods, float), float(st.wcoded),
+                                    _kept_weights(st.plan.periods)).astype(np.float32)
+            _apply(st, out, ia, xa, pa)
+            dim[pos] = True                  # decided: not for the neighbour pass
+    rest = ~dim
+    idx, cyc, var_c = idx[rest], [c[rest] for c in cyc], [v[rest] for v in var_c]
+    if idx.size == 0 or not _any_supported(st, out, idx):
         return
     # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): not good
     with np.errstate(invalid="ignore"):
@@ -54,21 +87,19 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
         good &= ~out.legacy_bad
     if not good.any():
         return
-    F = len(st.plan.periods)
-    if st.sigma_fn is not None:
-        sig = np.asarray(st.sigma_fn(np.maximum(out.offset.ravel()[idx].astype(np.float64), 0)), np.float64)
-    elif st.sigma_map is not None:
-        sig = st.sigma_map.ravel()[idx].astype(np.float64)
-    else:
-        sig = np.full(idx.size, st.sigma_scalar)
-    s = sig * st.row_sigma
-    cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
-    s = s.astype(np.float32)
-    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     ia, xa, pa = correct_orders(out.proj_x, good, idx, cyc, var_c, st.plan.periods, st.wcoded,
                                 max_wrong=st.max_wrong)
-    if ia.size == 0:
-        return
+    if ia.size:
+        _apply(st, out, ia, xa, pa)
+
+
+def _kept_weights(periods):
+    w = np.asarray(periods, float) ** 2
+    return w >= 0.01 * w.sum()
+
+
+def _apply(st: DecodeSetup, out: DecodeMaps, ia, xa, pa):
+    """Write the new coordinates of pixels ia, mark them filled, re-triangulate their rows."""
     out.proj_x.ravel()[ia] = xa
     out.p_wrong.ravel()[ia] = pa
     out.filled.ravel()[ia] = True

@@ -11,10 +11,14 @@ from .confidence import phase_var_from_snr, wrong_probability
 from .decode_result import Reason
 from .decode_setup import DecodeSetup
 from .gamma import correct_cycles
-from .spatial import MAX_FINE_NOISE
+from .orders import MAX_FINE_NOISE as POOL_FINE_NOISE
+from .spatial import MAX_FINE_NOISE as SPATIAL_FINE_NOISE
 from .unwrap import unwrap_cycles
 
 __all__ = ["DecodeMaps", "decode_slab"]
+
+# the step-2 candidates: precise enough a finest phase for the pooled decision or the neighbour pass
+MAX_FINE_NOISE = max(POOL_FINE_NOISE, SPATIAL_FINE_NOISE)
 
 
 @dataclass
@@ -34,6 +38,8 @@ class DecodeMaps:
     wrapped: list
     candidates: list = field(default_factory=list)   # per slab: flat indices of the pixels the neighbour pass
                                                       # may fill (above max_wrong, order decoded, fine phase precise)
+    dim: list = field(default_factory=list)          # per slab: NO_LIGHT by the joint floor alone: the pooled
+                                                      # decision (sl.orders) may find them lit, with their surface
 
     @classmethod
     def allocate(cls, H, W, F):
@@ -112,8 +118,13 @@ def decode_slab(st: DecodeSetup, out: DecodeMaps, r0: int, r1: int, coefs):
             nl = low if nl is None else (nl | low)
         if nl is not None:
             nolight = nl if nolight is None else np.logical_or(nolight, nl, out=nolight)
+    dim = None
     if st.min_modulation is None:
         floor = np.less_equal(qsum, wt(st.joint_q2))
+        if st.spatial and st.plan.integer:   # dim but lit? the pooled decision (sl.orders) may tell
+            dim = floor.copy()
+            if nolight is not None:
+                dim &= ~nolight
         nolight = floor if nolight is None else np.logical_or(nolight, floor, out=nolight)
     off *= np.float32(st.kernel.a_scale / F)
     un = unwrap_cycles(cycs, st.plan, st.wcoded)
@@ -146,6 +157,12 @@ def decode_slab(st: DecodeSetup, out: DecodeMaps, r0: int, r1: int, coefs):
         out.inconsistent[r0:r1][basic] = False
         legacy[basic] = False
         fillable &= ~basic
+    if dim is not None:
+        for m in (satflag, invalid):
+            if m is not None:
+                dim &= ~m
+        if dim.any():
+            out.dim.append(np.flatnonzero(dim) + r0 * dim.shape[1])
     fillable &= ~inc                     # the neighbour pass's candidates (sl.spatial)
     if st.order_factor or st.max_order_error is not None:
         fillable &= ~legacy

@@ -45,10 +45,9 @@ def test_coverage_at_the_oracle(dark_scene, periods):
     """1% noise (B = 0.02 .. 0.4: phase SNR down to 2.8): correct coverage of lit pixels within
     17 points of the oracle, wrong orders <= 0.1% of the valid pixels, nothing valid in the shadow;
     the per-pixel decision alone (no neighbours) is still wrong on <= 0.1% of its valid pixels and
-    the neighbours add to it. (Before issue #19 the neighbour pass grew into the dark patches from
-    their edges, within 3 points of the oracle; it no longer extrapolates from one side where the
-    pixel's own frequencies cannot rule out the orders next to the neighbours', since a depth step
-    of a whole period looks the same: the patches' cores are holes, as on a real scanner.)"""
+    the neighbours add to it. (Issue #19 stopped the neighbour pass from growing into the dark
+    patches from their edges, which a depth step of a whole period fools; since issue #31 each
+    patch decides its order offset from its own pooled coarse phases, sl.orders.)"""
     res, r, oracle, correct, wrong = coverage(dark_scene, periods, 0.01)
     assert oracle < 0.97                         # the scene is hard: the oracle itself loses pixels
     assert correct >= oracle - 0.17, (correct, oracle)

@@ -1,0 +1,376 @@
+"""Fringe orders of uncertain pixels from the pooled evidence of their surface (issue #31).
+
+A pixel whose own frequencies leave its order uncertain (a dark surface: phase SNR of a few) still
+knows its *finest* phase well enough to say how its coordinate differs from its neighbours' by a
+fraction of a period. On one smooth surface those differences chain the pixels' finest orders
+together (spatial unwrapping of the finest phase), leaving a single unknown integer per surface:
+its offset ``m``. Every pixel's coarse phases then vote on that one integer, and the votes add up:
+the log-likelihood of ``m`` is the sum over the pixels of their temporal log-likelihoods, so a patch
+of n pixels has sqrt(n) times the coarse SNR of one pixel. This is the maximum-likelihood decision
+for the patch under the same Gaussian phase-noise model that :mod:`.confidence` uses per pixel.
+
+Steps (all vectorised; only the candidates take part: a scene without uncertain or dim pixels
+costs next to nothing):
+
+0. Candidates: pixels whose orders stayed uncertain (and consistent), and pixels NO_LIGHT by the
+   joint modulation floor alone (``dim``). The phase noise of each comes from the mean of
+   ``B_hat^2 / s^2`` over its 3 x 3 candidate neighbours (one pixel's B_hat is too noisy); the
+   finest phase must be precise (``sigma_c <= MAX_FINE_NOISE`` cycles); a dim pixel's 3 x 3
+   candidates must pass the joint modulation test at ``DIM_FALSE_RATE`` (pure noise: 1e-3).
+1. Links: 4-neighbour candidates whose finest-phase difference fits the local fringe gradient
+   (phasor mean of the pair differences in a ``GRAD`` x ``GRAD`` window) within ``LINK_MAX``
+   cycles. The relative finest order across a link is ``round(c_p + g - c_q)``: exact on a smooth
+   surface sampled finer than the fringe, unknowable across a depth step.
+2. Components of the link graph (:func:`scipy.sparse.csgraph.connected_components`); relative
+   orders along a breadth-first tree (pointer jumping, log(depth) vectorised passes). A link that
+   disagrees with the tree closes a loop whose steps do not sum to zero: its two ends leave and the
+   components are built again (``LOOP_ROUNDS`` times).
+3. Blocks = component x ``TILE`` x ``TILE`` tile, of at least ``MIN_BLOCK`` pixels. Per block and
+   offset ``m`` (the finest frequency's ``K_f`` hypotheses; integer periods repeat after the width)
+   the summed cost ``S_m = sum_q min(chi2_q(m), ROBUST_CAP)`` with ``chi2_q(m) = sum_{i != f}
+   wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2 v_f)``. The block's probability of a wrong
+   offset is the posterior mass of the others, ``sum_{m != m*} exp(-(S_m - S_m*) / 2)`` (flat prior);
+   it decides when that is <= ``max_wrong``.
+4. Per pixel (a depth step of about a whole period inside a block is what these catch): its own
+   frequencies must not contradict the offset (``chi2_q(m*)`` below the ``OWN_P`` tail); its own
+   ``LOCAL`` x ``LOCAL`` neighbourhood must prefer the offset by a likelihood ratio of
+   ``1 / max_wrong`` and no half of its ``HALF`` x ``HALF`` window may prefer another (at a step,
+   the half on the pixel's side speaks for its surface); a dim pixel needs all 4 links; a pixel
+   more than half a period from a 4-neighbour decided on its own is refused (the caller's
+   ``x_sure``); the block is placed in the projector's range by its median and pixels past an edge
+   are refused.
+
+Accepted pixels get the order, the block's probability as their ``p_wrong`` and come out as
+NEIGHBOUR_ORDER (their order rests on the same-surface assumption: the decoder lowers their
+confidence by ``NEIGHBOUR_RISK``). Why only uncertain pixels form the components: a confident
+neighbour across a depth step of about one period (issue #19: a dark box top beside a bright floor
+on a 5 cm baseline) would otherwise outvote the patch's own coarse phases; here the patch decides
+from its own evidence, which pooled over hundreds of pixels is decisive.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.special import gammainccinv
+from scipy.stats import chi2
+
+from .confidence import phase_var_from_snr
+
+__all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
+
+MAX_FINE_NOISE = 0.12    # cycles: finest-phase noise (estimated) of a pixel that may take part
+LINK_MAX = 0.25         # cycles: largest misfit of a link's finest-phase difference to the local gradient
+TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
+MIN_BLOCK = 32           # pixels in a block before it decides
+GRAD = 5                # pixels: window of the finest-phase gradient estimate
+HALF_MIN = 8            # pooled pixels a half window needs to speak
+LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
+DIM_FALSE_RATE = 1e-3   # a NO_LIGHT pixel joins when its 3 x 3 candidates pass the joint modulation test at this rate
+ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
+LOCAL = 15              # pixels: window whose pooled pixels must prefer the offset by themselves
+HALF = 7                # pixels: the window whose halves must not prefer another offset
+OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
+
+
+def _pairs(ok, W):
+    """Flat indices (a, b) of the horizontal and the vertical neighbour pairs of ``ok`` pixels (flat
+    bool of an image W wide), per direction."""
+    idx = np.flatnonzero(ok)
+    right = idx[(idx % W != W - 1)]
+    right = right[ok[right + 1]]
+    down = idx[idx + W < ok.size]
+    down = down[ok[down + W]]
+    return (right, right + 1), (down, down + W)
+
+
+def _links(ok, cf, shape):
+    """4-neighbour links among ``ok`` pixels whose finest-phase difference fits the local gradient
+    within ``LINK_MAX`` cycles: (a, b, step), flat indices and ``step = N_b - N_a`` (finest orders).
+
+    The gradient (cycles per pixel, per axis) at a pixel is the angle of the summed phasors of the
+    wrapped differences of the pairs in its ``GRAD`` x ``GRAD`` window (a surface's fringe gradient
+    varies slowly; one pair is too noisy). Work is done at the pairs only, not over the image."""
+    import cv2
+
+    H, W = shape
+    k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    pa, pb, ps = [], [], []
+    zr = np.zeros(H * W, np.float32)
+    zi = np.zeros(H * W, np.float32)
+    for a, b in _pairs(ok, W):
+        d = cf[b] - cf[a]
+        ang = np.float32(2 * np.pi) * d
+        zr[:] = 0
+        zi[:] = 0
+        zr[a] = np.cos(ang)
+        zi[a] = np.sin(ang)
+        sr = cv2.boxFilter(zr.reshape(H, W), -1, **k).ravel()
+        si = cv2.boxFilter(zi.reshape(H, W), -1, **k).ravel()
+        # the pair's gradient: the mean of its two ends' (windows centred on a and on b)
+        g = (np.arctan2(si[a] + si[b], sr[a] + sr[b]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
+        t = g - d                                    # = N_b - N_a + noise on one smooth surface
+        n = np.rint(t)
+        keep = np.abs(t - n) <= LINK_MAX
+        pa.append(a[keep])
+        pb.append(b[keep])
+        ps.append(n[keep].astype(np.int64))
+    return np.concatenate(pa), np.concatenate(pb), np.concatenate(ps)
+
+
+def _smoothed(cand, snr, shape):
+    """Per frequency the mean of ``B_hat^2 / s^2`` over each candidate's 3 x 3 candidate neighbours
+    (the phase noise follows from it far more precisely than from one pixel's B_hat), and their
+    count."""
+    import cv2
+
+    H, W = shape
+    k = dict(ksize=(3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    m = np.zeros(H * W, np.float32)
+    m[cand] = 1
+    count = cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand]
+    out = []
+    for q in snr:
+        m[cand] = q
+        out.append((cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand] / count).astype(np.float32))
+    return out, count
+
+
+def _relative_orders(n, a, b, step):
+    """Components and relative finest orders of n nodes linked by (a, b) (local node numbers)."""
+    ncomp, comp = csgraph.connected_components(
+        sparse.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n)), directed=False)
+    # a virtual root joined to the first node of every component: one breadth-first tree for all
+    first = np.full(ncomp, -1, np.int64)
+    first[comp[::-1]] = np.arange(n)[::-1]
+    root = n
+    rows = np.concatenate([a, b, np.full(ncomp, root)])
+    cols = np.concatenate([b, a, first])
+    g = sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n + 1, n + 1))
+    _, pred = csgraph.breadth_first_order(g, root, directed=True, return_predecessors=True)
+    pred = pred.astype(np.int64)
+    pred[root] = root
+    # delta of every tree edge pred -> node from the link list (both directions)
+    lut = sparse.csr_matrix((np.concatenate([step, -step]).astype(float) + 0.5,
+                             (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n))
+    acc = np.zeros(n + 1, np.int64)
+    child = np.flatnonzero(pred[:n] != root)
+    if child.size:
+        acc[child] = np.rint(np.asarray(lut[pred[child], child]).ravel() - 0.5).astype(np.int64)
+    ptr = pred.copy()
+    while np.any(ptr[:n] != root):
+        acc = acc + acc[ptr]
+        ptr = ptr[ptr]
+    rel = acc[:n]
+    return comp, ncomp, rel, (rel[b] - rel[a]) != step
+
+
+def _local_support(flat, capped, mq, shape, shifts):
+    """Per pixel: the least, over the other offsets d, of the summed cost difference
+    ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window
+    (twice the log-likelihood ratio by which its neighbourhood prefers its block's offset), and the
+    least of the same over the four halves of its ``HALF`` x ``HALF`` window that contain the pixel (top, bottom, left,
+    right: at a depth step the half on the pixel's own side of it speaks for its own surface).
+    Only the offsets ``shifts`` (relative to m*) are tried: those some block cannot rule out by far."""
+    import cv2
+
+    Kf, n = capped.shape
+    H, W = shape
+    r, c = np.divmod(flat, W)
+    r0, c0 = r.min(), c.min()
+    h, w = r.max() - r0 + 1, c.max() - c0 + 1
+    rr, cc = r - r0, c - c0
+    cols = np.arange(n)
+    base = capped[mq, cols]
+    worst = np.full(n, np.inf, np.float32)
+    worst_half = np.full(n, np.inf, np.float32)
+    img = np.zeros((h, w), np.float32)
+    cnt = np.zeros((h, w), np.float32)
+    cnt[rr, cc] = 1
+    L, k = HALF, HALF // 2
+    halves = [((L, k + 1), (k, k)), ((L, k + 1), (k, 0)), ((k + 1, L), (k, k)), ((k + 1, L), (0, k))]
+    border = cv2.BORDER_CONSTANT
+    enough = [cv2.boxFilter(cnt, -1, size, anchor=a, normalize=False, borderType=border)[rr, cc] >= HALF_MIN
+              for size, a in halves]
+    for d in shifts:
+        img[rr, cc] = capped[(mq + d) % Kf, cols] - base
+        s = cv2.boxFilter(img, -1, (LOCAL, LOCAL), normalize=False, borderType=border)
+        np.minimum(worst, s[rr, cc], out=worst)
+        for ((sw, sh), a), ok in zip(halves, enough):
+            s = cv2.boxFilter(img, -1, (sw, sh), anchor=a, normalize=False, borderType=border)[rr, cc]
+            np.minimum(worst_half, np.where(ok, s, np.inf), out=worst_half)
+    return worst, worst_half
+
+
+def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None, x_sure=None):
+    """Decide the orders of uncertain pixels from their surface's pooled evidence (module doc).
+
+    cand: sorted flat indices of the candidate pixels (order undecided and consistent, or NO_LIGHT
+    by the joint modulation floor alone: ``dim``); cyc: per frequency 1D arrays over ``cand``, the
+    wrapped phases in cycles; snr: per frequency ``B_hat^2 / s^2`` (modulation over the noise of
+    the least-squares coefficients); periods: integer frequencies; length: coded projector width
+    (pixels); shape: (H, W); x_sure: optional (H, W) coordinates of the pixels decided on their own
+    (NaN elsewhere): a pooled pixel more than half a finest period away from one of its
+    4-neighbours there is refused (a depth step between them, or a wrong order on one side).
+    Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
+    in pixels, probability that the order is wrong)."""
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
+    per = np.asarray(periods, np.float64)
+    F, f = per.size, int(np.argmax(per))
+    if F < 2 or cand.size < MIN_BLOCK:
+        return empty
+    H, W = shape
+    dim = np.zeros(cand.size, bool) if dim is None else dim
+    keep, var_c = _precise_and_lit(cand, snr, dim, (H, W), f)
+    cand, dim = cand[keep], dim[keep]
+    cyc = [c[keep] for c in cyc]
+    var_c = [v[keep] for v in var_c]
+    if cand.size < MIN_BLOCK:
+        return empty
+    surf = _surfaces(cand, cyc[f], (H, W))
+    if surf is None:
+        return empty
+    comp, ncomp, rel, a, b = surf
+    # blocks: component x tile; small components never decide
+    r, c = np.divmod(cand, W)
+    ntiles = ((H + TILE - 1) // TILE) * ((W + TILE - 1) // TILE)
+    tile = (r // TILE) * ((W + TILE - 1) // TILE) + c // TILE
+    sizes = np.bincount(comp[comp >= 0], minlength=ncomp)
+    sel = np.flatnonzero((comp >= 0) & (sizes[np.maximum(comp, 0)] >= MIN_BLOCK))
+    if sel.size == 0:
+        return empty
+    _, binv = np.unique(comp[sel].astype(np.int64) * ntiles + tile[sel], return_inverse=True)
+    fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
+    cost = _offset_costs(fine, [c_[sel] for c_ in cyc], [v[sel] for v in var_c], per)
+    blk = _block_posterior(np.minimum(cost, ROBUST_CAP), binv, max_wrong)
+    mq = blk["best"][binv]
+    acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= chi2.isf(OWN_P, max(1, F - 1)))
+    if dim[sel].any():                   # below the modulation floor: only inside the surface (4 linked neighbours)
+        deg = np.bincount(a, minlength=cand.size) + np.bincount(b, minlength=cand.size)
+        acc &= ~dim[sel] | (deg[sel] >= 4)
+    if acc.any():
+        full, half = _local_support(cand[sel], np.minimum(cost, ROBUST_CAP), mq, (H, W),
+                                    _shifts_to_check(blk, max_wrong))
+        acc &= (full >= 2.0 * np.log(1.0 / max_wrong)) & (half >= 0)
+    if not acc.any():
+        return empty
+    # integer periods repeat after the projector width: bring each block whole into the projector's
+    # range by its median, and refuse its pixels that noise puts past an edge (a fold there would
+    # move them a whole width)
+    T = length / per[f]
+    xr = (fine + mq) * T
+    med = np.array([np.median(v) for v in np.split(xr[blk["order"]], blk["starts"][1:])])
+    xr -= np.floor((med[binv] + 0.5) / length) * length
+    acc &= (xr >= -0.5) & (xr < length - 0.5)
+    if x_sure is not None:
+        acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, 0.5 * T)
+    if not acc.any():
+        return empty
+    return cand[sel[acc]], xr[acc].astype(np.float32), blk["p"][binv[acc]].astype(np.float32)
+
+
+def _precise_and_lit(cand, snr, dim, shape, f):
+    """(keep mask, per-frequency phase variances in cycles^2 from the 3x3 mean SNR): the finest
+    phase precise enough to link, and a ``dim`` pixel's 3x3 candidates passing the joint
+    modulation test at ``DIM_FALSE_RATE``."""
+    qbar, count = _smoothed(cand, snr, shape)
+    var_c = [phase_var_from_snr(q) for q in qbar]
+    keep = var_c[f] <= MAX_FINE_NOISE ** 2
+    if dim.any():                        # lit after all? the 3 x 3 candidates' joint modulation test
+        lit = 0.5 * count * sum(qbar) > gammainccinv(len(snr) * count, DIM_FALSE_RATE)
+        keep &= ~dim | lit
+    return keep, var_c
+
+
+def _surfaces(cand, cf, shape):
+    """Components of linked candidates and their relative finest orders; links that close a loop
+    whose order steps do not sum to zero (a slip of the finest phase, or a step) lose both ends,
+    ``LOOP_ROUNDS`` times; a component still inconsistent then is dropped (-1). Returns (comp,
+    ncomp, rel, a, b) over the candidates, or None without links."""
+    H, W = shape
+    n = cand.size
+    cf_full = np.zeros(H * W, np.float32)
+    cf_full[cand] = cf
+    alive = np.ones(n, bool)
+    for _ in range(LOOP_ROUNDS):
+        ok = np.zeros(H * W, bool)
+        ok[cand[alive]] = True
+        ga, gb, step = _links(ok, cf_full, (H, W))
+        if ga.size == 0:
+            return None
+        a, b = np.searchsorted(cand, ga), np.searchsorted(cand, gb)
+        comp, ncomp, rel, bad = _relative_orders(n, a, b, step)
+        if not bad.any():
+            break
+        alive[a[bad]] = False
+        alive[b[bad]] = False
+    else:
+        comp = comp.copy()
+        comp[np.isin(comp, np.unique(comp[a[bad]]))] = -1
+    comp[~alive] = -1
+    return comp, ncomp, rel, a, b
+
+
+def _offset_costs(fine, cyc, var_c, per):
+    """(K_f, n) float32: ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2
+    v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest frequency."""
+    f = int(np.argmax(per))
+    m = np.arange(int(round(per[f])), dtype=np.float32)[:, None]
+    cost = np.zeros((m.size, fine.size), np.float32)
+    for i in range(per.size):
+        if i == f:
+            continue
+        ratio = per[i] / per[f]
+        # the phase each offset predicts, reduced to one cycle first (float32 keeps 1e-7 of a cycle)
+        t0 = ratio * fine - cyc[i]
+        t = np.float32(ratio) * m + (t0 - np.rint(t0)).astype(np.float32)[None, :]
+        t -= np.rint(t)
+        t *= t
+        t *= (np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f]))[None, :]
+        cost += t
+    return cost
+
+
+def _block_posterior(capped, binv, max_wrong):
+    """Per block: summed costs S (K_f, nb), best offset, probability that it is wrong (posterior
+    mass of the others, flat prior), size, and whether it decides (sure)."""
+    order = np.argsort(binv, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(binv[order]) != 0])
+    S = np.add.reduceat(capped[:, order], starts, axis=1)
+    nb = S.shape[1]
+    best = np.argmin(S, 0)
+    sb = S[best, np.arange(nb)]
+    p = np.sum(np.exp(-0.5 * (S - sb[None, :])), 0) - 1.0
+    p = p / (1.0 + p)
+    size = np.bincount(binv, minlength=nb)
+    return dict(S=S, sb=sb, best=best, p=p, size=size, sure=(p <= max_wrong) & (size >= MIN_BLOCK),
+                order=order, starts=starts)
+
+
+def _shifts_to_check(blk, max_wrong):
+    """Offsets (relative to m*) worth a local look: those some sure block prefers m* to by less than
+    8 x the local threshold, scaled to a window's share of the block; always +-1."""
+    S, sb, best, size, sure = blk["S"], blk["sb"], blk["best"], blk["size"], blk["sure"]
+    Kf, nb = S.shape
+    gain = (S - sb[None, :]) * np.minimum(1.0, LOCAL * LOCAL / np.maximum(size, 1))[None, :]
+    near = np.zeros(Kf, bool)
+    for d in range(1, Kf):
+        near[d] = np.any(gain[(best + d) % Kf, np.arange(nb)][sure] < 8 * 2.0 * np.log(1.0 / max_wrong))
+    near[[1, Kf - 1]] = True
+    return np.flatnonzero(near)
+
+
+def _agrees_with_sure(flat, x, x_sure, tol):
+    """False where a 4-neighbour decided on its own lies more than ``tol`` away from ``x``."""
+    H, W = x_sure.shape
+    r, c = np.divmod(flat, W)
+    ok = np.ones(flat.size, bool)
+    xs = x_sure.ravel()
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        rr, cc = r + dr, c + dc
+        inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        nb = np.full(flat.size, np.nan, np.float32)
+        nb[inside] = xs[rr[inside] * W + cc[inside]]
+        with np.errstate(invalid="ignore"):
+            ok &= ~(np.abs(nb - x) > tol)
+    return ok
