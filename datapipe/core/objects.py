@@ -26,7 +26,9 @@ Instances
     `populate(rng)` makes, per entry, a random number in [min_instances, max_instances] (or, with
     `scene.fill`, the counts datapipe/draws/fill.py draws from the parts' hull volumes) of linked
     copies (`obj.copy()`: same mesh data, no re-import), named f"{entry_name}_{k:03d}" (k from 0
-    within the scene), with unique pass_index 1..n, a uniformly random orientation, placed on a
+    within the scene), with unique pass_index 1..n (a distractor, `annotate: false`: 0, the mask's
+    background; a procedural `shape`: its own mesh at a size drawn per instance, core/shape_parts.py),
+    a uniformly random orientation, placed on a
     grid of bounding spheres inside the drop zone's footprint in layers from the zone's centre
     upward (spheres never overlap; `staged=True`: only the lowest STAGE_LAYERS layers at once, see
     simulation.drop_in_stages), and an ACTIVE rigid body (the entry's mass, friction,
@@ -65,6 +67,7 @@ from ..config import Config
 from ..errors import ConfigError, DataPipeError
 from ..io.bop_models import entry_field
 from .. import collision, shapes
+from .shape_parts import make_shape
 from .scene import BlendScene, add_rigid_body, find_layer_collection, remove_unused_data
 from ..draws.fill import draw_share, fill_counts, hull_volume
 
@@ -334,32 +337,17 @@ class ObjectManager:
         return tpl
 
     def _shape_template(self, i: int, size, name: str, collection) -> _Template:
-        """A procedural shape of this size (datapipe/shapes.py) as a mesh object in `collection`,
-        with its exact convex pieces (a tube's wall segments). Centred on its centroid: no
-        re-centred simulation copy. Each mesh gets a run-wide unique name (the simulation's check
-        caches meshes by name, and each instance's size differs)."""
-        spec = self.cfg.objects[i].shape
-        verts, faces = shapes.mesh(spec["kind"], size)
+        """A procedural shape of this size as a mesh object in `collection` (core/shape_parts.py),
+        centred on its centroid (no re-centred simulation copy). Its mesh gets a run-wide unique
+        name: the simulation's check caches meshes by name, and each instance's size differs."""
         self._shape_meshes += 1
-        me = bpy.data.meshes.new(f"datapipe_shape_{self._shape_meshes:06d}")
-        me.from_pydata(verts.tolist(), [], faces.tolist())
-        me.update()
-        obj = bpy.data.objects.new(name, me)
-        collection.objects.link(obj)
-        pieces = shapes.convex_pieces(spec["kind"], size)
-        tpl = _Template(obj=obj, center=np.zeros(3), radius=float(np.linalg.norm(verts, axis=1).max()),
-                        com=np.zeros(3), shape="CONVEX_HULL", size=float(np.ptp(verts, axis=0).max()),
-                        thin=min(collision.min_width(pv) for pv, _ in pieces),
-                        hull_volume=hull_volume(verts), mesh=me)
-        if len(pieces) > 1:
-            meshes = []
-            for k, (pv, pf) in enumerate(pieces):
-                pm = bpy.data.meshes.new(f"{me.name}_piece{k:02d}")
-                pm.from_pydata(pv.tolist(), [], pf.tolist())
-                pm.update()
-                meshes.append(pm)
-            tpl.shape, tpl.pieces = "DECOMPOSED", tuple(meshes)
-        return tpl
+        obj, pieces, thin = make_shape(self.cfg.objects[i].shape, size, name,
+                                       f"datapipe_shape_{self._shape_meshes:06d}", collection)
+        pts = _vertices(obj.data)
+        return _Template(obj=obj, center=np.zeros(3), radius=float(np.linalg.norm(pts, axis=1).max()),
+                         com=np.zeros(3), shape="DECOMPOSED" if pieces else "CONVEX_HULL", thin=thin,
+                         size=float(np.ptp(pts, axis=0).max()), pieces=pieces, hull_volume=hull_volume(pts),
+                         mesh=obj.data)
 
     def _collision_shape(self, i: int, tpl: _Template) -> None:
         """Resolve AUTO, decompose concave parts (DECOMPOSED/MESH) and measure the thinnest width."""
