@@ -66,8 +66,9 @@ def _dilate(mask):
     return out
 
 
-def check(bop_root: str | Path, split: str = "train_pbr") -> dict:
-    """Counts of what the toolkit recomputes and what agrees with the export."""
+def check(bop_root: str | Path, split: str = "train_pbr", delta_mm: float = DELTA_MM) -> dict:
+    """Counts of what the toolkit recomputes and what agrees with the export. `delta_mm`: the
+    visibility tolerance (calc_gt_info's `delta`, 15 mm by default there and here)."""
     inout, misc, visibility = toolkit()
     root = Path(bop_root)
     info = inout.load_json(str(root / "models" / "models_info.json"), keys_to_int=True)
@@ -95,7 +96,7 @@ def check(bop_root: str | Path, split: str = "train_pbr") -> dict:
                 m = models[gt["obj_id"]]
                 d_gt = model_depth(m["pts"], m["faces"], K, R, t, W, H)
                 dist_gt = misc.depth_im_to_dist_im_fast(d_gt, K)
-                visib = visibility.estimate_visib_mask_gt(dist_test, dist_gt, DELTA_MM, visib_mode="bop19")
+                visib = visibility.estimate_visib_mask_gt(dist_test, dist_gt, delta_mm, visib_mode="bop19")
                 ours = inout.load_im(str(chunk / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png")) > 0
                 diff = int((visib ^ ours).sum())
                 s["visib_px_differing"] += diff

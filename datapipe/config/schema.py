@@ -71,6 +71,10 @@ class ObjectEntry:
     symmetries: Any = "auto"           # models_info.json symmetries: "auto" (BOP: the source's, else
                                        # detected), "detect", {"tolerance": f}, "none", or a dict of
                                        # symmetries_discrete / symmetries_continuous (mm) (io/symmetry.py)
+    annotate: bool = True              # false: a distractor: falls, collides, occludes and is rendered, but is in
+                                       # no ground truth (scene_gt, COCO, BOP, models) and 0 in mask.exr
+    shape: Any = None                  # instead of filepath: a procedural distractor, e.g. {"kind": "box", "size":
+                                       # [[min x, y, z], [max ...]]} (m), size drawn per instance (shapes.py)
 
 
 @dataclass
@@ -273,7 +277,9 @@ class Config:
     # -- derived values ---------------------------------------------------------------------------
     def object_name(self, index: int) -> str:
         obj = self.objects[index]
-        return obj.name or Path(obj.filepath or obj.bop_models).stem
+        if obj.name or obj.filepath or obj.bop_models or not isinstance(obj.shape, dict):
+            return obj.name or Path(obj.filepath or obj.bop_models).stem
+        return str(obj.shape.get("kind", ""))        # a procedural distractor: its kind
 
     def obj_id(self, index: int) -> int:
         """The id entry `index` exports (after io.bop_models.expand_bop_objects)."""

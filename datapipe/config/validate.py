@@ -138,6 +138,22 @@ def _check_bop_entry(ck: _Checks, p: str, o: ObjectEntry, check_files: bool) -> 
             ck.add(*_split_field(str(e)))
 
 
+def _check_shape_entry(ck: _Checks, p: str, o: ObjectEntry) -> None:
+    """A procedural distractor (datapipe/shapes.py): no file, not annotated, its exact collision."""
+    from ..shapes import problems as shape_problems
+    for where, what, fix in shape_problems(o.shape, f"{p}.shape"):
+        ck.add(where, what, fix)
+    if o.filepath or o.bop_models or o.bop_obj_ids:
+        ck.add(f"{p}.shape", "given together with a mesh file or BOP models folder",
+               "give either a shape or a mesh file per entry")
+    if o.annotate is not False:
+        ck.add(f"{p}.annotate", "a procedural shape draws its size per instance, so no one model describes it "
+               "in the ground truth", "set annotate: false (shapes are distractors)")
+    if o.collision_shape != "AUTO":
+        ck.add(f"{p}.collision_shape", f"{_short(o.collision_shape)} for a procedural shape, whose collision is "
+               "exact (its convex hull; a tube: its wall segments)", "leave collision_shape \"AUTO\"")
+
+
 def _check_symmetries(ck: _Checks, p: str, s) -> None:
     from ..errors import DataPipeError
     from ..io.symmetry import check_symmetries
@@ -160,10 +176,15 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.add("objects", "no objects to drop", "add at least one object entry (a mesh file)")
     for i, o in enumerate(cfg.objects):
         p = f"objects[{i}]"
-        if o.bop_models or o.bop_obj_ids:
+        if o.shape is not None:
+            _check_shape_entry(ck, p, o)
+        elif o.bop_models or o.bop_obj_ids:
             _check_bop_entry(ck, p, o, check_files)
         else:
             _check_mesh_path(ck, f"{p}.filepath", o.filepath, check_files)
+        if not isinstance(o.annotate, bool):
+            ck.add(f"{p}.annotate", f"expected true or false, got {_short(o.annotate)}",
+                   "give true (annotated) or false (a distractor)")
         _check_symmetries(ck, p, o.symmetries)
         if not 0 <= o.obj_id <= MAX_INT32:
             ck.add(f"{p}.obj_id", f"must be in 0..{MAX_INT32}, got {o.obj_id}", "give a BOP object id >= 1, or 0 for "
@@ -190,13 +211,16 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
     if cfg.objects and sum(o.max_instances for o in cfg.objects) < 1:
         ck.add("objects", "every entry has max_instances = 0, so scenes would be empty",
                "give at least one entry max_instances >= 1")
+    elif cfg.objects and sum(o.max_instances for o in cfg.objects if o.annotate is not False) < 1:
+        ck.add("objects", "every part a scene can hold is a distractor (annotate: false), so its ground truth "
+               "would be empty", "set annotate: true on at least one entry with max_instances >= 1")
     _check_object_names(ck, cfg)
 
 
 def _check_object_names(ck: _Checks, cfg: Config) -> None:
     """Names Blender can hold whole with an instance number (text_rules), and unique ones."""
     for i, o in enumerate(cfg.objects):
-        if ck.has(f"objects[{i}].filepath") and not o.name:
+        if (ck.has(f"objects[{i}].filepath") or ck.has(f"objects[{i}].shape")) and not o.name:
             continue                          # the name would come from a path already refused
         problem = name_problem(cfg.object_name(i), suffix="_000")   # instance k: f"{name}_{k:03d}"
         if problem is None and cfg.object_name(i).startswith("datapipe_"):
@@ -209,7 +233,7 @@ def _check_object_names(ck: _Checks, cfg: Config) -> None:
             ck.add(f"objects[{i}].name", what, fix)
     seen: dict[str, int] = {}
     for i, o in enumerate(cfg.objects):
-        name = o.name or Path(o.filepath or o.bop_models).stem
+        name = cfg.object_name(i)
         if name in seen:
             ck.add(f"objects[{i}].name", f"name {name!r} is already used by objects[{seen[name]}] (instance names "
                    "and annotations would collide)", "give this entry a unique name")

@@ -26,7 +26,9 @@ Instances
     `populate(rng)` makes, per entry, a random number in [min_instances, max_instances] (or, with
     `scene.fill`, the counts datapipe/draws/fill.py draws from the parts' hull volumes) of linked
     copies (`obj.copy()`: same mesh data, no re-import), named f"{entry_name}_{k:03d}" (k from 0
-    within the scene), with unique pass_index 1..n, a uniformly random orientation, placed on a
+    within the scene), with unique pass_index 1..n (a distractor, `annotate: false`: 0, the mask's
+    background; a procedural `shape`: its own mesh at a size drawn per instance, core/shape_parts.py),
+    a uniformly random orientation, placed on a
     grid of bounding spheres inside the drop zone's footprint in layers from the zone's centre
     upward (spheres never overlap; `staged=True`: only the lowest STAGE_LAYERS layers at once, see
     simulation.drop_in_stages), and an ACTIVE rigid body (the entry's mass, friction,
@@ -64,7 +66,8 @@ from mathutils import Matrix, Quaternion, Vector
 from ..config import Config
 from ..errors import ConfigError, DataPipeError
 from ..io.bop_models import entry_field
-from .. import collision
+from .. import collision, shapes
+from .shape_parts import make_shape
 from .scene import BlendScene, add_rigid_body, find_layer_collection, remove_unused_data
 from ..draws.fill import draw_share, fill_counts, hull_volume
 
@@ -101,6 +104,12 @@ class Instance:
     size: float = 0.0          # largest bounding-box extent (m)
     shape: str = "CONVEX_HULL"  # the collision shape simulated (AUTO resolved; DECOMPOSED for MESH)
     layer: int = 0             # spawn layer (0: lowest); layers >= STAGE_LAYERS drop in later stages
+    own: "_Template | None" = None   # a procedural shape's own mesh and pieces (its size is drawn per instance)
+
+    @property
+    def annotated(self) -> bool:
+        """False for a distractor (objects[i].annotate: false): pass_index 0, in no ground truth."""
+        return self.mask_index > 0
 
 
 @dataclass
@@ -114,6 +123,7 @@ class _Template:
     size: float = 0.0          # largest bounding-box extent (m)
     pieces: tuple = ()         # DECOMPOSED: one mesh per convex piece, in the simulation frame
     hull_volume: float = 0.0   # m^3, of the convex hull (scene.fill counts parts by it)
+    mesh: object = None        # a procedural shape's mesh data (deleted with its instance)
 
 
 def _run_importer(kind: str, path: str) -> None:
@@ -156,6 +166,7 @@ class ObjectManager:
         self.collision_collection: bpy.types.Collection | None = None
         self.decomposed_from_cache = 0    # decompositions read from the disk cache (rest computed)
         self.last_fill: dict | None = None  # scene.fill of the last populate: drawn share, share reached
+        self._shape_meshes = 0              # procedural shape meshes made this run (their unique names)
 
     @property
     def scene(self) -> bpy.types.Scene:
@@ -183,6 +194,11 @@ class ObjectManager:
         self.templates = []
         by_file: dict[str, bpy.types.Object] = {}        # file -> its import, at the file's scale
         for i, entry in enumerate(self.cfg.objects):
+            if entry.shape is not None:     # a procedural distractor: the template at its largest size
+                self.templates.append(self._shape_template(i, shapes.largest(entry.shape, float(entry.scale)),
+                                                           f"{TEMPLATE_PREFIX}{self.cfg.object_name(i)}",
+                                                           self.templates_collection))
+                continue
             path = os.path.abspath(entry.filepath)
             if path not in by_file:
                 by_file[path] = self._import(i, path)
@@ -320,6 +336,19 @@ class ObjectManager:
         self._collision_shape(i, tpl)
         return tpl
 
+    def _shape_template(self, i: int, size, name: str, collection) -> _Template:
+        """A procedural shape of this size as a mesh object in `collection` (core/shape_parts.py),
+        centred on its centroid (no re-centred simulation copy). Its mesh gets a run-wide unique
+        name: the simulation's check caches meshes by name, and each instance's size differs."""
+        self._shape_meshes += 1
+        obj, pieces, thin = make_shape(self.cfg.objects[i].shape, size, name,
+                                       f"datapipe_shape_{self._shape_meshes:06d}", collection)
+        pts = _vertices(obj.data)
+        return _Template(obj=obj, center=np.zeros(3), radius=float(np.linalg.norm(pts, axis=1).max()),
+                         com=np.zeros(3), shape="DECOMPOSED" if pieces else "CONVEX_HULL", thin=thin,
+                         size=float(np.ptp(pts, axis=0).max()), pieces=pieces, hull_volume=hull_volume(pts),
+                         mesh=obj.data)
+
     def _collision_shape(self, i: int, tpl: _Template) -> None:
         """Resolve AUTO, decompose concave parts (DECOMPOSED/MESH) and measure the thinnest width."""
         shape = self.cfg.objects[i].collision_shape
@@ -387,9 +416,14 @@ class ObjectManager:
             plan += [(i, k) for k in range(n)]
         rotations = [_random_rotation(rng) for _ in plan]
         centers, layers = self._place([self.templates[i].radius for i, _ in plan], rng)
+        # procedural shapes draw their sizes last (placed by their largest size's sphere), so a
+        # config without them draws exactly what it drew before
+        sizes = [shapes.draw_sizes(rng, self.cfg.objects[i].shape, float(self.cfg.objects[i].scale), 1)[0]
+                 if self.cfg.objects[i].shape is not None else None for i, _ in plan]
 
         instances: list[Instance] = []
-        for idx, ((i, k), R, p, layer) in enumerate(zip(plan, rotations, centers, layers)):
+        annotated = 0
+        for (i, k), R, p, layer, size in zip(plan, rotations, centers, layers, sizes):
             entry = self.cfg.objects[i]
             tpl = self.templates[i]
             name = f"{self.cfg.object_name(i)}_{k:03d}"
@@ -397,16 +431,26 @@ class ObjectManager:
             if clash is not None:
                 raise DataPipeError(f"an object named '{name}' already exists in the scene, so instance "
                                     f"names would not be deterministic (fix: rename '{name}' in the .blend)")
-            obj = tpl.obj.copy()                    # linked copy: shares tpl.obj.data
-            obj.name = name
+            own = None
+            if size is not None:                    # its own mesh, at the drawn size
+                own = tpl = self._shape_template(i, size, name, self.collection)
+                obj = tpl.obj
+            else:
+                obj = tpl.obj.copy()                # linked copy: shares tpl.obj.data
+                obj.name = name
+                self.collection.objects.link(obj)
             obj.hide_render = False
             obj.hide_viewport = False
-            self.collection.objects.link(obj)
-            obj.pass_index = idx + 1
+            # annotated parts are numbered 1..n; a distractor is 0 in the object-index pass, the
+            # mask's background (docs/DATASETS.md), so it is in no instance id
+            annotated += int(entry.annotate)
+            mask_index = annotated if entry.annotate else 0
+            obj.pass_index = mask_index
             loc = p - R @ tpl.center                # the bounding sphere's centre goes to p
             obj.matrix_world = Matrix.Translation(Vector(loc)) @ Matrix(R.tolist()).to_4x4()
             instances.append(Instance(obj=obj, entry_index=i, name=name,
-                                      filename=os.path.abspath(entry.filepath), mask_index=idx + 1, layer=layer))
+                                      filename=os.path.abspath(entry.filepath) if entry.filepath else "",
+                                      mask_index=mask_index, layer=layer, own=own))
         bpy.context.view_layer.update()
         self.instances = instances
         self.activate([inst for inst in instances if not staged or inst.layer < STAGE_LAYERS])
@@ -438,7 +482,7 @@ class ObjectManager:
             rb.mass = float(entry.mass)
             rb.friction = float(entry.friction)
             rb.restitution = float(entry.restitution)
-            tpl = self.templates[inst.entry_index]
+            tpl = inst.own or self.templates[inst.entry_index]
             margin = part_margin(tpl.thin)
             rb.collision_shape = 'COMPOUND' if tpl.pieces else tpl.shape
             rb.mesh_source = 'BASE'
@@ -504,11 +548,16 @@ class ObjectManager:
             except ReferenceError:
                 continue
             bpy.data.objects.remove(obj, do_unlink=True)
+        owned = [inst.own for inst in self.instances if inst.own is not None]
         self.instances = []
         for coll in (self.collision_collection, self.collection):   # pieces, anything else left
             if coll is not None:
                 for obj in list(coll.objects):
                     bpy.data.objects.remove(obj, do_unlink=True)
+        for tpl in owned:                       # procedural shapes' own meshes (lost ones too)
+            for me in (*tpl.pieces, tpl.mesh):
+                if me is not None and me.users == 0:
+                    bpy.data.meshes.remove(me)
 
 
 

@@ -22,7 +22,7 @@ from ..io.bop_models import entry_field
 from ..draws.fill import hull_volume
 from ..checks.part_fit import fill_problems
 from ..geometry import camera_intrinsics
-from .. import collision
+from .. import collision, shapes
 from .objects import _IMPORTERS, DECOMPOSED_SHAPES, _run_importer, remove_import_leftovers
 
 MIN_PART_PX = 0.25       # a part narrower than this on the camera image is not in the dataset (tiny
@@ -80,6 +80,10 @@ def measure_meshes(cfg: Config) -> tuple[list[Problem], dict[int, float]]:
     for i, o in enumerate(cfg.objects):
         field = f"{entry_field(o, i)}.filepath"
         path = os.path.abspath(o.filepath)
+        if o.shape is not None:           # a procedural distractor: measured at its largest size
+            path = f"shape:{i}"
+            v, f = shapes.mesh(o.shape["kind"], shapes.largest(o.shape, 1.0))
+            measured[path] = (len(v), len(f), v, f)
         if path not in measured:
             try:
                 measured[path] = _import_measure(path)
@@ -100,7 +104,7 @@ def measure_meshes(cfg: Config) -> tuple[list[Problem], dict[int, float]]:
             problems.append(Problem(field, f"{path} has NaN or infinite vertex coordinates",
                                     "repair the mesh in a modeller and export it again"))
             continue
-        if not collision.coacd_available() and _needs_pieces(o.collision_shape, pts, tris):
+        if o.shape is None and not collision.coacd_available() and _needs_pieces(o.collision_shape, pts, tris):
             problems.append(collision.missing_coacd(f"{entry_field(o, i)}.collision_shape"))
         with np.errstate(over="ignore"):       # a scale of 1e308: reported below, not warned about
             size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale

@@ -59,8 +59,9 @@ class BlenderWorld:
             self.sl.setup()
 
     def model_meshes(self) -> dict:
-        """{obj_id: (verts m, faces, normals)} of every object entry (scale baked), for OUT/models."""
-        return {self.cfg.obj_id(i): self.objects.model_mesh(i) for i in range(len(self.cfg.objects))}
+        """{obj_id: (verts m, faces, normals)} of every annotated object entry (scale baked), for OUT/models
+        (a distractor is in no ground truth, so it has no model)."""
+        return {self.cfg.obj_id(i): self.objects.model_mesh(i) for i, e in enumerate(self.cfg.objects) if e.annotate}
 
     def start_scene(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int) -> SceneStart:
         t0 = time.perf_counter()
@@ -71,10 +72,17 @@ class BlenderWorld:
         sim, rng = drop_scene(self.objects, self.simulation, rng, scene_seed(base_seed, scene_id))
         t2 = time.perf_counter()
         pose_indices = self.variety.pose_plan(rng, n_renders)
-        self.instances = sim.kept
         from . import materials        # on a random stream of their own: a list changes no pose
         labels = materials.apply_to_instances(self.cfg, sim.kept, scene_seed(base_seed, scene_id))
-        return SceneStart(parts=[_part(inst, lab, self.cfg.obj_id(inst.entry_index)) for inst, lab in zip(sim.kept, labels)], simulation=sim.summary(),
+        # distractors (objects[i].annotate: false) fall, occlude and render, but are no part of the
+        # annotations: neither here nor in any T_world_obj of the renders
+        annotated = [(inst, lab) for inst, lab in zip(sim.kept, labels) if inst.annotated]
+        self.instances = [inst for inst, _ in annotated]
+        summary = sim.summary()
+        if any(not e.annotate for e in self.cfg.objects):
+            summary["distractors"] = len(sim.kept) - len(annotated)
+        return SceneStart(parts=[_part(inst, lab, self.cfg.obj_id(inst.entry_index)) for inst, lab in annotated],
+                          simulation=summary,
                           pose_indices=list(pose_indices), drawn=drawn,
                           seconds={"placement": t1 - t0 + sim.placement_seconds,
                                    "simulation": t2 - t1 - sim.placement_seconds})

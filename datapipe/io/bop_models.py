@@ -191,6 +191,8 @@ def models_symmetries(cfg, meshes) -> dict[int, dict]:
     out = {}
     for i, e in enumerate(cfg.objects):
         k = cfg.obj_id(i)
+        if not e.annotate:          # a distractor has no model
+            continue
         verts_m, faces = meshes[k][0], meshes[k][1]
         out[k] = model_symmetries(e, i, np.asarray(verts_m, dtype=np.float64) * 1000.0, faces)
     return out

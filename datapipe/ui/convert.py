@@ -129,6 +129,9 @@ _SPECIAL = {
                                 lambda value: [("bop_models", value), ("source", "BOP" if value else "FILE")]),
     ("objects", "bop_obj_ids"): (lambda grp, name: _ids_get(grp) if grp.source == "BOP" else [],
                                  lambda value: [("bop_obj_ids", ", ".join(str(int(i)) for i in value))]),
+    ("objects", "shape"): (lambda grp, name: _json_or_text(grp.shape) if grp.source == "SHAPE" else None,
+                           lambda value: [] if value is None else [("shape", value if isinstance(value, str)
+                                                                    else json.dumps(value)), ("source", "SHAPE")]),
     ("objects", "symmetries"): (lambda grp, name: _json_or_text(grp.symmetries),
                                 lambda value: [("symmetries", value if isinstance(value, str)
                                                 else json.dumps(value))]),

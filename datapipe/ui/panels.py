@@ -37,6 +37,8 @@ class DATAPIPE_UL_objects(UIList):
             folder = Path(item.bop_models.rstrip("/\\"))
             label = item.name or (f"BOP {folder.parent.name or folder.name} {item.bop_obj_ids or 'all'}"
                                   if item.bop_models else "(no BOP folder)")
+        elif item.source == "SHAPE":
+            label = item.name or "shape"
         else:
             label = item.name or (Path(item.filepath).stem if item.filepath else "(no file)")
         row = layout.row(align=True)
@@ -196,6 +198,8 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
         layout.row().prop(item, "source", expand=True)
         if item.source == "BOP":       # mm -> m and the ids come from the folder
             col = _fields(layout, item, ("bop_models", "bop_obj_ids", "name", "mass", "collision_shape"))
+        elif item.source == "SHAPE":   # a distractor: no model, exact collision (datapipe/shapes.py)
+            col = _fields(layout, item, ("shape", "name", "scale", "mass"))
         else:
             col = _fields(layout, item, ("filepath", "name", "scale", "obj_id", "mass", "collision_shape"))
         sub = col.column(align=True)
@@ -205,7 +209,9 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
         sub.prop(item, "friction")
         sub.prop(item, "restitution")
         col.prop(item, "material")
-        col.prop(item, "symmetries")
+        col.prop(item, "annotate")
+        if item.annotate and item.source != "SHAPE":
+            col.prop(item, "symmetries")
 
 
 class DATAPIPE_PT_camera(_DataPipePanel, Panel):

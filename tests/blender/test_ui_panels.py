@@ -151,7 +151,7 @@ def test_draw_filled_with_previews_and_status(d, mode):
     # every Config-facing property of each group is drawn somewhere
     # (an object entry shows the fields of its Source: a mesh file's here, test_ui_bop.py the BOP ones)
     for group, skip in ((d.scene, set()), (d.camera, {"poses", "poses_index", "sampler"}),
-                        (d.objects[0], {"bop_models", "bop_obj_ids"}),
+                        (d.objects[0], {"bop_models", "bop_obj_ids", "shape"}),
                         (d.structured_light, {"periods_text", "hdr_text"}), (d.render, set()), (d.simulation, set()),
                         (d.output, set()),
                         (d.projector, {"rotation_quaternion"} if mode == "XYZ" else {"rotation_euler"})):
@@ -166,6 +166,19 @@ def test_draw_filled_with_previews_and_status(d, mode):
             "datapipe.pose_add", "datapipe.pose_jump", "datapipe.drop_zone_place", "datapipe.drop_zone_read",
             "datapipe.initialize"} <= ops
     preview.remove_all()
+
+
+def test_shape_source_draws_the_shape_and_annotate(d):
+    """Source Shape (a procedural distractor) shows its JSON and the Annotate switch, not a file."""
+    bpy.ops.datapipe.initialize(preset="builtin:distractors")
+    d.objects_index = next(k for k, o in enumerate(d.objects) if o.source == "SHAPE")
+    item = d.objects[d.objects_index]
+    assert not item.annotate
+    log, problems = draw_all(bpy.context)
+    assert problems == []
+    drawn = {e[2] for e in log if e[0] == "prop" and type(e[1]).__name__ == "DATAPIPE_PG_object"}
+    assert {"shape", "annotate", "mass", "min_instances", "material"} <= drawn
+    assert not drawn & {"filepath", "bop_models", "symmetries", "collision_shape"}
 
 
 def test_sampler_and_lighting_ranges_drawn(d):

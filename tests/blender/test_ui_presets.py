@@ -47,7 +47,7 @@ def test_f32_shortest_decimal():
     assert f32(f32(0.123456789)) == f32(0.123456789)
 
 
-@pytest.mark.parametrize("name", ["default", "thesis_sensor", "bin_picking"])
+@pytest.mark.parametrize("name", ["default", "thesis_sensor", "bin_picking", "bin_picking_25views", "distractors"])
 def test_builtin_preset_round_trip(registered, name):
     cfg = C.load(presets.builtin_dir() / f"{name}.json")
     config_to_props(cfg, registered)

@@ -1,5 +1,5 @@
 """`Scene.datapipe.objects`: one entry per part to drop (`Config.objects`)."""
-from bpy.props import EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 from bpy.types import PropertyGroup
 
 from ... import config as C
@@ -15,7 +15,9 @@ class DATAPIPE_PG_object(PropertyGroup):
         name="Source", description="Where the entry's parts come from",
         items=[("FILE", "Mesh File", "One mesh file (any units: set Scale)"),
                ("BOP", "BOP Models", "Objects of a BOP dataset's models folder (obj_XXXXXX.ply in mm + "
-                "models_info.json): their ids and symmetries go into the export")],
+                "models_info.json): their ids and symmetries go into the export"),
+               ("SHAPE", "Shape", "A procedural distractor (box, plate, cylinder, tube), its size drawn per "
+                "instance: no file needed; never annotated")],
         default="FILE")
     bop_models: StringProperty(
         name="Models Folder", description="A BOP dataset's models folder (e.g. itodd/models)",
@@ -32,6 +34,14 @@ class DATAPIPE_PG_object(PropertyGroup):
     filepath: StringProperty(
         name="File", description="Mesh file of the part (" + ", ".join(C.MESH_SUFFIXES) + ")",
         subtype="FILE_PATH", default=default(_O, "filepath"))
+    shape: StringProperty(
+        name="Shape", description="Procedural distractor as JSON, sizes in metres, a fixed list or [[min ...], "
+        "[max ...]]: {\"kind\": \"box\"|\"plate\", \"size\": [x, y, z|thickness]}, {\"kind\": \"cylinder\", "
+        "\"size\": [diameter, length]}, {\"kind\": \"tube\", \"size\": [outer diameter, wall, length]}",
+        default='{"kind": "box", "size": [[0.01, 0.01, 0.01], [0.04, 0.03, 0.02]]}')
+    annotate: BoolProperty(
+        name="Annotate", description="Off: a distractor, which falls, collides, occludes and is rendered, but is in "
+        "no ground truth (scene_gt, COCO, BOP, models; 0 in the mask)", default=default(_O, "annotate"))
     name: StringProperty(name="Name", description="Name of the part in annotations (empty: the file name "
                          "without extension)", default=default(_O, "name"))
     scale: FloatProperty(
