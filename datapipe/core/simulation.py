@@ -193,6 +193,17 @@ def _lower_onto(wave: list[Instance], pile: list[Instance], gap: float) -> None:
     bpy.context.view_layer.update()
 
 
+def settle_sizes(instances: list[Instance], corners: list[np.ndarray]) -> np.ndarray:
+    """Each body's size (m) for the settle test: its template's largest extent, else its box's."""
+    return np.array([max(inst.size, 1e-4) if inst.size else float(np.ptp(c, axis=0).max())
+                     for inst, c in zip(instances, corners)], dtype=np.float64)
+
+
+def settle_speeds(settle_speed: float, sizes: np.ndarray) -> np.ndarray:
+    """The speed (m/s) below which a body of this size counts as at rest."""
+    return np.minimum(settle_speed, SETTLE_RELATIVE * sizes)
+
+
 def plan_substeps(cfg: Config, bs: BlendScene, instances: list[Instance], frame_time: float) -> SubstepPlan:
     """Substeps so that a part at its impact speed moves at most SUBSTEP_FRACTION x the thinnest
     part (or the wall/floor) per substep."""
@@ -294,62 +305,58 @@ class Simulation:
 
     def _step(self, instances: list[Instance], offsets: list[np.ndarray], corners: list[np.ndarray], dt: float):
         """Step until every body is at rest (confirmed) or gone, or max_frames. Returns (frames,
-        settled, model-frame world poses, [(name, speed m/s)] of the bodies still moving)."""
+        settled, model-frame world poses, [(name, speed m/s)] of the bodies still moving). The
+        per-frame test runs on all bodies at once (arrays of n poses): at 120 parts and ~1000
+        frames a per-body Python loop cost seconds of its own."""
         sim = self.cfg.simulation
         scene = self.blend_scene.scene
         n = len(instances)
-        sizes = np.array([max(inst.size, 1e-4) if inst.size else
-                          float(np.ptp(c, axis=0).max()) for inst, c in zip(instances, corners)])
+        sizes = settle_sizes(instances, corners)
         radius = sizes / 2
-        v_max = np.minimum(float(sim.settle_speed), SETTLE_RELATIVE * sizes)
+        v_max = settle_speeds(float(sim.settle_speed), sizes)
         motion = np.minimum(SETTLE_MOTION, SETTLE_MOTION_RELATIVE * sizes)
         window = max(int(sim.settle_frames), math.ceil(SETTLE_CONFIRM_S / dt - 1e-9))
+        C = np.array(corners, dtype=np.float64).reshape(n, 8, 3)
+        T = np.array(offsets, dtype=np.float64).reshape(n, 4, 4)
 
         def state():
             dg = bpy.context.evaluated_depsgraph_get()
-            mats = [np.array(inst.obj.evaluated_get(dg).matrix_world, dtype=np.float64) @ off
-                    for inst, off in zip(instances, offsets)]
-            return mats, [c @ M[:3, :3].T + M[:3, 3] for c, M in zip(corners, mats)]
+            mats = np.array([inst.obj.evaluated_get(dg).matrix_world for inst in instances],
+                            dtype=np.float64).reshape(n, 4, 4) @ T
+            return mats, np.einsum("nij,nkj->nki", mats[:, :3, :3], C) + mats[:, None, :3, 3]
 
         mats, pts = state()
         still = np.zeros(n, dtype=int)
-        anchor = list(pts)                     # corners when the current rest run began
+        anchor = pts.copy()                    # corners when the current rest run began
         speed = np.zeros(n)
         frames, settled = 0, n == 0
         for k in range(1, int(sim.max_frames) + 1):
             scene.frame_set(FRAME_START + k)
             frames = k
             progress.advance(k, int(sim.max_frames))
-            prev_mats = mats
-            mats, new = state()
-            done = True
-            for j in range(n):
-                lin = float(np.linalg.norm(mats[j][:3, 3] - prev_mats[j][:3, 3])) / dt
-                R = prev_mats[j][:3, :3].T @ mats[j][:3, :3]
-                ang = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))) / dt
-                speed[j] = max(lin, ang * radius[j])
-                if speed[j] < v_max[j] and np.linalg.norm(new[j] - anchor[j], axis=1).max() < motion[j]:
-                    still[j] += 1
-                else:
-                    still[j], anchor[j] = 0, new[j]
-                if not (self._gone(new[j]) or still[j] >= window):
-                    done = False
-            pts = new
-            if done:
+            prev, (mats, pts) = mats, state()
+            lin = np.linalg.norm(mats[:, :3, 3] - prev[:, :3, 3], axis=1) / dt
+            cos = (np.einsum("nij,nij->n", prev[:, :3, :3], mats[:, :3, :3]) - 1) / 2   # trace(R_prev^T R)
+            speed = np.maximum(lin, np.arccos(np.clip(cos, -1.0, 1.0)) / dt * radius)
+            rest = (speed < v_max) & (np.linalg.norm(pts - anchor, axis=2).max(axis=1) < motion)
+            still = np.where(rest, still + 1, 0)
+            anchor[~rest] = pts[~rest]
+            if np.all(self._gone(pts) | (still >= window)):
                 settled = True
                 break
-        moving = [(inst.name, float(speed[j])) for j, inst in enumerate(instances)
-                  if not (self._gone(pts[j]) or still[j] >= window)]
-        return frames, settled, mats, moving
+        moving = ~(self._gone(pts) | (still >= window))
+        return frames, settled, mats, [(inst.name, float(speed[j])) for j, inst in enumerate(instances) if moving[j]]
 
-    def _gone(self, corners: np.ndarray) -> bool:
-        """Below the floor, or outside the walls and below their top: it cannot come back."""
+    def _gone(self, corners: np.ndarray) -> np.ndarray:
+        """Per body (corners: n x 8 x 3): below the floor, or outside the walls and below their top:
+        it cannot come back."""
         bs = self.blend_scene
-        c = corners.mean(axis=0)
-        if c[2] < bs.floor_z - self.margin:
-            return True
-        return bool(self.cfg.scene.make_bin and not bs.inside_footprint(c, self.margin)
-                    and corners[:, 2].max() < bs.wall_top_z)
+        c = corners.mean(axis=1)
+        gone = c[:, 2] < bs.floor_z - self.margin
+        if self.cfg.scene.make_bin:
+            outside = np.any(np.abs(c[:, :2] - bs.drop_zone_center[:2]) > bs.drop_zone_half[:2] + self.margin, axis=1)
+            gone |= outside & (corners[:, :, 2].max(axis=1) < bs.wall_top_z)
+        return gone
 
     def check(self, kept: list[Instance], poses: dict[str, np.ndarray]) -> SceneCheck:
         """Independent check of the frozen result (model meshes at the final poses)."""
