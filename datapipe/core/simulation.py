@@ -32,6 +32,7 @@ initial state, which `ObjectManager.populate(rng)` already fixed.
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -43,7 +44,7 @@ from ..config import Config
 from ..checks.physics_check import Part, SceneCheck, check_scene, physics_line
 from ..engine import progress
 from .objects import COM_PROP, SIM_MESH_PROP, STAGE_LAYERS, Instance, ObjectManager
-from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_body
+from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_bodies
 
 FRAME_START = 1
 LEFT_BIN = "left the bin"
@@ -155,13 +156,17 @@ def drop_in_stages(objects: ObjectManager, simulation: "Simulation", instances: 
     active = [inst for inst in instances if inst.layer // STAGE_LAYERS == waves[0]]
     removed: list[tuple[Instance, str]] = []
     frames, seconds, plan = 0, 0.0, None
+    frozen: set[str] = set()
     for w in waves:
         if w != waves[0]:
             wave = [inst for inst in instances if inst.layer // STAGE_LAYERS == w]
             _lower_onto(wave, active, float(simulation.cfg.simulation.layer_gap))
             objects.activate(wave)
             active = active + wave
+        before = {inst.name: _world_corners(inst.obj) for inst in active}
         res = simulation.run(active, final=w == waves[-1])
+        if w != waves[-1] and os.environ.get("DP_FREEZE", "1") == "1":
+            frozen |= _freeze_unmoved(res, before, frozen)
         frames, seconds = frames + res.frames, seconds + res.seconds
         removed += res.removed
         if plan is None or (res.plan and res.plan.substeps > plan.substeps):
@@ -173,6 +178,25 @@ def drop_in_stages(objects: ObjectManager, simulation: "Simulation", instances: 
     res.kept.sort(key=lambda inst: inst.mask_index)
     res.frames, res.seconds, res.removed, res.plan, res.stages = frames, seconds, removed, plan, len(waves)
     return res
+
+
+def _freeze_unmoved(res: SimResult, before: dict[str, np.ndarray], frozen: set[str]) -> set[str]:
+    """The parts that a whole drop stage left where they were (at rest, every corner within the
+    settle test's motion bound, min(1 mm, 10% of the part's size), of where the stage began)
+    become PASSIVE for the later stages: buried under the pile's newer parts, they keep supporting
+    it but cost Bullet nothing. A part the stage moved stays ACTIVE."""
+    moving = {name for name, _ in res.unsettled}
+    out = set()
+    for inst in res.kept:
+        if inst.name in frozen or inst.name in moving:
+            continue
+        moved = float(np.linalg.norm(_world_corners(inst.obj) - before[inst.name], axis=1).max())
+        if os.environ.get("DP_FREEZE_ALL") == "1" or moved < min(SETTLE_MOTION, SETTLE_MOTION_RELATIVE * inst.size):
+            for o in (inst.obj, *inst.obj.children):
+                if o.rigid_body is not None:
+                    o.rigid_body.type = 'PASSIVE'
+            out.add(inst.name)
+    return out
 
 
 def _world_corners(obj) -> np.ndarray:
@@ -257,6 +281,7 @@ class Simulation:
         # model-frame bounding boxes, read before the simulation swaps in re-centred meshes
         corners = [np.array([tuple(c) for c in inst.obj.bound_box], dtype=np.float64) for inst in instances]
         offsets = [self._use_com_mesh(inst) for inst in instances]   # T_sim_model per instance
+        self._let_sleep(instances, corners)
         rbw = self._configure_world(plan.substeps)
         scene.frame_set(FRAME_START)               # back to the initial state: Bullet world rebuilt
         frames, settled, mats, unsettled = self._step(instances, offsets, corners, dt)
@@ -288,6 +313,19 @@ class Simulation:
                         poses=poses, unsettled=unsettled, plan=plan, seconds=seconds)
         res.check = self.check(kept, poses)
         return res
+
+    def _let_sleep(self, instances: list[Instance], corners: list[np.ndarray]) -> None:
+        """Bullet's deactivation with the settle test's own speeds: a body slower than its at-rest
+        speed (linear, and angular times its radius) for Bullet's deactivation time (2 s) sleeps with
+        its whole island: it stops being integrated and stops creeping, and wakes when a moving body
+        touches it. Blender's defaults (0.4 m/s, 0.5 rad/s) would put a falling 20 mm part to sleep."""
+        sizes = settle_sizes(instances, corners)
+        v = settle_speeds(float(self.cfg.simulation.settle_speed), sizes) * float(__import__("os").environ.get("DP_SLEEP", "1"))
+        for inst, v_lin, r in zip(instances, v, sizes / 2):
+            rb = inst.obj.rigid_body
+            rb.use_deactivation = True
+            rb.deactivate_linear_velocity = float(v_lin)
+            rb.deactivate_angular_velocity = float(v_lin / r)
 
     def _rest_here(self, kept: list[Instance], poses: dict[str, np.ndarray], rbw) -> None:
         """Between drop stages: the kept parts' initial poses become where they came to rest (model
@@ -395,7 +433,8 @@ class Simulation:
         for inst in kept:
             for child in list(inst.obj.children):  # convex pieces of a decomposed part
                 bpy.data.objects.remove(child, do_unlink=True)
-            remove_rigid_body(inst.obj)
+        remove_rigid_bodies([inst.obj for inst in kept])
+        for inst in kept:
             model_mesh = inst.obj.get("datapipe_model_mesh")
             if model_mesh is not None:             # back to the template's mesh (model frame)
                 inst.obj.data = model_mesh
