@@ -8,7 +8,11 @@ by datapipe.checks.physics_check on the model meshes at the final poses (pairs d
 under the floor, parts more than 2 mm from everything). `--baseline` also times the demo scenes
 with another checkout's simulation (e.g. main before this change) for the cost comparison.
 
-Writes benchmarks/results/physics.md and physics.csv.
+Writes benchmarks/results/physics.md and physics.csv. `--drop-only` measures only the drop cost
+against parts (the bin_picking.json pile of steel pegs, nuts and brackets with 10/40/80/120 parts,
+`time.process_time` of `drop_scene`, the independent check included) and replaces that section of
+physics.md; `--cases "A|B"` runs only the cases whose label contains one of these and prints their table
+(physics.md and physics.csv keep the full run's).
 """
 from __future__ import annotations
 
@@ -31,10 +35,10 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
 import physics_parts  # noqa: E402
-from datapipe.config import ObjectEntry, assets_dir, default_config  # noqa: E402
+from datapipe.config import ObjectEntry, assets_dir, default_config, loads, presets_dir  # noqa: E402
 from datapipe.core.objects import ObjectManager  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
-from datapipe.core.simulation import Simulation, plan_substeps  # noqa: E402
+from datapipe.core.simulation import Simulation, drop_scene, plan_substeps  # noqa: E402
 from datapipe.draws.seeds import scene_rng  # noqa: E402
 
 ASSETS = assets_dir()
@@ -213,26 +217,98 @@ def before_cases(checkout: str, parts: dict, n_scenes: int) -> list[dict]:
     return json.loads(line[6:])
 
 
+DROP_PARTS = (10, 40, 80, 120)
+DROP_SEEDS = (0, 1)
+DROP_HEADING = "## Drop cost: parts against CPU seconds"
+
+
+def dense_drop(n_parts: int, seed: int) -> dict:
+    """bin_picking.json's pile with `n_parts` steel parts split over its three meshes (as
+    bench_production.py's cells), dropped in stages by `drop_scene`; CPU seconds of the drop."""
+    pre = presets_dir() / "bin_picking.json"
+    p = json.loads(pre.read_text())
+    p["scene"].pop("fill", None)
+    for k, o in enumerate(p["objects"]):
+        o["filepath"] = str((pre.parent / o["filepath"]).resolve())
+        o["min_instances"] = o["max_instances"] = n_parts // 3 + (1 if k < n_parts % 3 else 0)
+        o["material"] = "steel"
+    cfg = loads(json.dumps(p))
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bs = BlendScene(cfg).setup()
+    om = ObjectManager(cfg, bs).load_sources()
+    sim = Simulation(cfg, bs)
+    c0 = time.process_time()
+    res, _ = drop_scene(om, sim, scene_rng(seed, 0), 1234)
+    cpu = time.process_time() - c0
+    c = res.check
+    row = {"parts": n_parts, "seed": seed, "cpu_s": round(cpu, 2), "kept": len(res.kept), "lost": len(res.removed),
+           "pairs": len(c.pairs), "max_depth_mm": round(c.max_depth * 1000, 2), "below_floor": len(c.below_floor),
+           "floating": len(c.floating), "frames": res.frames, "stages": res.stages, "settled": res.settled,
+           "unsettled": len(res.unsettled), "substeps": res.plan.substeps}
+    print("drop", row, flush=True)
+    return row
+
+
+def drop_section(rows: list[dict]) -> list[str]:
+    L = [DROP_HEADING, "",
+         "`bench_physics.py --drop-only`: the `bin_picking.json` pile (steel pegs, nuts, brackets in equal "
+         "shares, no `scene.fill`), dropped in stages by `drop_scene`; `CPU s` is `time.process_time` of the "
+         "whole drop (stages, freezing, the independent check). Checks as above (pairs deeper than 0.5 mm, "
+         "below the floor, floating > 2 mm).", "",
+         "| parts | seed | CPU s | lost | pairs > 0.5 mm | max depth mm | below floor | floating > 2 mm | frames | "
+         "stages | settled | unsettled | substeps |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    L += [f"| {r['parts']} | {r['seed']} | {r['cpu_s']:.2f} | {r['lost']} | {r['pairs']} | {r['max_depth_mm']:.2f} | "
+          f"{r['below_floor']} | {r['floating']} | {r['frames']} | {r['stages']} | {r['settled']} | {r['unsettled']} | "
+          f"{r['substeps']} |" for r in rows]
+    return L
+
+
+def replace_drop_section(rows: list[dict]) -> None:
+    """Put the drop table into physics.md in place of its previous one (before the notes, if any)."""
+    path = RESULTS / "physics.md"
+    text = path.read_text() if path.exists() else "# Physics on extreme parts\n"
+    lines = text.rstrip("\n").split("\n")
+    if DROP_HEADING in lines:
+        a = lines.index(DROP_HEADING)
+        b = next((i for i in range(a + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+        lines[a:b] = drop_section(rows) + [""]
+    else:
+        lines += [""] + drop_section(rows)
+    path.write_text("\n".join(lines).rstrip("\n") + "\n")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--baseline", help="another checkout (e.g. main before this change) to time the demo with")
+    ap.add_argument("--drop-only", action="store_true", help="only the drop cost against parts (replaces its section)")
+    ap.add_argument("--cases", help="only the cases whose label contains this")
     args = ap.parse_args()
     RESULTS.mkdir(parents=True, exist_ok=True)
+    if args.drop_only:
+        replace_drop_section([dense_drop(n, s) for n in DROP_PARTS for s in DROP_SEEDS])
+        return
     t_start = time.perf_counter()
     rows = []
-    with tempfile.TemporaryDirectory() as tmp, open(RESULTS / "physics.csv", "w", newline="") as fh:
+    csv_path = RESULTS / "physics.csv" if not args.cases else Path(tempfile.gettempdir()) / "physics_cases.csv"
+    with tempfile.TemporaryDirectory() as tmp, open(csv_path, "w", newline="") as fh:
         w = csv.DictWriter(fh, COLUMNS)
         w.writeheader()
         parts = physics_parts.write_all(tmp)
         loads = {}
         for label, entries, n, _ in cases(parts, args.quick):
+            if args.cases and not any(c in label for c in args.cases.split("|")):
+                continue
             r, loads[label] = run_case(label, entries, n, w)
             rows += r
         before = before_cases(args.baseline, parts, 1) if args.baseline else []
+    if args.cases:                      # a subset: printed above, physics.md keeps the full run
+        print("\n".join(_table(rows)[1]))
+        return
     rest = restitution_case()
     base = baseline_demo(args.baseline, 3 if not args.quick else 1) if args.baseline else None
-    write_md(rows, loads, rest, base, time.perf_counter() - t_start, before)
+    drops = [] if args.cases else [dense_drop(n, s) for n in DROP_PARTS for s in DROP_SEEDS]
+    write_md(rows, loads, rest, base, time.perf_counter() - t_start, before, drops)
 
 
 def _table(rows, loads=None):
@@ -253,7 +329,7 @@ def _table(rows, loads=None):
     return by_case, L
 
 
-def write_md(rows, loads, rest, base, total_s, before=()):
+def write_md(rows, loads, rest, base, total_s, before=(), drops=()):
     by_case, table = _table(rows, loads)
     L = ["# Physics on extreme parts", "",
          "`benchmarks/bench_physics.py` (defaults: substeps chosen per scene, AUTO collision shapes unless the case "
@@ -277,6 +353,8 @@ def write_md(rows, loads, rest, base, total_s, before=()):
         tb, tn = sum(b["sim_s"] for b in base), sum(r["sim_s"] for r in demo[:len(base)])
         L.append(f"| total | {sum(b['frames'] for b in base)} | {sum(r['frames'] for r in demo[:len(base)])} | "
                  f"{tb:.3f} | {tn:.3f} ({(tn / tb - 1) * 100:+.0f}%) |")
+    if drops:
+        L += [""] + drop_section(drops)
     L += ["", f"Benchmark wall time {total_s:.0f} s."]
     (RESULTS / "physics.md").write_text("\n".join(L) + "\n")
     print("\n".join(L))

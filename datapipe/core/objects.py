@@ -68,7 +68,7 @@ from ..errors import ConfigError, DataPipeError
 from ..io.bop_models import entry_field
 from .. import collision, shapes
 from .shape_parts import make_shape
-from .scene import BlendScene, add_rigid_body, find_layer_collection, remove_unused_data
+from .scene import BlendScene, add_rigid_bodies, add_rigid_body, find_layer_collection, remove_unused_data
 from ..draws.fill import draw_share, fill_counts, hull_volume
 
 TEMPLATES_COLLECTION = "datapipe_templates"
@@ -476,9 +476,10 @@ class ObjectManager:
     def activate(self, instances: list[Instance]) -> None:
         """Give `instances` their ACTIVE rigid bodies (populate does it for the first stage's layers;
         core/simulation.py for the later stages, just before they drop)."""
+        add_rigid_bodies([inst.obj for inst in instances], 'ACTIVE')
         for inst in instances:
             entry = self.cfg.objects[inst.entry_index]
-            rb = add_rigid_body(inst.obj, 'ACTIVE')
+            rb = inst.obj.rigid_body
             rb.mass = float(entry.mass)
             rb.friction = float(entry.friction)
             rb.restitution = float(entry.restitution)

@@ -93,6 +93,27 @@ def add_rigid_body(obj: bpy.types.Object, kind: str) -> bpy.types.RigidBodyObjec
     return obj.rigid_body
 
 
+def add_rigid_bodies(objs: list[bpy.types.Object], kind: str) -> None:
+    """`add_rigid_body` for many objects in one operator call: each call updates the whole view
+    layer, so one call per part cost O(parts^2) (1.5 CPU s of a 120-part drop)."""
+    new = [o for o in objs if o.rigid_body is None]
+    if new:
+        with bpy.context.temp_override(object=new[0], active_object=new[0], selected_objects=new,
+                                       selected_editable_objects=new):
+            bpy.ops.rigidbody.objects_add(type=kind)
+    for o in objs:
+        o.rigid_body.type = kind
+
+
+def remove_rigid_bodies(objs: list[bpy.types.Object]) -> None:
+    """`remove_rigid_body` for many objects in one operator call (see add_rigid_bodies)."""
+    old = [o for o in objs if o.rigid_body is not None]
+    if old:
+        with bpy.context.temp_override(object=old[0], active_object=old[0], selected_objects=old,
+                                       selected_editable_objects=old):
+            bpy.ops.rigidbody.objects_remove()
+
+
 def remove_rigid_body(obj: bpy.types.Object) -> None:
     if obj.rigid_body is not None:
         with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj],
