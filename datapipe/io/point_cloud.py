@@ -104,7 +104,7 @@ def ply_bytes(vertices: np.ndarray, width: int, height: int) -> bytes:
     """An organised binary little-endian PLY of `vertices` (a structured array of `vertex_dtype`)."""
     if vertices.shape != (width * height,):
         raise ValueError(f"{vertices.shape[0]} vertices for an organised {width}x{height} cloud")
-    types = {"<f4": "float", "<u1": "uchar", "<u2": "ushort"}
+    types = {"<f4": "float", "|u1": "uchar", "<u2": "ushort"}
     props = "".join(f"property {types[vertices.dtype[n].str]} {n}\n" for n in vertices.dtype.names)
     header = (f"ply\nformat binary_little_endian 1.0\ncomment DataPipe organised point cloud: metres, camera "
               f"frame (OpenCV), invalid pixels NaN\nobj_info organised {width} {height}\n"
