@@ -422,3 +422,32 @@ def test_models_eval_info_is_measured_on_models_eval(bop):
         assert [e["size_x"], e["size_y"], e["size_z"]] == pytest.approx(hi - lo, abs=1e-9)
         assert {k: v for k, v in e.items() if k.startswith("symmetries_")} == \
             {k: v for k, v in base[obj_id].items() if k.startswith("symmetries_")}
+
+
+def test_object_coords_read_by_opencv_as_three_channels(native_run, tmp_path, monkeypatch):
+    """BOP's object_coords/IMID.exr: OpenCV reads H x W x 3 (channels R, G, B = model x, y, z in mm,
+    in OpenCV's B, G, R order); DataPipe's reader reads it and the X, Y, Z files written before."""
+    from datapipe.io.exr import read_object_coords
+    run = tmp_path / "native"
+    shutil.copytree(native_run, run)
+    truth = {}
+    for sj in sorted(run.glob("scene.*/scene.json")):
+        for rd in json.loads(sj.read_text())["renders"]:
+            W, H = rd["resolution"]
+            xyz = np.random.default_rng(rd["image_id"]).uniform(-0.05, 0.05, (H, W, 3)).astype(np.float32)
+            xyz[: H // 3] = np.nan                                    # off parts
+            write_exr(sj.parent / rd["name"] / "object_coords.exr", {c: xyz[..., i] for i, c in enumerate("XYZ")})
+            truth[rd["image_id"]] = xyz
+    root = tmp_path / "bop"
+    export_bop(run, root)
+    monkeypatch.setenv("OPENCV_IO_ENABLE_OPENEXR", "1")
+    for image_id, xyz in truth.items():
+        path = root / "train_pbr" / "000000" / "object_coords" / f"{image_id:06d}.exr"
+        im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        assert im is not None and im.shape == xyz.shape and im.dtype == np.float32
+        # float32 metres x 1000 in float32: relative 1e-7
+        np.testing.assert_allclose(im[..., ::-1], xyz * 1000.0, rtol=1e-6, equal_nan=True)
+        np.testing.assert_allclose(read_object_coords(path), xyz * 1000.0, rtol=1e-6, equal_nan=True)
+        old = tmp_path / "old.exr"
+        write_exr(old, {c: xyz[..., i] * 1000.0 for i, c in enumerate("XYZ")})
+        np.testing.assert_allclose(read_object_coords(old), xyz * 1000.0, rtol=1e-6, equal_nan=True)

@@ -65,7 +65,7 @@ def test_bop_models_in_object_coords_out(tmp_path):
             meta = json.loads((bop / "train_pbr/000000/datapipe.json").read_text())
             im_id = next(int(k) for k, m in meta.items() if m["image_id"] == rd["image_id"])
             b = read_exr(bop / "train_pbr/000000/object_coords" / f"{im_id:06d}.exr")
-            np.testing.assert_allclose(b["X"], xyz["X"] * 1000.0, rtol=1e-6, equal_nan=True)
+            np.testing.assert_allclose(b["R"], xyz["X"] * 1000.0, rtol=1e-6, equal_nan=True)   # R, G, B = x, y, z
     assert n_checked >= 3
     gt = json.loads((bop / "train_pbr/000000/scene_gt.json").read_text())
     assert {g["obj_id"] for gts in gt.values() for g in gts} <= set(BOP_PARTS)
