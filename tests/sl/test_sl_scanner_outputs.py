@@ -135,3 +135,15 @@ def test_point_cloud_8bit_grey(tmp_path):
     # (0, 0): the border on its left, a hole on its right -- no row difference, so no normal
     np.testing.assert_array_equal(has, valid & ~((np.arange(12) == 0).reshape(3, 4)))
     np.testing.assert_allclose(n[has], np.tile([0, 0, -1.0], (has.sum(), 1)), atol=1e-6)   # a fronto-parallel plane
+
+
+def test_point_cloud_with_trimesh(rig, scan, tmp_path):
+    trimesh = pytest.importorskip("trimesh", reason="trimesh not installed (the numpy reader above still runs)")
+    cam, _ = rig
+    res = scan.result
+    H, W = res.depth.shape
+    path = tmp_path / "point_cloud.ply"
+    write_point_cloud(path, res.depth, cam.K, scan.gray(), res.confidence)
+    cloud = trimesh.load(str(path))
+    assert isinstance(cloud, trimesh.PointCloud) and len(cloud.vertices) == W * H     # NaN points kept
+    check_cloud(cloud.metadata["_ply_raw"]["vertex"]["data"], W, H, res.depth, cam.K, scan.gray(), res.confidence)
