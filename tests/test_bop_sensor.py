@@ -148,3 +148,15 @@ def test_scanner_outputs_need_structured_light(kind):
     assert probs and "structured_light.enabled" in probs[0].fix and kind in probs[0].fix
     cfg.structured_light.enabled = True
     assert not [p for p in cfg.problems(check_files=False) if p.path.startswith("render.outputs")]
+
+
+def test_bop_with_structured_light_without_sl_gray_warns():
+    from datapipe.io.bop_sensor import sensor_warnings
+    cfg = fx.default_config(structured_light=True, formats=("native", "bop"))
+    assert "sl_gray" not in cfg.render.outputs
+    assert any("'sl_gray'" in w for w in sensor_warnings(cfg))
+    cfg.render.outputs = [*cfg.render.outputs, "sl_gray"]
+    assert sensor_warnings(cfg) == []
+    cfg.structured_light.enabled = False
+    cfg.render.outputs = cfg.render.outputs[:-1]
+    assert sensor_warnings(cfg) == []

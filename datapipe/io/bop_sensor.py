@@ -62,3 +62,11 @@ def sensor_for_config(cfg: dict | None) -> str:
         from ..devices import device
         return vendor_name(device(dev)["vendor"])
     return CUSTOM_RIG
+
+
+def sensor_warnings(cfg) -> list[str]:
+    """A BOP run with structured light but without the scanner's grey image: its sensor folders lack gray_S/."""
+    if "bop" in cfg.output.formats and cfg.structured_light.enabled and "sl_gray" not in cfg.render.outputs:
+        return ["render.outputs: the BOP output's scanner sensor gets no gray_NAME/ images without 'sl_gray' "
+                "(fix: add 'sl_gray' to render.outputs for a complete BOP-Industrial sensor)"]
+    return []
