@@ -160,3 +160,26 @@ def test_bop_with_structured_light_without_sl_gray_warns():
     cfg.structured_light.enabled = False
     cfg.render.outputs = cfg.render.outputs[:-1]
     assert sensor_warnings(cfg) == []
+
+
+def test_cli_sensor_option(tmp_path, capsys):
+    from datapipe.cli import main
+    run = fx.make_native_run(tmp_path / "native", structured_light=True)
+    assert main(["bop", str(run), "--out", str(tmp_path / "bad"), "--sensor", "My_Sensor"]) == 2
+    err = capsys.readouterr().err
+    assert "sensor" in err and "fix: use 1 to 32 lowercase letters and digits" in err
+    assert not (tmp_path / "bad").exists()
+    assert main(["bop", str(run), "--out", str(tmp_path / "ok"), "--sensor", "xyz"]) == 0
+    assert (tmp_path / "ok" / "train_pbr" / "000000" / "scene_gt_info_xyz.json").is_file()
+
+
+def test_export_names_the_sensor_after_the_runs_device(tmp_path):
+    run = fx.make_native_run(tmp_path / "native", structured_light=True)
+    rj = json.loads((run / "run.json").read_text())
+    rj["config"]["device"] = "zivid2plus_m60"
+    (run / "run.json").write_text(json.dumps(rj))
+    assert export_bop(run, tmp_path / "bop")["sensor"] == "zivid"
+    assert (tmp_path / "bop" / "train_pbr" / "000000" / "depth_zivid").is_dir()
+    rj["config"]["output"]["bop_sensor"] = "cam"
+    (run / "run.json").write_text(json.dumps(rj))
+    assert export_bop(run, tmp_path / "bop2")["sensor"] == "cam"
