@@ -126,8 +126,8 @@ def test_default_sensor_names():
 
 
 @pytest.mark.parametrize("bad", ["", "my_sensor", "Zivid", "a/b", "gray", "x" * 33, "../up"])
-def test_bad_sensor_name_refused_before_any_work(tmp_path, bad):
-    run = fx.make_native_run(tmp_path / "native", structured_light=True)
+def test_bad_sensor_name_refused_before_any_work(exported, tmp_path, bad):
+    run = exported[0]
     with pytest.raises(DataPipeError, match=r"sensor.*fix: use 1 to 32 lowercase letters and digits"):
         export_bop(run, tmp_path / "bop", sensor=bad)
     assert not (tmp_path / "bop").exists()
@@ -162,9 +162,9 @@ def test_bop_with_structured_light_without_sl_gray_warns():
     assert sensor_warnings(cfg) == []
 
 
-def test_cli_sensor_option(tmp_path, capsys):
+def test_cli_sensor_option(exported, tmp_path, capsys):
     from datapipe.cli import main
-    run = fx.make_native_run(tmp_path / "native", structured_light=True)
+    run = exported[0]
     assert main(["bop", str(run), "--out", str(tmp_path / "bad"), "--sensor", "My_Sensor"]) == 2
     err = capsys.readouterr().err
     assert "sensor" in err and "fix: use 1 to 32 lowercase letters and digits" in err
