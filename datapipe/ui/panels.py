@@ -308,8 +308,7 @@ class DATAPIPE_PT_output(_DataPipePanel, Panel):
         col = _fields(layout, out, ("path",))
         col.prop(r, "outputs")
         col.prop(out, "formats")
-        if "bop" in out.formats and props.structured_light.enabled:     # names the scanner's BOP folders
-            col.prop(out, "bop_sensor")
+        col.prop(out, "bop_sensor")          # names the scanner's BOP folders (BOP + structured light)
         col.prop(out, "legacy_pickle")
         col.prop(out, "overview")
 
