@@ -6,14 +6,19 @@ the BOP-scenewise layout BlenderProc's `write_bop` users know:
     BOP_ROOT/
       camera.json                    {cx, cy, fx, fy, width, height, depth_scale}
       models/obj_000001.ply          x y z nx ny nz (mm) + faces;  models_info.json (mm, symmetries)
-      models_eval/obj_000001.ply     the models resampled for BOP's evaluation (io/models_eval.py)
+      models_eval/obj_000001.ply     the models resampled for BOP's evaluation (io/models_eval.py),
+                                     models_info.json measured on them
       train_pbr/000000/              chunk = image_id // chunk_size, im_id = image_id % chunk_size
         rgb/000000.jpg               the native rgb.png as JPEG (quality 95; rgb_format="png": a copy)
         depth/000000.png             z-buffer depth, uint16, depth_mm = value * depth_scale, 0 = no data
         depth_sl/000000.png          structured-light depth, same encoding (when the run has it)
         mask/000000_000001.png       full (unoccluded) silhouette of annotation 1, 0/255
         mask_visib/000000_000001.png visible part of annotation 1 (native mask.exr == mask_index)
-        object_coords/000000.exr     X, Y, Z model coordinates in mm, NaN off parts (when rendered)
+        object_coords/000000.exr     model x, y, z in mm in channels R, G, B (OpenCV reads 3 channels),
+                                     NaN off parts (when rendered)
+        gray_S/ depth_S/ mask_S/ mask_visib_S/ scene_camera_S.json scene_gt_S.json scene_gt_info_S.json
+                                     the structured-light scanner as BOP-Industrial sensor S
+                                     (io/bop_sensor.py; renders with structured light; `_write_sensor`)
         scene_camera.json  scene_gt.json  scene_gt_info.json
         scene_gt_coco.json           COCO instances (bop_toolkit's calc_gt_coco: RLE of mask_visib,
                                      amodal bbox, "ignore" when visib_fract < 0.1)
