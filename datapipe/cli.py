@@ -77,6 +77,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--rgb-format", choices=("jpg", "png"), default="jpg", help="RGB files (default jpg, as "
                    "the official train_pbr splits)")
     b.add_argument("--jpg-quality", type=int, default=95, help="JPEG quality 1..100 (default 95)")
+    b.add_argument("--sensor", default=None, help="BOP-Industrial name of the scanner's folders (gray_NAME/, "
+                   "depth_NAME/ ...; default: the run's output.bop_sensor, else its device's maker, else 'sl')")
     return p
 
 
@@ -160,7 +162,7 @@ def _command(args) -> int:
         _refuse_links_in_run_dir(args, BOP_DIR)
         out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
         export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size,
-                   split=args.split, rgb_format=args.rgb_format, jpg_quality=args.jpg_quality)
+                   split=args.split, rgb_format=args.rgb_format, jpg_quality=args.jpg_quality, sensor=args.sensor)
         print(f"BOP dataset written to {out}")
         return 0
     if args.command == "demo":

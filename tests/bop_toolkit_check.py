@@ -66,29 +66,71 @@ def _dilate(mask):
     return out
 
 
-def check(bop_root: str | Path, split: str = "train_pbr", delta_mm: float = DELTA_MM) -> dict:
-    """Counts of what the toolkit recomputes and what agrees with the export. `delta_mm`: the
-    visibility tolerance (calc_gt_info's `delta`, 15 mm by default there and here)."""
+TEMPLATE_DATASET = "xyzibd"       # an industrial dataset whose sensors include "photoneo" (gray + depth)
+
+
+def classic_paths(root: Path, split: str) -> dict:
+    """The toolkit's classic path templates ({scene_id}: the chunk), as dataset_params spells them."""
+    c = str(root / split / "{scene_id:06d}")
+    return {"scene_camera": c + "/scene_camera.json", "scene_gt": c + "/scene_gt.json",
+            "scene_gt_info": c + "/scene_gt_info.json", "depth": c + "/depth/{im_id:06d}.png",
+            "mask": c + "/mask/{im_id:06d}_{gt_id:06d}.png", "mask_visib": c + "/mask_visib/{im_id:06d}_{gt_id:06d}.png"}
+
+
+def sensor_paths(root: Path, split: str, sensor: str, modality: str = "gray") -> dict:
+    """The toolkit's own multi-sensor templates of `sensor` (dataset_params.get_split_params of
+    TEMPLATE_DATASET, whose sensor list must hold it), moved from its split folder to ours."""
+    from bop_toolkit_lib import dataset_params
+    p = dataset_params.get_split_params(str(root / "_datasets"), TEMPLATE_DATASET, "val")
+    assert sensor in p["im_modalities"], f"{TEMPLATE_DATASET} has no sensor {sensor!r}"
+    keys = dataset_params.scene_tpaths_keys(modality, sensor)
+    ours = str(root / split)
+
+    def moved(key):
+        t = p[key]
+        assert t.startswith(p["split_path"]), t
+        return ours + t[len(p["split_path"]):]
+    out = {k: moved(keys[f"{k}_tpath"]) for k in ("scene_camera", "scene_gt", "scene_gt_info", "mask", "mask_visib")}
+    out["depth"] = moved(f"depth_{sensor}_tpath")
+    out[modality] = moved(f"{modality}_{sensor}_tpath")
+    return out
+
+
+def check(bop_root: str | Path, split: str = "train_pbr", sensor: str | None = None,
+          delta_mm: float = DELTA_MM) -> dict:
+    """Counts of what the toolkit recomputes and what agrees with the export: the classic folders,
+    or with `sensor` the scanner's, read through the toolkit's multi-sensor templates. The visible
+    masks are recomputed from the ground-truth depth/ (a PBR image's truth, as calc_gt_info does on
+    the classic folders); px_count_valid from the paths' own depth (calc_gt_info's definition).
+    `delta_mm`: the visibility tolerance (calc_gt_info's `delta`, 15 mm by default there and here)."""
     inout, misc, visibility = toolkit()
     root = Path(bop_root)
+    P = sensor_paths(root, split, sensor) if sensor else classic_paths(root, split)
+    C = classic_paths(root, split)
     info = inout.load_json(str(root / "models" / "models_info.json"), keys_to_int=True)
     models = {k: inout.load_ply(str(root / "models" / f"obj_{k:06d}.ply")) for k in info}
     evals = {k: inout.load_ply(str(root / "models_eval" / f"obj_{k:06d}.ply")) for k in info}
     s = {"instances": 0, "masks_visib_equal": 0, "visib_px_differing": 0, "visib_px": 0, "toolkit_only_px": 0,
          "gt_info_equal": 0, "bbox_obj_within_1_5px": 0, "points_on_mask": 0, "points": 0,
-         "diameter_max_err_mm": 0.0, "images": 0}
+         "diameter_max_err_mm": 0.0, "images": 0, "px_count_valid_equal": 0, "modality_images": 0}
     for k, e in info.items():
         s["diameter_max_err_mm"] = max(s["diameter_max_err_mm"],
                                        abs(misc.calc_pts_diameter2(models[k]["pts"]) - e["diameter"]))
     for chunk in sorted((root / split).iterdir()):
-        cams = inout.load_scene_camera(str(chunk / "scene_camera.json"))
-        gts = inout.load_scene_gt(str(chunk / "scene_gt.json"))
-        infos = inout.load_json(str(chunk / "scene_gt_info.json"), keys_to_int=True)
+        sid = int(chunk.name)
+        cams = inout.load_scene_camera(P["scene_camera"].format(scene_id=sid))
+        gts = inout.load_scene_gt(P["scene_gt"].format(scene_id=sid))
+        infos = inout.load_json(P["scene_gt_info"].format(scene_id=sid), keys_to_int=True)
         for im_id, cam in cams.items():
             s["images"] += 1
             K = cam["cam_K"]
-            depth = inout.load_depth(str(chunk / "depth" / f"{im_id:06d}.png")) * cam["depth_scale"]
+            depth = inout.load_depth(C["depth"].format(scene_id=sid, im_id=im_id)) * cam["depth_scale"]
+            own_depth = inout.load_depth(P["depth"].format(scene_id=sid, im_id=im_id)) * cam["depth_scale"]
             H, W = depth.shape
+            assert own_depth.shape == (H, W)
+            if sensor:                          # the scanner's grey image, through its template and loader
+                g = inout.load_im(P["gray"].format(scene_id=sid, im_id=im_id))
+                s["modality_images"] += int(g.shape[:2] == (H, W))
             dist_test = misc.depth_im_to_dist_im_fast(depth, K)
             for gt_id, (gt, gi) in enumerate(zip(gts[im_id], infos[im_id])):
                 s["instances"] += 1
@@ -97,7 +139,7 @@ def check(bop_root: str | Path, split: str = "train_pbr", delta_mm: float = DELT
                 d_gt = model_depth(m["pts"], m["faces"], K, R, t, W, H)
                 dist_gt = misc.depth_im_to_dist_im_fast(d_gt, K)
                 visib = visibility.estimate_visib_mask_gt(dist_test, dist_gt, delta_mm, visib_mode="bop19")
-                ours = inout.load_im(str(chunk / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png")) > 0
+                ours = inout.load_im(P["mask_visib"].format(scene_id=sid, im_id=im_id, gt_id=gt_id)) > 0
                 diff = int((visib ^ ours).sum())
                 s["visib_px_differing"] += diff
                 s["toolkit_only_px"] += int((visib & ~ours).sum())     # its 15 mm: touching parts "visible"
@@ -118,7 +160,9 @@ def check(bop_root: str | Path, split: str = "train_pbr", delta_mm: float = DELT
                     # (a sharp corner of the silhouette may miss the pixel centres next to it)
                     s["bbox_obj_within_1_5px"] += bool(np.abs(corners).max() <= 1.5)
                 # points on the silhouette's outline may round to the pixel beside it: one pixel of slack
-                full = inout.load_im(str(chunk / "mask" / f"{im_id:06d}_{gt_id:06d}.png")) > 0
+                full = inout.load_im(P["mask"].format(scene_id=sid, im_id=im_id, gt_id=gt_id)) > 0
+                # calc_gt_info: px_count_valid = silhouette pixels with a depth in the image's own depth
+                s["px_count_valid_equal"] += int(np.sum(own_depth[full] > 0)) == gi["px_count_valid"]
                 full = _dilate(full)
                 px = np.rint(p).astype(int)
                 inside = (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)

@@ -386,10 +386,9 @@ def test_coco_info_block(bop):
 
 def test_models_eval_cover_the_models_at_the_toolkit_spacing(bop):
     """models_eval/: every point of each model's surface within 1 mm (bop_toolkit's sampling
-    distance) of an eval point, eval points on the model's surface, same models_info.json."""
+    distance) of an eval point, eval points on the model's surface."""
     from scipy.spatial import cKDTree
     from datapipe.io.symmetry import point_triangle_distance, sample_surface
-    assert (bop / "models_eval/models_info.json").read_bytes() == (bop / "models/models_info.json").read_bytes()
     rng = np.random.default_rng(3)
     for obj_id in (1, 2, 3):
         V, F = ref_read_ply(bop / "models" / f"obj_{obj_id:06d}.ply")
@@ -401,3 +400,54 @@ def test_models_eval_cover_the_models_at_the_toolkit_spacing(bop):
         d = point_triangle_distance(some[:, None, :], V[:, :3][F][None]).min(axis=1)
         assert d.max() < 1e-3                                  # on the surface (float32 PLY)
         assert len(Fe) > 0 and np.linalg.norm(Ve[:, 3:6], axis=1) == pytest.approx(1, abs=1e-5)
+
+
+def test_models_eval_info_is_measured_on_models_eval(bop):
+    """models_eval/models_info.json is measured on models_eval's own meshes, as bop_toolkit's
+    calc_model_info does (misc.calc_pts_diameter: the largest distance between two of the file's
+    vertices; here over the convex hull's vertices, where the farthest pair lies), not a copy of models/'s; symmetries are the object's own."""
+    from scipy.spatial import ConvexHull
+    info = ref_load_json(bop / "models_eval" / "models_info.json")
+    base = ref_load_json(bop / "models" / "models_info.json")
+    assert set(info) == set(base) == {1, 2, 3}
+    for obj_id, e in info.items():
+        V, _ = ref_read_ply(bop / "models_eval" / f"obj_{obj_id:06d}.ply")
+        P = V[:, :3].astype(np.float64)
+        H = P[ConvexHull(P).vertices]          # the two farthest points are hull vertices
+        d = np.sqrt(((H[:, None] - H[None]) ** 2).sum(-1).max())
+        # float64 sums of float32 coordinates: the same number to rounding (1e-9 relative)
+        assert e["diameter"] == pytest.approx(d, rel=1e-9)
+        lo, hi = P.min(0), P.max(0)
+        assert [e["min_x"], e["min_y"], e["min_z"]] == pytest.approx(lo, abs=1e-9)
+        assert [e["size_x"], e["size_y"], e["size_z"]] == pytest.approx(hi - lo, abs=1e-9)
+        assert {k: v for k, v in e.items() if k.startswith("symmetries_")} == \
+            {k: v for k, v in base[obj_id].items() if k.startswith("symmetries_")}
+
+
+def test_object_coords_read_by_opencv_as_three_channels(native_run, tmp_path, monkeypatch):
+    """BOP's object_coords/IMID.exr: OpenCV reads H x W x 3 (channels R, G, B = model x, y, z in mm,
+    in OpenCV's B, G, R order); DataPipe's reader reads it and the X, Y, Z files written before."""
+    from datapipe.io.exr import read_object_coords
+    run = tmp_path / "native"
+    shutil.copytree(native_run, run)
+    truth = {}
+    for sj in sorted(run.glob("scene.*/scene.json")):
+        for rd in json.loads(sj.read_text())["renders"]:
+            W, H = rd["resolution"]
+            xyz = np.random.default_rng(rd["image_id"]).uniform(-0.05, 0.05, (H, W, 3)).astype(np.float32)
+            xyz[: H // 3] = np.nan                                    # off parts
+            write_exr(sj.parent / rd["name"] / "object_coords.exr", {c: xyz[..., i] for i, c in enumerate("XYZ")})
+            truth[rd["image_id"]] = xyz
+    root = tmp_path / "bop"
+    export_bop(run, root)
+    monkeypatch.setenv("OPENCV_IO_ENABLE_OPENEXR", "1")
+    for image_id, xyz in truth.items():
+        path = root / "train_pbr" / "000000" / "object_coords" / f"{image_id:06d}.exr"
+        im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        assert im is not None and im.shape == xyz.shape and im.dtype == np.float32
+        # float32 metres x 1000 in float32: relative 1e-7
+        np.testing.assert_allclose(im[..., ::-1], xyz * 1000.0, rtol=1e-6, equal_nan=True)
+        np.testing.assert_allclose(read_object_coords(path), xyz * 1000.0, rtol=1e-6, equal_nan=True)
+        old = tmp_path / "old.exr"
+        write_exr(old, {c: xyz[..., i] * 1000.0 for i, c in enumerate("XYZ")})
+        np.testing.assert_allclose(read_object_coords(old), xyz * 1000.0, rtol=1e-6, equal_nan=True)

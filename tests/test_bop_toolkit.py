@@ -29,3 +29,21 @@ def test_export_as_the_toolkit_reads_it(tmp_path):
     assert s["visib_px_differing"] - s["toolkit_only_px"] <= 0.005 * s["visib_px"], s
     assert s["masks_visib_equal"] >= 0.75 * s["instances"], s
     assert s["gt_info_equal"] >= 0.75 * s["instances"], s
+
+
+def test_scanner_sensor_as_the_toolkit_reads_it(tmp_path):
+    """The scanner's folders (issue #30) through the toolkit's own multi-sensor path templates
+    (dataset_params of xyzibd, sensor "photoneo": gray + depth) and its loaders; its calc_gt_info
+    agrees with scene_gt_info_photoneo as the classic check above agrees with scene_gt_info."""
+    from test_bop_sensor import add_gray
+    run = fx.make_native_run(tmp_path / "native", structured_light=True, truncate=True)
+    add_gray(run)
+    root = tmp_path / "bop"
+    export_bop(run, root, sensor="photoneo")
+    s = check(root, sensor="photoneo")
+    classic = check(root)
+    assert s["images"] == 4 and s["modality_images"] == 4 and s["instances"] == classic["instances"] >= 8
+    assert s["px_count_valid_equal"] == s["instances"], s            # counted on depth_photoneo
+    assert classic["px_count_valid_equal"] == classic["instances"], classic
+    for k in ("masks_visib_equal", "gt_info_equal", "bbox_obj_within_1_5px", "visib_px_differing", "points_on_mask"):
+        assert s[k] == classic[k], (k, s[k], classic[k])               # the same masks, boxes, poses

@@ -29,6 +29,7 @@ from typing import Callable, ContextManager
 
 from ..config import Config, fringe_memory_bytes
 from .device_checks import device_warnings
+from ..io.bop_sensor import sensor_warnings
 from ..errors import ConfigError
 from ..io.bop_models import expand_bop_objects
 from .part_fit import fill_problems, part_fit_warnings
@@ -73,6 +74,7 @@ def run_checks(cfg: Config, *, blender: bool = True, folder: Callable[[Config], 
         report.warnings += _part_fit(cfg, checked, volumes)
         report.steps.append("part_fit")
         report.warnings += device_warnings(cfg)
+        report.warnings += sensor_warnings(cfg)
         report.steps.append("device")
         report.warnings += memory_warnings(checked)
         report.steps.append("memory")

@@ -4,7 +4,9 @@ which a preset is a typo, not a dataset. Read by the schema (defaults), the pars
 SCHEMA_VERSION = 1
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
-OUTPUT_KINDS = ("rgb", "depth", "normals", "mask", "object_coords")   # object_coords: only when listed
+OUTPUT_KINDS = ("rgb", "depth", "normals", "mask", "object_coords",   # object_coords: only when listed
+                "sl_gray", "point_cloud")      # the scanner's grey image and organised cloud: need structured light
+SL_OUTPUT_KINDS = ("sl_gray", "point_cloud")
 FORMATS = ("native", "bop")
 ENGINES = ("CYCLES",)
 DEVICES = ("CPU", "GPU")

@@ -212,6 +212,9 @@ class OutputConfig:
     formats: list[str] = _vec("native")
     legacy_pickle: bool = True         # also write the original's output_dict.pickle
     overview: bool = True              # write the run's overview sheet at the end
+    bop_sensor: str | None = None      # BOP-Industrial name of the scanner's folders (gray_NAME/, depth_NAME/ ...);
+                                       # None: after the device's vendor ("zivid", "photoneo"), "sl" without
+                                       # a device (datapipe/io/bop_sensor.py)
 
 
 @dataclass

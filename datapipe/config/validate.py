@@ -16,7 +16,7 @@ from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
 from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS, MAX_SAMPLES,
-                     MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS)
+                     MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS, SL_OUTPUT_KINDS)
 from .validate_sl import _check_projector, _check_structured_light
 
 if TYPE_CHECKING:                 # annotations only: Config's methods call the rules, not the other way
@@ -321,6 +321,10 @@ def _check_render(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.choice(f"render.outputs[{i}]", k, OUTPUT_KINDS)
     if len(set(r.outputs)) != len(r.outputs):
         ck.add("render.outputs", f"duplicate entries in {r.outputs}", "list each output once")
+    for i, k in enumerate(r.outputs):
+        if k in SL_OUTPUT_KINDS and not cfg.structured_light.enabled:
+            ck.add(f"render.outputs[{i}]", f"{k!r} is the structured-light scanner's output, but structured "
+                   "light is off", f"set structured_light.enabled to true, or drop {k!r} from render.outputs")
 
 
 def _check_simulation(ck: _Checks, cfg: Config, check_files: bool) -> None:
@@ -363,6 +367,11 @@ def _check_output(ck: _Checks, cfg: Config, check_files: bool) -> None:
             if need not in r.outputs:
                 ck.add("render.outputs", f"the BOP format needs the {need!r} output",
                        f"add {need!r} to render.outputs or drop 'bop' from output.formats")
+    if o.bop_sensor is not None:
+        from ..io.bop_sensor import sensor_name_problem
+        bad = sensor_name_problem(o.bop_sensor)
+        if bad:
+            ck.add("output.bop_sensor", *bad)
 
 
 def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:

@@ -97,6 +97,7 @@ from ..engine import progress
 from ..config.plan import FRINGE_SUPERSAMPLE, builds_row_code   # FRINGE_SUPERSAMPLE: the memory check counts it
 from ..config.plan import SHINY_ROUGHNESS, grey_materials, resolve_fringe_mode  # noqa: F401 (the camera's rules)
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
+from ..io import layout
 from ..io.native import write_render_maps
 from . import projector as _pj
 from .fringe_call import INDIRECT_BLUR_PX, block_mean, indirect_gain, isolated_render, link_ambient_layer
@@ -432,6 +433,7 @@ class StructuredLightCamera:
         self.last_seconds = {"render": render_s, "decode": scan.seconds}
         progress.begin("maps")
         files = write_render_maps(rdir, scan.maps(debug=s.debug))
+        files.update(self._write_scanner_outputs(rdir, scan))
         summary = scan.summary()
         extra = {} if self.ambient_image is None else {      # "off" keeps today's record, key for key
             "ambient": "scene", "ambient_to_projector": summary["ambient_to_projector"]}
@@ -447,6 +449,23 @@ class StructuredLightCamera:
             "valid_fraction": summary["valid_fraction"], "reasons": summary["reasons"],
             "median_sigma_z": summary["median_sigma_z"],
         }
+
+    def _write_scanner_outputs(self, rdir: Path, scan) -> dict[str, Path]:
+        """The scanner's grey image and organised point cloud, each only when render.outputs lists it
+        (a run without them computes and writes nothing of them)."""
+        wanted = [k for k in ("sl_gray", "point_cloud") if k in self.cfg.render.outputs]
+        if not wanted:
+            return {}
+        from ..io.point_cloud import write_point_cloud
+        gray = scan.gray()
+        files = {}
+        if "sl_gray" in wanted:
+            files.update(write_render_maps(rdir, {"sl_gray": gray}))
+        if "point_cloud" in wanted:
+            path = rdir / layout.RENDER_FILES["point_cloud"]
+            write_point_cloud(path, scan.result.depth, self.camera.K, gray, scan.result.confidence)
+            files["point_cloud"] = path
+        return files
 
     def teardown(self) -> None:
         tree = self.renderer.tree

@@ -35,6 +35,7 @@ from typing import Callable, ContextManager, Iterable, Sequence
 
 from .. import config as config_mod
 from ..io import outdir
+from ..io.bop_sensor import sensor_for_config
 from ..checks import gate
 from ..errors import DataPipeError
 from ..io import layout
@@ -180,7 +181,7 @@ def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.Path
         _place_scene(owner[s] / s, out / s, move=move)
     cfg_dict = json.loads(json.dumps(config if config is not None else ref.get("config", {})))
     cfg_dict.setdefault("output", {})["path"] = str(out.resolve())
-    writers = open_writers(cfg_dict["output"], out, batch=True)
+    writers = open_writers(cfg_dict["output"], out, batch=True, sensor=sensor_for_config(cfg_dict))
     writers.start()
     for s in expected:
         writers.catch_up(out / s, scene_docs[s])

@@ -31,6 +31,7 @@ from ..io.files import make_dirs, read_json, write_json_atomic
 from ..io.bop_models import models_symmetries
 from ..io.models import write_models
 from ..io.legacy import LegacyPickleWriter
+from ..io.bop_sensor import sensor_for_config
 from ..io.writers import Writers, open_writers
 from ..visibility import visible_fractions
 from ..draws.seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
@@ -175,7 +176,7 @@ class Pipeline:
         self.manifest.update()
         self._write_run_file(status="running")
         self.manifest.update()
-        writers = open_writers(self.cfg.output, self.out)
+        writers = open_writers(self.cfg.output, self.out, sensor=sensor_for_config(self.cfg.to_dict()))
         writers.start()
         done, todo = 0, []
         for i in self.scene_ids:

@@ -6,14 +6,19 @@ the BOP-scenewise layout BlenderProc's `write_bop` users know:
     BOP_ROOT/
       camera.json                    {cx, cy, fx, fy, width, height, depth_scale}
       models/obj_000001.ply          x y z nx ny nz (mm) + faces;  models_info.json (mm, symmetries)
-      models_eval/obj_000001.ply     the models resampled for BOP's evaluation (io/models_eval.py)
+      models_eval/obj_000001.ply     the models resampled for BOP's evaluation (io/models_eval.py),
+                                     models_info.json measured on them
       train_pbr/000000/              chunk = image_id // chunk_size, im_id = image_id % chunk_size
         rgb/000000.jpg               the native rgb.png as JPEG (quality 95; rgb_format="png": a copy)
         depth/000000.png             z-buffer depth, uint16, depth_mm = value * depth_scale, 0 = no data
         depth_sl/000000.png          structured-light depth, same encoding (when the run has it)
         mask/000000_000001.png       full (unoccluded) silhouette of annotation 1, 0/255
         mask_visib/000000_000001.png visible part of annotation 1 (native mask.exr == mask_index)
-        object_coords/000000.exr     X, Y, Z model coordinates in mm, NaN off parts (when rendered)
+        object_coords/000000.exr     model x, y, z in mm in channels R, G, B (OpenCV reads 3 channels),
+                                     NaN off parts (when rendered)
+        gray_S/ depth_S/ mask_S/ mask_visib_S/ scene_camera_S.json scene_gt_S.json scene_gt_info_S.json
+                                     the structured-light scanner as BOP-Industrial sensor S
+                                     (io/bop_sensor.py; renders with structured light; `_write_sensor`)
         scene_camera.json  scene_gt.json  scene_gt_info.json
         scene_gt_coco.json           COCO instances (bop_toolkit's calc_gt_coco: RLE of mask_visib,
                                      amodal bbox, "ignore" when visib_fract < 0.1)
@@ -48,11 +53,12 @@ import cv2
 import numpy as np
 
 from ..errors import DataPipeError
-from .exr import read_depth, read_exr, read_mask, write_exr
+from .exr import COORDS_CHANNELS, read_depth, read_mask, read_object_coords, write_exr
 from . import layout
 from .files import copy_atomic, imwrite_atomic, make_dirs, read_json, read_json_or_empty, write_json_lines_atomic
-from .models import Model, load_models, model_filename, write_models, write_ply
+from .models import Model, load_models, model_filename, model_info, read_ply, write_models, write_ply
 from .models_eval import SPACING_MM, resample_for_eval, vertex_normals
+from .bop_sensor import CUSTOM_RIG, check_sensor_name, sensor_for_config
 from .silhouette import mask_bbox, rasterize_silhouette
 
 SPLIT = "train_pbr"
@@ -138,6 +144,7 @@ def _mat(x, shape) -> np.ndarray:
 
 CHUNK_FILES = ("scene_camera", "scene_gt", "scene_gt_info", "datapipe")
 DISTORTION_KEY = "cam_dist"   # scene_camera: OpenCV k1 k2 p1 p2 k3 of a distorting lens (not BOP's; readers skip it)
+SENSOR_FILES = ("scene_camera", "scene_gt", "scene_gt_info")    # NAME_{sensor}.json of the scanner
 COCO_VISIB_MIN = 0.1      # bop_toolkit's calc_gt_coco: annotations less visible than this are "ignore"
 
 
@@ -152,6 +159,7 @@ class _ImageEntry:
     infos: list
     meta: dict
     coco: dict
+    sensor: dict | None = None     # {"scene_camera": ..., "scene_gt": ..., "scene_gt_info": ...} of the scanner
 
 
 class BopWriter:
@@ -166,9 +174,10 @@ class BopWriter:
 
     def __init__(self, bop_root: str | os.PathLike, *, depth_scale: float = 0.1, chunk_size: int = 1000,
                  split: str = SPLIT, models_dir: str | os.PathLike | None = None, rgb_format: str = RGB_FORMAT,
-                 jpg_quality: int = JPG_QUALITY, eval_spacing_mm: float = SPACING_MM):
+                 jpg_quality: int = JPG_QUALITY, eval_spacing_mm: float = SPACING_MM, sensor: str = CUSTOM_RIG):
         check_options(depth_scale=depth_scale, chunk_size=chunk_size, split=split, rgb_format=rgb_format,
                       jpg_quality=jpg_quality)
+        self.sensor = check_sensor_name(sensor, "sensor")
         if not (eval_spacing_mm > 0):
             raise DataPipeError(f"eval_spacing_mm must be > 0 mm, got {eval_spacing_mm}")
         self.rgb_format = rgb_format
@@ -218,13 +227,21 @@ class BopWriter:
         self._write_models_eval()
 
     def _write_models_eval(self) -> None:
-        """models_eval/: every model resampled (io/models_eval.py) and the same models_info.json."""
+        """models_eval/: every model resampled (io/models_eval.py) and its own models_info.json,
+        measured on the resampled meshes as written (bop_toolkit's calc_model_info on models_eval/
+        gives the same numbers); symmetries are the models/ entries' (the same object)."""
         out = self.root / MODELS_EVAL_DIR
         make_dirs(out)
+        base = read_json(self.models_dir / layout.MODELS_INFO)
+        info = {}
         for obj_id, m in self.models().items():
             v, f = resample_for_eval(m.verts_mm, m.faces, self.eval_spacing_mm)
-            write_ply(out / model_filename(obj_id), v, f, vertex_normals(v, f))
-        copy_atomic(self.models_dir / layout.MODELS_INFO, out / layout.MODELS_INFO)
+            path = out / model_filename(obj_id)
+            write_ply(path, v, f, vertex_normals(v, f))
+            written, _ = read_ply(path)                 # the file's own (float32) coordinates
+            sym = {k: val for k, val in base.get(str(obj_id), {}).items() if k.startswith("symmetries_")}
+            info[str(obj_id)] = {**model_info(written), **sym}
+        write_json_lines_atomic(out / layout.MODELS_INFO, info)
 
     def models(self) -> dict[int, Model]:
         if self._models is None:
@@ -239,6 +256,8 @@ class BopWriter:
         if chunk not in self._chunks:
             d = self.chunk_dir(chunk)
             data = {name: read_json_or_empty(d / f"{name}.json") for name in CHUNK_FILES}
+            for name in SENSOR_FILES:
+                data[f"{name}_"] = read_json_or_empty(d / f"{name}_{self.sensor}.json")
             coco = read_json_or_empty(d / "scene_gt_coco.json")
             per_image = {str(im["id"]): {"image": im, "annotations": []} for im in coco.get("images", [])}
             for ann in coco.get("annotations", []):
@@ -276,6 +295,9 @@ class BopWriter:
             # datapipe.json last: it names what the BOP files hold
             for name in ("scene_camera", "scene_gt", "scene_gt_info"):
                 write_json_lines_atomic(d / f"{name}.json", data[name])
+            for name in SENSOR_FILES:             # the scanner's (renders with structured light only)
+                if data[f"{name}_"]:
+                    write_json_lines_atomic(d / f"{name}_{self.sensor}.json", data[f"{name}_"])
             write_json_lines_atomic(d / "scene_gt_coco.json", self._coco(data), compact=True)
             write_json_lines_atomic(d / "datapipe.json", data["datapipe"])
 
@@ -299,6 +321,11 @@ class BopWriter:
             c["scene_gt"][key] = e.gts
             c["scene_gt_info"][key] = e.infos
             c["datapipe"][key] = e.meta
+            for name in SENSOR_FILES:
+                if e.sensor is not None:
+                    c[f"{name}_"][key] = e.sensor[name]
+                else:                          # a re-added render that lost its scan: no stale entry
+                    c[f"{name}_"].pop(key, None)
         touched = {e.chunk for e in entries}
         self._flush(touched)
         self._chunks_touched |= touched
@@ -339,7 +366,8 @@ class BopWriter:
             imwrite_atomic(cdir / "depth_sl" / f"{stem}.png",
                            encode_depth(read_depth(sl_src), self.depth_scale, what=str(sl_src)))
         inst = read_mask(_required(scene_dir, rd, "mask"))
-        gts, infos, coco_anns = self._annotate_objects(scene_dir, rd, models, inst, depth_valid, K, cdir, stem)
+        gts, infos, coco_anns, sils = self._annotate_objects(scene_dir, rd, models, inst, depth_valid, K, cdir, stem)
+        sensor = self._write_sensor(scene_dir, rd, sl_src, cdir, stem, gts, sils) if sl_src.is_file() else None
         if not self._camera_written:
             write_json_lines_atomic(self.root / "camera.json", {
                 "cx": float(K[0, 2]), "cy": float(K[1, 2]), "fx": float(K[0, 0]), "fy": float(K[1, 1]),
@@ -348,12 +376,44 @@ class BopWriter:
         meta = {"image_id": image_id, "scene": scene_dir.name, "render": rd["name"],
                 "scene_id": int(scene.get("scene_id", -1)), "render_seed": rd.get("seed"),
                 "depth_sl": sl_src.is_file()}
+        if sensor is not None:
+            meta["sensor"] = self.sensor
         coords = layout.render_file(scene_dir, rd, "object_coords")
         if coords.is_file():
             self._write_object_coords(coords, cdir / OBJECT_COORDS_DIR / f"{stem}.exr", W, H)
         coco = {"image": {"id": im_id, "file_name": rgb_name, "width": W, "height": H},
                 "annotations": coco_anns}
-        return _ImageEntry(image_id, chunk, im_id, self._camera_entry(K, rd), gts, infos, meta, coco)
+        return _ImageEntry(image_id, chunk, im_id, self._camera_entry(K, rd), gts, infos, meta, coco, sensor)
+
+    def _write_sensor(self, scene_dir: Path, rd: dict, sl_src: Path, cdir: Path, stem: str, gts: list,
+                      sils: list) -> dict:
+        """The scanner as a BOP-Industrial sensor (docs/DATASETS.md): depth_S/ (its decoded depth, 0
+        where invalid), gray_S/ (its grey image, when the run wrote sl_gray), mask_S/ and
+        mask_visib_S/; returns its scene_camera / scene_gt / scene_gt_info entries. The scanner's
+        camera is the render camera (same K, pose and pixels), so poses and masks are the classic
+        ones; px_count_valid counts the silhouette's pixels with a valid scanner depth, as
+        bop_toolkit's calc_gt_info does on depth_S/."""
+        W, H = (int(x) for x in rd["resolution"])
+        S = self.sensor
+        for sub in ("depth", "mask", "mask_visib"):
+            make_dirs(cdir / f"{sub}_{S}")
+        sl = read_depth(sl_src)
+        if sl.shape != (H, W):
+            raise DataPipeError(f"{sl_src}: shape {sl.shape} but scene.json says {W}x{H}")
+        imwrite_atomic(cdir / f"depth_{S}" / f"{stem}.png", encode_depth(sl, self.depth_scale, what=str(sl_src)))
+        sl_valid = np.isfinite(sl) & (sl > 0)
+        gray = layout.render_file(scene_dir, rd, "sl_gray")
+        if gray.is_file():
+            make_dirs(cdir / f"gray_{S}")
+            copy_atomic(gray, cdir / f"gray_{S}" / f"{stem}.png")
+        infos = []
+        for gt_id, (sil, count, bbox, visib) in enumerate(sils):
+            infos.append(gt_info(sil, count, bbox, visib, sl_valid))
+            name = f"{stem}_{gt_id:06d}.png"
+            for sub in ("mask", "mask_visib"):
+                copy_atomic(cdir / sub / name, cdir / f"{sub}_{S}" / name)
+        K = _mat(rd["K"], (3, 3))
+        return {"scene_camera": self._camera_entry(K, rd), "scene_gt": gts, "scene_gt_info": infos}
 
     def _write_rgb(self, src: Path, dst: Path) -> None:
         """The native rgb.png as JPEG (at jpg_quality), or as it is for PNG when it is 8-bit
@@ -374,13 +434,13 @@ class BopWriter:
 
     @staticmethod
     def _write_object_coords(src: Path, dst: Path, W: int, H: int) -> None:
-        """The native object_coords.exr (m) as BOP's object_coords/IMID.exr: X, Y, Z in mm."""
-        ch = read_exr(src)
-        xyz = {c: np.asarray(ch[c], dtype=np.float32) * np.float32(1000.0) for c in "XYZ"}
-        if xyz["X"].shape != (H, W):
-            raise DataPipeError(f"{src}: shape {xyz['X'].shape} but scene.json says {W}x{H}")
+        """The native object_coords.exr (m) as BOP's object_coords/IMID.exr: model X, Y, Z in mm in
+        channels R, G, B (COORDS_CHANNELS), the names OpenCV reads as one 3-channel image."""
+        xyz = read_object_coords(src) * np.float32(1000.0)
+        if xyz.shape[:2] != (H, W):
+            raise DataPipeError(f"{src}: shape {xyz.shape[:2]} but scene.json says {W}x{H}")
         make_dirs(dst.parent)
-        write_exr(dst, xyz)
+        write_exr(dst, {c: xyz[..., i] for i, c in enumerate(COORDS_CHANNELS)})
 
     def _write_depth(self, src: Path, dst: Path, W: int, H: int) -> np.ndarray:
         """Ground-truth z-buffer depth as BOP's uint16 PNG; returns where it has data."""
@@ -394,7 +454,7 @@ class BopWriter:
                           depth_valid: np.ndarray, K: np.ndarray, cdir: Path, stem: str):
         """scene_gt, scene_gt_info and COCO entries of one render's objects; writes their masks."""
         W, H = (int(x) for x in rd["resolution"])
-        gts, infos, coco_anns = [], [], []
+        gts, infos, coco_anns, sils = [], [], [], []
         for gt_id, o in enumerate(rd.get("objects", [])):
             obj_id = int(o["obj_id"])
             T = _mat(o["T_cam_obj"], (4, 4))
@@ -418,7 +478,8 @@ class BopWriter:
             name = f"{stem}_{gt_id:06d}.png"
             imwrite_atomic(cdir / "mask" / name, ((sil | visib).astype(np.uint8) * 255))
             imwrite_atomic(cdir / "mask_visib" / name, visib.astype(np.uint8) * 255)
-        return gts, infos, coco_anns
+            sils.append((sil, count, bbox, visib))
+        return gts, infos, coco_anns, sils
 
     def _camera_entry(self, K: np.ndarray, rd: dict) -> dict:
         T_cw = np.linalg.inv(_mat(rd["T_world_cam"], (4, 4)))
@@ -432,7 +493,7 @@ class BopWriter:
     def finish(self) -> dict:
         """Flush everything (every add_scene already did) and return a summary."""
         self._flush(self._chunks)
-        return {"bop_root": str(self.root), "images": self.images_written,
+        return {"bop_root": str(self.root), "images": self.images_written, "sensor": self.sensor,
                 "chunks": sorted(self._chunks_touched | set(self._chunks)), "depth_scale": self.depth_scale}
 
 
@@ -473,18 +534,24 @@ def check_options(*, depth_scale: float = 0.1, chunk_size: int = 1000, split: st
 
 def export_bop(native_run_dir: str | os.PathLike, bop_root: str | os.PathLike, *, depth_scale: float = 0.1,
                chunk_size: int = 1000, split: str = SPLIT, rgb_format: str = RGB_FORMAT,
-               jpg_quality: int = JPG_QUALITY) -> dict:
-    """Convert every complete scene of a native run (OUT/) into a BOP dataset at `bop_root`."""
+               jpg_quality: int = JPG_QUALITY, sensor: str | None = None) -> dict:
+    """Convert every complete scene of a native run (OUT/) into a BOP dataset at `bop_root`. The
+    scanner's folders are named `sensor`, else as the run's config says (io/bop_sensor.py)."""
     check_options(depth_scale=depth_scale, chunk_size=chunk_size, split=split, rgb_format=rgb_format,
                   jpg_quality=jpg_quality)
     run = Path(native_run_dir)
     if not run.is_dir():
         raise DataPipeError(f"{run}: no such run folder")
+    if sensor is None:
+        sensor = sensor_for_config(read_json_or_empty(run / layout.RUN_FILE).get("config"))
+    else:
+        check_sensor_name(sensor, "sensor (--sensor)")
     scenes = list(layout.iter_scenes(run))
     if not scenes:
         raise DataPipeError(f"{run}: no complete scene (scene.*/scene.json) to export")
     writer = BopWriter(bop_root, depth_scale=depth_scale, chunk_size=chunk_size, split=split,
-                       models_dir=run / layout.MODELS_DIR, rgb_format=rgb_format, jpg_quality=jpg_quality)
+                       models_dir=run / layout.MODELS_DIR, rgb_format=rgb_format, jpg_quality=jpg_quality,
+                       sensor=sensor)
     for scene_dir, scene in scenes:
         writer.add_scene(scene_dir, scene)
     summary = writer.finish()

@@ -76,6 +76,22 @@ def read_mask(path) -> np.ndarray:
     return np.rint(read_exr(path)["Y"]).astype(np.int32)
 
 
+COORDS_CHANNELS = ("R", "G", "B")     # x, y, z of BOP's object_coords/*.exr: OpenCV reads R, G, B as one
+                                      # 3-channel image (in its B, G, R order); it reads X, Y, Z as grey
+
+
+def read_object_coords(path) -> np.ndarray:
+    """(H, W, 3) x, y, z of an object-coordinate EXR: channels R, G, B (BOP export since issue #30)
+    or X, Y, Z (the native object_coords.exr, and BOP exports written before)."""
+    ch = read_exr(path)
+    names = COORDS_CHANNELS if all(c in ch for c in COORDS_CHANNELS) else ("X", "Y", "Z")
+    missing = [c for c in names if c not in ch]
+    if missing:
+        raise OSError(errno.EIO, f"not an object-coordinate EXR: no channels R, G, B or X, Y, Z "
+                      f"(it has {', '.join(sorted(ch))})", str(path))
+    return np.stack([ch[c] for c in names], axis=-1)
+
+
 def read_normals(path) -> np.ndarray:
     ch = read_exr(path)
     return np.stack([ch["X"], ch["Y"], ch["Z"]], axis=-1)

@@ -3,6 +3,7 @@
     OUT/run.json  OUT/output_dict.pickle  OUT/models/  OUT/bop/  OUT/sheets/
     OUT/scene.0001/scene.json
     OUT/scene.0001/render.0001/rgb.png depth.exr normals.exr mask.exr sl_depth.exr sl_valid.png sl_debug.exr
+                                    [sl_gray.png point_cloud.ply]
 
 A scene is complete when its scene.json exists and says `"complete": true` (scene.json is written
 last, atomically). Everything that reads runs (show, BOP export, Ray merge, resume) asks here.
@@ -37,6 +38,8 @@ RENDER_FILES = {
     "sl_depth": "sl_depth.exr",
     "sl_valid": "sl_valid.png",
     "sl_debug": "sl_debug.exr",
+    "sl_gray": "sl_gray.png",            # the scanner's grey image (only when render.outputs lists it)
+    "point_cloud": "point_cloud.ply",    # its organised point cloud (io/point_cloud.py; only when listed)
 }
 
 

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..errors import DataPipeError, OutputStateError
-from .exr import read_depth, read_exr, read_mask, read_normals
+from .exr import read_depth, read_exr, read_mask, read_normals, read_object_coords
 from . import layout
 from .files import read_json
 from .input_files import MAX_JSON_BYTES, read_regular
@@ -105,7 +105,7 @@ class Render:
     @property
     def object_coords(self) -> np.ndarray | None:
         """(H, W, 3) float32 model coordinates (m) of the part at each pixel; NaN off parts."""
-        return self._read("object_coords", read_normals)      # the same X, Y, Z channels
+        return self._read("object_coords", read_object_coords)   # X, Y, Z channels, or R, G, B
 
 
 @dataclass

@@ -69,8 +69,9 @@ class Writers:
         return {w.name: w.finish() for w in self.writers}
 
 
-def open_writers(output, out_dir: str | Path, *, batch: bool = False) -> Writers:
-    """The writers `output` (OutputConfig or its dict) asks for, writing into `out_dir`.
+def open_writers(output, out_dir: str | Path, *, batch: bool = False, sensor: str | None = None) -> Writers:
+    """The writers `output` (OutputConfig or its dict) asks for, writing into `out_dir`; `sensor`:
+    the scanner's BOP sensor name (io/bop_sensor.sensor_for_config; None: "sl").
 
     batch=True: a whole finished run is written at once (a merge): files that the per-scene mode
     re-writes after every scene are written once, at finish()."""
@@ -83,5 +84,6 @@ def open_writers(output, out_dir: str | Path, *, batch: bool = False) -> Writers
         writers.append(LegacyPickleWriter(out, batch=batch))
     if "bop" in _output_value(output, "formats", ["native"]):
         from .bop import BopWriter
-        writers.append(BopWriter(out / layout.BOP_DIR))
+        from .bop_sensor import CUSTOM_RIG
+        writers.append(BopWriter(out / layout.BOP_DIR, sensor=sensor or CUSTOM_RIG))
     return Writers(writers)

@@ -74,6 +74,7 @@ from .exposure import (Capture, ProjectorOff, auto_exposure, auto_hdr, capture, 
 from .filters import (direct_frequencies, direct_offset_ratio, edge_speckle_filter, global_light_filter, multipath_filter,
                       projector_rows, reflection_filter, row_from_phase, row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
+from .gray_image import fringe_mean
 from .metrics import pixel_depth_sigma
 from .patterns import fringe_patterns, phase_shifts
 from .phase import phase_shift
@@ -139,6 +140,11 @@ class Scan:
                 ch[f"wrapped_{k}"], ch[f"modulation_{k}"] = w, m
             out["sl_debug"] = ch
         return out
+
+    def gray(self) -> np.ndarray:
+        """The scanner's grey image: the mean of the captured column-fringe frames (sl.gray_image)."""
+        n = len(self.result.periods) * int(self.result.steps)
+        return fringe_mean(self.capture.images, n, self.sensor.adc_bits)
 
     def summary(self) -> dict:
         res = self.result

@@ -138,6 +138,7 @@ _SPECIAL = {
     ("render", "outputs"): (_ordered(C.OUTPUT_KINDS), lambda value: [("outputs", set(value))]),
     ("output", "formats"): (_ordered(C.FORMATS), lambda value: [("formats", set(value))]),
     ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),
+    ("output", "bop_sensor"): (lambda grp, name: grp.bop_sensor or None, lambda value: [("bop_sensor", value or "")]),
 }
 
 

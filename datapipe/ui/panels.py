@@ -323,6 +323,7 @@ class DATAPIPE_PT_output(_DataPipePanel, Panel):
         col = _fields(layout, out, ("path",))
         col.prop(r, "outputs")
         col.prop(out, "formats")
+        col.prop(out, "bop_sensor")          # names the scanner's BOP folders (BOP + structured light)
         col.prop(out, "legacy_pickle")
         col.prop(out, "overview")
 

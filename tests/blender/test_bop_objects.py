@@ -34,7 +34,11 @@ def test_bop_models_in_object_coords_out(tmp_path):
         info = json.loads((bop / folder / "models_info.json").read_text())
         assert sorted(info, key=int) == ["7", "12", "30"]
         for k, e in info.items():
-            assert abs(e["diameter"] - source[k]["diameter"]) < 1e-3          # float32 PLY round trip
+            if folder == "models":
+                assert abs(e["diameter"] - source[k]["diameter"]) < 1e-3      # float32 PLY round trip
+            else:   # measured on the resampled points, all on the surface, every surface point within
+                    # 1 mm of one: at most the model's diameter, at least 2 mm less
+                assert source[k]["diameter"] - 2.0 <= e["diameter"] <= source[k]["diameter"] + 1e-3
             for key in ("symmetries_discrete", "symmetries_continuous"):
                 assert e.get(key) == source[k].get(key), (k, key)
         assert sorted(p.name for p in (bop / folder).glob("*.ply")) == \
@@ -65,7 +69,7 @@ def test_bop_models_in_object_coords_out(tmp_path):
             meta = json.loads((bop / "train_pbr/000000/datapipe.json").read_text())
             im_id = next(int(k) for k, m in meta.items() if m["image_id"] == rd["image_id"])
             b = read_exr(bop / "train_pbr/000000/object_coords" / f"{im_id:06d}.exr")
-            np.testing.assert_allclose(b["X"], xyz["X"] * 1000.0, rtol=1e-6, equal_nan=True)
+            np.testing.assert_allclose(b["R"], xyz["X"] * 1000.0, rtol=1e-6, equal_nan=True)   # R, G, B = x, y, z
     assert n_checked >= 3
     gt = json.loads((bop / "train_pbr/000000/scene_gt.json").read_text())
     assert {g["obj_id"] for gts in gt.values() for g in gts} <= set(BOP_PARTS)

@@ -84,3 +84,6 @@ class DATAPIPE_PG_output(PropertyGroup):
                                 "output_dict.pickle", default=default(_T, "legacy_pickle"))
     overview: BoolProperty(name="Overview Sheet", description="Write an overview sheet of the run at the end",
                            default=default(_T, "overview"))
+    bop_sensor: StringProperty(name="BOP Sensor", description="BOP-Industrial name of the scanner's folders "
+                               "(gray_NAME, depth_NAME ...); empty: after the device's maker, 'sl' without one",
+                               default="")
