@@ -463,7 +463,9 @@ class StructuredLightCamera:
             files.update(write_render_maps(rdir, {"sl_gray": gray}))
         if "point_cloud" in wanted:
             path = rdir / layout.RENDER_FILES["point_cloud"]
-            write_point_cloud(path, scan.result.depth, self.camera.K, gray, scan.result.confidence)
+            grid = getattr(self.camera, "lens", None)     # a distorting lens: each pixel's undistorted ray
+            rays = grid.ideal_normalised() if grid is not None and grid.d is not None else None
+            write_point_cloud(path, scan.result.depth, self.camera.K, gray, scan.result.confidence, rays)
             files["point_cloud"] = path
         return files
 

@@ -24,6 +24,10 @@ organised clouds do. A valid pixel whose neighbours cannot give a normal has a N
 
 Points: the structured-light depth back-projected with the camera matrix K, pixel centres at
 integer coordinates (BOP's and OpenCV's convention): x = (u - cx) z / fx, y = (v - cy) z / fy.
+A camera with lens distortion (camera.distortion) back-projects along each pixel's undistorted ray
+instead: x = x_n z, y = y_n z with (x_n, y_n) the pixel's ideal normalised coordinates (the same rays
+the decoder triangulates with, datapipe/lens.py), so cv2.projectPoints with K and the distortion
+maps every point back onto its pixel.
 Normals: cross product of the central differences along the row and the column (one-sided at a
 border or beside an invalid pixel), oriented towards the camera.
 
@@ -39,16 +43,22 @@ import numpy as np
 from .files import write_bytes_atomic
 
 
-def back_project(depth_m: np.ndarray, K) -> np.ndarray:
-    """(H, W) planar depth (NaN / <= 0 = none) -> (H, W, 3) float64 camera-frame points, NaN where none."""
+def back_project(depth_m: np.ndarray, K, rays=None) -> np.ndarray:
+    """(H, W) planar depth (NaN / <= 0 = none) -> (H, W, 3) float64 camera-frame points, NaN where none.
+    `rays`: (x_n, y_n), each (H, W), the pixels' ideal normalised coordinates of a distorting lens
+    (None: the pinhole rays of K)."""
     z = np.asarray(depth_m, dtype=np.float64)
     K = np.asarray(K, dtype=np.float64)
     H, W = z.shape
-    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
-    x = (u - K[0, 2]) * z / K[0, 0]
-    y = (v - K[1, 2]) * z / K[1, 1]
-    return np.stack([x, y, z], axis=-1)
+    if rays is None:
+        v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+        xn, yn = (u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]
+    else:
+        xn, yn = (np.asarray(r, dtype=np.float64) for r in rays)
+        if xn.shape != (H, W) or yn.shape != (H, W):
+            raise ValueError(f"rays of shape {xn.shape} for a {W}x{H} depth map")
+    return np.stack([xn * z, yn * z, z], axis=-1)
 
 
 def _diff(p: np.ndarray, axis: int) -> np.ndarray:
@@ -80,13 +90,14 @@ def vertex_dtype(grey_dtype) -> np.dtype:
                      ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")])
 
 
-def organised_cloud(depth_m: np.ndarray, K, grey: np.ndarray, confidence: np.ndarray | None) -> np.ndarray:
-    """The structured vertex array (H*W,) of `vertex_dtype` (see the module doc)."""
+def organised_cloud(depth_m: np.ndarray, K, grey: np.ndarray, confidence: np.ndarray | None,
+                    rays=None) -> np.ndarray:
+    """The structured vertex array (H*W,) of `vertex_dtype` (see the module doc; `rays`: back_project's)."""
     depth_m = np.asarray(depth_m)
     grey = np.asarray(grey)
     if grey.shape != depth_m.shape or grey.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"grey must be a uint8 or uint16 image of shape {depth_m.shape}, got {grey.dtype} {grey.shape}")
-    pts = back_project(depth_m, K)
+    pts = back_project(depth_m, K, rays)
     valid = np.isfinite(pts[..., 2])
     v = np.empty(depth_m.size, vertex_dtype(grey.dtype))
     for i, c in enumerate("xyz"):
@@ -113,7 +124,7 @@ def ply_bytes(vertices: np.ndarray, width: int, height: int) -> bytes:
 
 
 def write_point_cloud(path: str | os.PathLike, depth_m: np.ndarray, K, grey: np.ndarray,
-                      confidence: np.ndarray | None = None) -> None:
+                      confidence: np.ndarray | None = None, rays=None) -> None:
     """Write the organised point cloud of one scan (see the module doc), atomically."""
     H, W = np.asarray(depth_m).shape
-    write_bytes_atomic(path, ply_bytes(organised_cloud(depth_m, K, grey, confidence), W, H))
+    write_bytes_atomic(path, ply_bytes(organised_cloud(depth_m, K, grey, confidence, rays), W, H))

@@ -147,3 +147,34 @@ def test_point_cloud_with_trimesh(rig, scan, tmp_path):
     cloud = trimesh.load(str(path))
     assert isinstance(cloud, trimesh.PointCloud) and len(cloud.vertices) == W * H     # NaN points kept
     check_cloud(cloud.metadata["_ply_raw"]["vertex"]["data"], W, H, res.depth, cam.K, scan.gray(), res.confidence)
+
+
+def test_point_cloud_of_a_distorting_lens_projects_back_onto_its_pixels(tmp_path):
+    """With camera.distortion each point lies on its pixel's undistorted ray (datapipe/lens.py), so
+    OpenCV's own projectPoints with K and the distortion maps it back onto that pixel; the pinhole
+    back-projection misses by pixels at the corners of a barrel lens."""
+    import cv2
+    from datapipe.lens import render_grid
+    K = np.array([[220.0, 0, 80.3], [0, 215.0, 59.6], [0, 0, 1]])
+    d = [-0.25, 0.08, 0.001, -0.0015, 0.0]
+    W, H = 160, 120
+    grid = render_grid(K, d, (W, H))
+    depth = np.full((H, W), 0.8, np.float32)
+    depth[:10, :10] = np.nan
+    gray = np.zeros((H, W), np.uint8)
+    path = tmp_path / "p.ply"
+    write_point_cloud(path, depth, K, gray, rays=grid.ideal_normalised())
+    (w, h), v = read_ply_ref(path)
+    pts = np.stack([v["x"], v["y"], v["z"]], -1).astype(np.float64).reshape(H, W, 3)
+    valid = np.isfinite(pts[..., 2])
+    assert (~valid).sum() == 100 and np.isnan(pts[~valid]).all()
+    np.testing.assert_allclose(pts[valid][:, 2], 0.8, rtol=1e-6)
+    uv, _ = cv2.projectPoints(pts[valid].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.asarray(d))
+    vv, uu = np.nonzero(valid)
+    # float32 points at 0.8 m: 6e-8 m of rounding is ~2e-5 px at f = 220 px
+    err = np.hypot(uv[:, 0, 0] - uu, uv[:, 0, 1] - vv)
+    assert err.max() < 1e-3, err.max()
+    pin = write_point_cloud(tmp_path / "q.ply", depth, K, gray) or read_ply_ref(tmp_path / "q.ply")[1]
+    p2 = np.stack([pin["x"], pin["y"], pin["z"]], -1).astype(np.float64).reshape(H, W, 3)
+    uv2, _ = cv2.projectPoints(p2[valid].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.asarray(d))
+    assert np.hypot(uv2[:, 0, 0] - uu, uv2[:, 0, 1] - vv).max() > 2.0     # the check can fail
