@@ -19,7 +19,7 @@ from scipy.optimize import brentq
 from ..draws.camera_sampler import look_at_pose
 from ..config import CameraConfig, Config, ProjectorConfig, StructuredLightConfig
 from ..devices import binning_factors, config_sections, device, names
-from ..geometry import T_cam_proj, camera_pose_from_config, intrinsics_from_sensor, projector_intrinsics
+from ..geometry import T_cam_proj, camera_pose_from_config, camera_intrinsics, projector_intrinsics
 from ..sl.exposure import AUTO_TARGET
 from ..sl.sensor import SensorModel
 
@@ -34,9 +34,8 @@ def _build_cfg(sections: dict):
 
 
 def camera_K(cfg) -> np.ndarray:
-    c = cfg.camera
-    return intrinsics_from_sensor(c.focal_length, c.sensor_width, int(c.resolution[0]), int(c.resolution[1]),
-                                  c.sensor_fit)
+    """The camera's K (geometry.camera_intrinsics: a calibration's intrinsics when given)."""
+    return camera_intrinsics(cfg.camera)
 
 
 def field_of_view_deg(cfg) -> tuple[float, float]:

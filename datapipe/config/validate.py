@@ -284,8 +284,10 @@ def _check_pose_reaches_bin(ck: _Checks, cfg: Config, i: int) -> None:
             and c.focal_length > 0 and c.sensor_width > 0 and c.sensor_fit in SENSOR_FITS
             and len(s.bin_size_scale) == 2 and len(s.bin_wall_scale) == 2) or s.blend_file:
         return                     # their own rules report them; a .blend's drop_zone object moves the bin
-    from ..geometry import intrinsics_from_sensor
-    K = intrinsics_from_sensor(c.focal_length, c.sensor_width, res[0], res[1], c.sensor_fit)
+    if c.intrinsics is not None and not (len(c.intrinsics) == 4 and all(_finite(v) for v in c.intrinsics)):
+        return                     # _check_lens says why
+    from ..geometry import camera_intrinsics
+    K = camera_intrinsics(c)       # camera.intrinsics when given (a calibration)
     fx, fy = float(K[0, 0]), float(K[1, 1])
     if not (math.isfinite(fx) and math.isfinite(fy) and fx > 0 and fy > 0):
         return
