@@ -208,6 +208,8 @@ class OutputConfig:
     formats: list[str] = _vec("native")
     legacy_pickle: bool = True         # also write the original's output_dict.pickle
     overview: bool = True              # write the run's overview sheet at the end
+    xyz_crop: bool = False             # BOP: GDRNPP's amodal xyz_crop/ pickles per instance (io/xyz_crop.py)
+    amodal_coco: bool = False          # BOP: UOAIS' scene_gt_coco_amodal.json beside scene_gt_coco.json (io/amodal.py)
 
 
 @dataclass

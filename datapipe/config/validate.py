@@ -334,6 +334,12 @@ def _check_output(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.choice(f"output.formats[{i}]", f, FORMATS)
     if not o.formats:
         ck.add("output.formats", "no output format", "use [\"native\"] and/or \"bop\"")
+    for flag in ("xyz_crop", "amodal_coco"):
+        if getattr(o, flag) is not True and getattr(o, flag) is not False:
+            ck.add(f"output.{flag}", f"{getattr(o, flag)!r} is not true or false", "give true or false")
+        elif getattr(o, flag) and "bop" not in o.formats:
+            ck.add(f"output.{flag}", "is written into the BOP export, which output.formats does not ask for",
+                   f"add \"bop\" to output.formats, or set output.{flag} to false")
     if "bop" in o.formats:
         for need in ("rgb", "depth", "mask"):
             if need not in r.outputs:

@@ -83,5 +83,6 @@ def open_writers(output, out_dir: str | Path, *, batch: bool = False) -> Writers
         writers.append(LegacyPickleWriter(out, batch=batch))
     if "bop" in _output_value(output, "formats", ["native"]):
         from .bop import BopWriter
-        writers.append(BopWriter(out / layout.BOP_DIR))
+        writers.append(BopWriter(out / layout.BOP_DIR, xyz_crop=bool(_output_value(output, "xyz_crop", False)),
+                                 amodal_coco=bool(_output_value(output, "amodal_coco", False))))
     return Writers(writers)
