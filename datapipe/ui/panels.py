@@ -319,6 +319,9 @@ class DATAPIPE_PT_output(_DataPipePanel, Panel):
         col.prop(out, "formats")
         col.prop(out, "legacy_pickle")
         col.prop(out, "overview")
+        if "bop" in out.formats:
+            col.prop(out, "xyz_crop")
+            col.prop(out, "amodal_coco")
 
         box = layout.box()
         box.label(text="Preset", icon="PRESET")
