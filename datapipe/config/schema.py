@@ -71,6 +71,8 @@ class ObjectEntry:
     symmetries: Any = "auto"           # models_info.json symmetries: "auto" (BOP: the source's, else
                                        # detected), "detect", {"tolerance": f}, "none", or a dict of
                                        # symmetries_discrete / symmetries_continuous (mm) (io/symmetry.py)
+    origin: str = "file"               # the model frame's origin: "file" (the mesh file's) or "bbox_center"
+                                       # (the centre of its 3D bounding box, BOP's convention) (core/objects.py)
 
 
 @dataclass

@@ -15,7 +15,7 @@ from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
-from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS, MAX_SAMPLES,
+from .limits import (ORIGINS, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS, MAX_SAMPLES,
                      MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS)
 from .validate_sl import _check_projector, _check_structured_light
 
@@ -171,6 +171,7 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.positive(f"{p}.scale", o.scale)
         ck.positive(f"{p}.mass", o.mass)
         ck.choice(f"{p}.collision_shape", o.collision_shape, COLLISION_SHAPES)
+        ck.choice(f"{p}.origin", o.origin, ORIGINS)
         ck.min_max(p, "min_instances", "max_instances", o.min_instances, o.max_instances)
         if o.max_instances > MAX_INSTANCES:
             ck.add(f"{p}.max_instances", f"{o.max_instances} instances is beyond what one bin holds",

@@ -206,6 +206,7 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
         sub.prop(item, "restitution")
         col.prop(item, "material")
         col.prop(item, "symmetries")
+        col.prop(item, "origin")
 
 
 class DATAPIPE_PT_camera(_DataPipePanel, Panel):

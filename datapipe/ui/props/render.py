@@ -84,3 +84,7 @@ class DATAPIPE_PG_output(PropertyGroup):
                                 "output_dict.pickle", default=default(_T, "legacy_pickle"))
     overview: BoolProperty(name="Overview Sheet", description="Write an overview sheet of the run at the end",
                            default=default(_T, "overview"))
+    xyz_crop: BoolProperty(name="GDRNPP xyz_crop", description="BOP: also write each instance's amodal object "
+                           "coordinates in GDRNPP's xyz_crop format", default=default(_T, "xyz_crop"))
+    amodal_coco: BoolProperty(name="Amodal COCO", description="BOP: also write scene_gt_coco_amodal.json (full "
+                              "silhouettes, UOAIS' fields)", default=default(_T, "amodal_coco"))
