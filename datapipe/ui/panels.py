@@ -320,9 +320,10 @@ class DATAPIPE_PT_output(_DataPipePanel, Panel):
         col.prop(out, "formats")
         col.prop(out, "legacy_pickle")
         col.prop(out, "overview")
-        if "bop" in out.formats:
-            col.prop(out, "xyz_crop")
-            col.prop(out, "amodal_coco")
+        sub = col.column(align=True)
+        sub.active = "bop" in out.formats          # both go into the BOP export (validate refuses them without)
+        sub.prop(out, "xyz_crop")
+        sub.prop(out, "amodal_coco")
 
         box = layout.box()
         box.label(text="Preset", icon="PRESET")

@@ -72,3 +72,18 @@ def test_file_and_bbox_center_frames(tmp_path):
     # the same drop (the world geometry is the same mesh either way; measured: R identical, t to 3e-6 mm)
     assert np.abs(Rf - Rc).max() < 1e-9
     assert np.abs(tc - (tf + Rf @ C_MM)).max() < 1e-3
+
+
+def test_validate_warns_on_the_corner_origin_with_bop(tmp_path):
+    from datapipe.checks.gate import run_checks
+    cfg = tiny_config(num_renders=1, res=(64, 48), samples=1)
+    cfg.objects = [cfg.objects[0]]
+    cfg.objects[0].filepath, cfg.objects[0].scale = str(_write_box(tmp_path / "box.obj")), 0.001
+    cfg.output.formats = ["native", "bop"]
+    warnings = run_checks(cfg).warnings
+    assert any(w.startswith("objects[0]: the mesh's origin") and 'objects[0].origin to "bbox_center"' in w
+               for w in warnings), warnings
+    cfg.objects[0].origin = "bbox_center"
+    assert not any("the mesh's origin" in w for w in run_checks(cfg).warnings)
+    cfg.objects[0].origin, cfg.output.formats = "file", ["native"]
+    assert not any("the mesh's origin" in w for w in run_checks(cfg).warnings)
