@@ -1,8 +1,10 @@
 """objects[i].origin on real runs (issue #30 item 3): one box part whose mesh file has its origin at
 a corner, run with origin "file" and "bbox_center". In both runs models/, models_info.json and the
 poses are one frame: the exported model posed with the exported pose covers the rendered mask; the
-bbox_center model is the file's shifted by the box centre c; diameters are bop_toolkit's
-calc_pts_diameter (the largest vertex distance, computed here with scipy) and agree; where the two
+bbox_center model is the file's shifted by the box centre c; diameters agree with bop_toolkit's
+calc_model_info, whose calc_pts_diameter is "the maximum distance between any two points in the set"
+(thodan/bop_toolkit@cea62d651c7e395b2e1962b9749e4e89693c6ac4:bop_toolkit_lib/misc.py): computed here
+with scipy, and with the toolkit itself where `bop_toolkit_lib` imports; where the two
 runs drop the part alike (they do: the world mesh is the same), the poses differ exactly by the
 offset (R the same, t_c = t_f + R c)."""
 import json
@@ -54,6 +56,14 @@ def test_file_and_bbox_center_frames(tmp_path):
         assert abs(info[k]["diameter"] - pdist(V).max()) < 1e-3
         assert abs(info[k]["diameter"] - np.linalg.norm(SIZE_MM)) < 1e-3
     assert abs(info["bbox_center"]["min_x"] + C_MM[0]) < 1e-3 and abs(info["file"]["min_x"]) < 1e-3
+    try:
+        from bop_toolkit_lib import inout, misc
+    except Exception:           # not installed, or its imageio / pypng missing
+        inout = None
+    if inout is not None:
+        for k, out in runs.items():
+            pts = inout.load_ply(str(out / "bop" / "models" / "obj_000001.ply"))["pts"]
+            assert abs(misc.calc_pts_diameter(pts) - info[k]["diameter"]) < 1e-3
     poses = {}
     for k, out in runs.items():
         scene = json.loads(next(out.glob("scene.*/scene.json")).read_text())
