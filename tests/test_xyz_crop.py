@@ -204,3 +204,26 @@ def test_flags_without_bop_are_refused_with_the_fix(flag):
     assert problems and "output.formats" in problems[0].fix
     cfg.output.formats = ["native", "bop"]
     assert not [p for p in validate(cfg, check_files=False) if p.path == f"output.{flag}"]
+
+
+def test_with_a_distorting_lens_each_point_projects_onto_its_pixel():
+    """With lens distortion (datapipe/lens.py, OpenCV's model): every xyz point lies on the box's
+    surface and, posed and projected through the lens with OpenCV, lands on its own pixel centre."""
+    from datapipe.io.xyz_crop import rasterize_xyz
+    half = np.array(fx.BOX_HALF[0]) * 1000.0
+    V, F = fx.box_mesh(fx.BOX_HALF[0], n=2)[:2]
+    V = np.asarray(V) * 1000.0
+    W, H = 80, 60
+    K = np.array([[90.0, 0, 41.3], [0, 90.0, 29.1], [0, 0, 1]])
+    dist = [-0.2, 0.05, 0.001, -0.002, 0.0]
+    R = fx.rot_axis([1, 2, 0.5], 0.7)
+    t = np.array([5.0, -3.0, 150.0])
+    xyz, hit = rasterize_xyz(V, F, K, R, t, W, H, dist=dist)
+    assert hit.sum() > 500
+    p = xyz[hit]
+    on_face = np.abs(np.abs(p) - half).min(-1)
+    assert on_face.max() < 1e-6 and (np.abs(p) <= half + 1e-6).all()
+    rvec, _ = cv2.Rodrigues(R)
+    uv, _ = cv2.projectPoints(p, rvec, t, K, np.array(dist))
+    v, u = np.nonzero(hit)
+    assert np.abs(uv[:, 0, 0] - u).max() < 1e-6 and np.abs(uv[:, 0, 1] - v).max() < 1e-6
