@@ -79,6 +79,10 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--jpg-quality", type=int, default=95, help="JPEG quality 1..100 (default 95)")
     b.add_argument("--sensor", default=None, help="BOP-Industrial name of the scanner's folders (gray_NAME/, "
                    "depth_NAME/ ...; default: the run's output.bop_sensor, else its device's maker, else 'sl')")
+    b.add_argument("--xyz-crop", action="store_true",
+                   help="also write GDRNPP's amodal xyz_crop/ targets per instance (docs/DATASETS.md)")
+    b.add_argument("--amodal-coco", action="store_true",
+                   help="also write scene_gt_coco_amodal.json (full silhouettes, UOAIS' fields) per chunk")
     return p
 
 
@@ -162,7 +166,8 @@ def _command(args) -> int:
         _refuse_links_in_run_dir(args, BOP_DIR)
         out = Path(args.out) if args.out else Path(args.run_dir) / BOP_DIR
         export_bop(Path(args.run_dir), out, depth_scale=args.depth_scale, chunk_size=args.chunk_size,
-                   split=args.split, rgb_format=args.rgb_format, jpg_quality=args.jpg_quality, sensor=args.sensor)
+                   split=args.split, rgb_format=args.rgb_format, jpg_quality=args.jpg_quality, sensor=args.sensor,
+                   xyz_crop=args.xyz_crop, amodal_coco=args.amodal_coco)
         print(f"BOP dataset written to {out}")
         return 0
     if args.command == "demo":

@@ -36,7 +36,7 @@ def steps(monkeypatch):
             return fn(*a, **kw)
         return wrapped
     monkeypatch.setattr(C.Config, "validate", record("config", C.Config.validate))
-    monkeypatch.setattr(gate, "_mesh_preflight", record("meshes", lambda cfg, session: {}))
+    monkeypatch.setattr(gate, "_mesh_preflight", record("meshes", lambda cfg, session, boxes=None: {}))
     monkeypatch.setattr(gate, "_part_fit", record("part_fit", gate._part_fit))
     monkeypatch.setattr(gate, "device_warnings", record("device", gate.device_warnings))
     monkeypatch.setattr(gate, "memory_warnings", record("memory", gate.memory_warnings))
@@ -64,7 +64,7 @@ def test_a_refusing_step_stops_the_gate(cfg, steps, monkeypatch):
     assert steps == ["config", "folder"]
     steps.clear()
 
-    def broken_mesh(cfg, session):
+    def broken_mesh(cfg, session, boxes=None):
         steps.append("meshes")
         raise ConfigError(Problem("objects[0].filepath", "broken", "fix it"))
     monkeypatch.setattr(gate, "_mesh_preflight", broken_mesh)
@@ -81,7 +81,7 @@ def test_a_refusing_step_stops_the_gate(cfg, steps, monkeypatch):
 
 def test_the_fill_refusal_comes_from_the_measured_volumes(cfg, monkeypatch):
     """The part-fit step refuses when the hull volumes the meshes step measured cannot fit the bin."""
-    monkeypatch.setattr(gate, "_mesh_preflight", lambda c, session: {0: 1.0})     # a 1 m^3 part
+    monkeypatch.setattr(gate, "_mesh_preflight", lambda c, session, boxes=None: {0: 1.0})     # a 1 m^3 part
     with pytest.raises(ConfigError, match=r"objects\[0\]\.max_instances: a scene may hold"):
         gate.run_checks(cfg)
 

@@ -13,6 +13,8 @@ The steps, in order (STEPS); a step that finds errors stops the gate with every 
            re-run alone under the run's lock (`inputs=False`)
   meshes   (with Blender) each mesh file imported and measured, `scene.blend_file` read by Blender
            (core/preflight.py, imported here only when asked: it needs bpy)
+           and, with BOP output, a warning per mesh whose origin is far from its bounding box's
+           centre while objects[i].origin is "file" (checks/origins.py)
   part_fit the parts' convex hulls against the bin (an error: part_fit.fill_problems, from the hull
            volumes the meshes step measured) and each part against the drop zone (a warning)
   device   the bin against a real device's working distance and field of view (warnings)
@@ -30,6 +32,7 @@ from typing import Callable, ContextManager
 from ..config import Config, fringe_memory_bytes
 from .device_checks import device_warnings
 from ..io.bop_sensor import sensor_warnings
+from .origins import origin_warnings
 from ..errors import ConfigError
 from ..io.bop_models import expand_bop_objects
 from .part_fit import fill_problems, part_fit_warnings
@@ -69,7 +72,9 @@ def run_checks(cfg: Config, *, blender: bool = True, folder: Callable[[Config], 
     if inputs:
         volumes = None
         if blender:
-            volumes = _mesh_preflight(checked, blender_session)
+            boxes: dict[int, tuple] = {}
+            volumes = _mesh_preflight(checked, blender_session, boxes)
+            report.warnings += origin_warnings(checked, boxes)
             report.steps.append("meshes")
         report.warnings += _part_fit(cfg, checked, volumes)
         report.steps.append("part_fit")
@@ -81,12 +86,14 @@ def run_checks(cfg: Config, *, blender: bool = True, folder: Callable[[Config], 
     return report
 
 
-def _mesh_preflight(cfg: Config, session: Callable[[], ContextManager] | None) -> dict[int, float] | None:
-    """The Blender checks; returns the hull volumes (None with scene.blend_file: its bin is unknown)."""
+def _mesh_preflight(cfg: Config, session: Callable[[], ContextManager] | None,
+                    boxes: dict[int, tuple] | None = None) -> dict[int, float] | None:
+    """The Blender checks; returns the hull volumes (None with scene.blend_file: its bin is unknown);
+    fills `boxes` with the meshes' bounding boxes."""
     with session() if session is not None else contextlib.nullcontext():
         from ..core.preflight import check_blend, measure_meshes     # bpy: only here
         problems = check_blend(cfg)
-        mesh_problems, volumes = measure_meshes(cfg)
+        mesh_problems, volumes = measure_meshes(cfg, boxes)
     problems += mesh_problems
     if problems:
         raise ConfigError(problems)

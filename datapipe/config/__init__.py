@@ -16,7 +16,7 @@ from .files import assets_dir, default_config, load, load_legacy_pickle, loads, 
 from .legacy import from_legacy_dict, to_legacy_dict
 from .plan import (FRINGE_SUPERSAMPLE, builds_row_code, camera_distances, fringe_memory_bytes,
                    fringe_period_camera_px)
-from .limits import (AMBIENT_MODES, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, FRINGE_MODES, MAX_FIELD_OF_VIEW_DEG,
+from .limits import (AMBIENT_MODES, COLLISION_SHAPES, ORIGINS, DEVICES, ENGINES, FORMATS, FRINGE_MODES, MAX_FIELD_OF_VIEW_DEG,
                      MAX_FREE_NESTING, MAX_FRINGE_BYTES, MAX_INSTANCES, MAX_PERIODS, MAX_PICKLE_NESTING,
                      MAX_INT32, MAX_RENDERS, MAX_RESOLUTION, MAX_SAMPLES, MAX_SL_SAMPLES, MAX_STEPS, MESH_SUFFIXES,
                      MIN_FRINGE_CAMERA_PX, MIN_POSITIVE, OTHER_OBJECTS, OUTPUT_KINDS, REFLECTION_FILTERS, SAMPLER_KINDS,
@@ -31,7 +31,7 @@ __all__ = [
     "assets_dir", "default_config", "load", "load_legacy_pickle", "loads", "presets_dir", "save",
     "from_legacy_dict", "to_legacy_dict",
     "FRINGE_SUPERSAMPLE", "builds_row_code", "camera_distances", "fringe_memory_bytes", "fringe_period_camera_px",
-    "AMBIENT_MODES", "COLLISION_SHAPES", "DEVICES", "ENGINES", "FORMATS", "FRINGE_MODES", "MAX_FIELD_OF_VIEW_DEG",
+    "AMBIENT_MODES", "COLLISION_SHAPES", "ORIGINS", "DEVICES", "ENGINES", "FORMATS", "FRINGE_MODES", "MAX_FIELD_OF_VIEW_DEG",
     "MAX_FREE_NESTING",
     "MAX_FRINGE_BYTES", "MAX_INSTANCES", "MAX_PERIODS", "MAX_PICKLE_NESTING", "MAX_RENDERS", "MAX_RESOLUTION",
     "MAX_SAMPLES", "MAX_SL_SAMPLES", "MAX_STEPS", "MESH_SUFFIXES", "MIN_FRINGE_CAMERA_PX", "OTHER_OBJECTS",

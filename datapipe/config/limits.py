@@ -12,6 +12,7 @@ ENGINES = ("CYCLES",)
 DEVICES = ("CPU", "GPU")
 # AUTO: DECOMPOSED for clearly concave meshes, else CONVEX_HULL. DECOMPOSED and MESH: a compound of
 # convex pieces (Blender's moving triangle meshes threw concave parts out; see collision.py)
+ORIGINS = ("file", "bbox_center")       # objects[i].origin
 COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "CONE")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap

@@ -75,6 +75,8 @@ class ObjectEntry:
                                        # no ground truth (scene_gt, COCO, BOP, models) and 0 in mask.exr
     shape: Any = None                  # instead of filepath: a procedural distractor, e.g. {"kind": "box", "size":
                                        # [[min x, y, z], [max ...]]} (m), size drawn per instance (shapes.py)
+    origin: str = "file"               # the model frame's origin: "file" (the mesh file's) or "bbox_center"
+                                       # (the centre of its 3D bounding box, BOP's convention) (core/objects.py)
 
 
 @dataclass
@@ -215,6 +217,8 @@ class OutputConfig:
     bop_sensor: str | None = None      # BOP-Industrial name of the scanner's folders (gray_NAME/, depth_NAME/ ...);
                                        # None: after the device's vendor ("zivid", "photoneo"), "sl" without
                                        # a device (datapipe/io/bop_sensor.py)
+    xyz_crop: bool = False             # BOP: GDRNPP's amodal xyz_crop/ pickles per instance (io/xyz_crop.py)
+    amodal_coco: bool = False          # BOP: UOAIS' scene_gt_coco_amodal.json beside scene_gt_coco.json (io/amodal.py)
 
 
 @dataclass

@@ -15,8 +15,9 @@ from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
-from .limits import (COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS, MAX_SAMPLES,
-                     MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS, SL_OUTPUT_KINDS)
+from .limits import (ORIGINS, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS,
+                     MAX_SAMPLES, MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS,
+                     SL_OUTPUT_KINDS)
 from .validate_sl import _check_projector, _check_structured_light
 
 if TYPE_CHECKING:                 # annotations only: Config's methods call the rules, not the other way
@@ -192,6 +193,7 @@ def _check_objects(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.positive(f"{p}.scale", o.scale)
         ck.positive(f"{p}.mass", o.mass)
         ck.choice(f"{p}.collision_shape", o.collision_shape, COLLISION_SHAPES)
+        ck.choice(f"{p}.origin", o.origin, ORIGINS)
         ck.min_max(p, "min_instances", "max_instances", o.min_instances, o.max_instances)
         if o.max_instances > MAX_INSTANCES:
             ck.add(f"{p}.max_instances", f"{o.max_instances} instances is beyond what one bin holds",
@@ -364,6 +366,12 @@ def _check_output(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.choice(f"output.formats[{i}]", f, FORMATS)
     if not o.formats:
         ck.add("output.formats", "no output format", "use [\"native\"] and/or \"bop\"")
+    for flag in ("xyz_crop", "amodal_coco"):
+        if getattr(o, flag) is not True and getattr(o, flag) is not False:
+            ck.add(f"output.{flag}", f"{getattr(o, flag)!r} is not true or false", "give true or false")
+        elif getattr(o, flag) and "bop" not in o.formats:
+            ck.add(f"output.{flag}", "is written into the BOP export, which output.formats does not ask for",
+                   f"add \"bop\" to output.formats, or set output.{flag} to false")
     if "bop" in o.formats:
         for need in ("rgb", "depth", "mask"):
             if need not in r.outputs:

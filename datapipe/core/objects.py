@@ -311,6 +311,14 @@ class ObjectManager:
         s = float(entry.scale)
         me.transform(Matrix.Diagonal((s, s, s, 1.0)))
         me.update()
+        if entry.origin == "bbox_center":
+            # BOP's model frame (thodan/bop_toolkit@cea62d651c7e395b2e1962b9749e4e89693c6ac4:
+            # docs/bop_datasets_format.md, "the origin coincides with the center of the 3D bounding box
+            # of the object model"): re-centre the mesh data itself, so that the exported models,
+            # models_info.json and every pose (T_cam_obj) are in that one frame
+            pts = _vertices(me)
+            me.transform(Matrix.Translation(Vector((-(pts.min(axis=0) + pts.max(axis=0)) / 2).tolist())))
+            me.update()
         obj = bpy.data.objects.new(name, me)
         self.templates_collection.objects.link(obj)
         pts = _vertices(me)

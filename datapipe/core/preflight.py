@@ -66,9 +66,11 @@ def check_meshes(cfg: Config) -> list[Problem]:
     return problems
 
 
-def measure_meshes(cfg: Config) -> tuple[list[Problem], dict[int, float]]:
+def measure_meshes(cfg: Config, boxes: dict[int, tuple] | None = None) -> tuple[list[Problem], dict[int, float]]:
     """(problems of the part files, {object entry: one part's convex-hull volume in m^3}); the volumes
-    only without scene.blend_file (they are for part_fit.fill_problems against the configured bin)."""
+    only without scene.blend_file (they are for part_fit.fill_problems against the configured bin).
+    `boxes`, when given, gets {object entry: (lo, hi)}: its mesh's bounding box in file units
+    (checks/origins.py)."""
     problems: list[Problem] = []
     measured: dict[str, tuple] = {}
     hulls: dict[str, float] = {}
@@ -106,6 +108,8 @@ def measure_meshes(cfg: Config) -> tuple[list[Problem], dict[int, float]]:
             continue
         if o.shape is None and not collision.coacd_available() and _needs_pieces(o.collision_shape, pts, tris):
             problems.append(collision.missing_coacd(f"{entry_field(o, i)}.collision_shape"))
+        if boxes is not None:
+            boxes[i] = (pts.min(axis=0), pts.max(axis=0))
         with np.errstate(over="ignore"):       # a scale of 1e308: reported below, not warned about
             size = (pts.max(axis=0) - pts.min(axis=0)) * o.scale
         longest = float(size.max())

@@ -60,6 +60,8 @@ from .models import Model, load_models, model_filename, model_info, read_ply, wr
 from .models_eval import SPACING_MM, resample_for_eval, vertex_normals
 from .bop_sensor import CUSTOM_RIG, check_sensor_name, sensor_for_config
 from .silhouette import mask_bbox, rasterize_silhouette
+from .amodal import AMODAL_COCO_FILE, amodal_annotation
+from .xyz_crop import rasterize_xyz, write_xyz_crop, xyz_crop_info, xyz_file
 
 SPLIT = "train_pbr"
 MAX_UINT16 = 65535
@@ -160,6 +162,7 @@ class _ImageEntry:
     meta: dict
     coco: dict
     sensor: dict | None = None     # {"scene_camera": ..., "scene_gt": ..., "scene_gt_info": ...} of the scanner
+    coco_amodal: dict | None = None       # output.amodal_coco (io/amodal.py)
 
 
 class BopWriter:
@@ -174,13 +177,16 @@ class BopWriter:
 
     def __init__(self, bop_root: str | os.PathLike, *, depth_scale: float = 0.1, chunk_size: int = 1000,
                  split: str = SPLIT, models_dir: str | os.PathLike | None = None, rgb_format: str = RGB_FORMAT,
-                 jpg_quality: int = JPG_QUALITY, eval_spacing_mm: float = SPACING_MM, sensor: str = CUSTOM_RIG):
+                 jpg_quality: int = JPG_QUALITY, eval_spacing_mm: float = SPACING_MM, sensor: str = CUSTOM_RIG,
+                 xyz_crop: bool = False, amodal_coco: bool = False):
         check_options(depth_scale=depth_scale, chunk_size=chunk_size, split=split, rgb_format=rgb_format,
                       jpg_quality=jpg_quality)
         self.sensor = check_sensor_name(sensor, "sensor")
         if not (eval_spacing_mm > 0):
             raise DataPipeError(f"eval_spacing_mm must be > 0 mm, got {eval_spacing_mm}")
         self.rgb_format = rgb_format
+        self.xyz_crop = bool(xyz_crop)            # GDRNPP's SPLIT/xyz_crop/ pickles (io/xyz_crop.py)
+        self.amodal_coco = bool(amodal_coco)      # UOAIS' scene_gt_coco_amodal.json (io/amodal.py)
         self.jpg_quality = int(jpg_quality)
         self.eval_spacing_mm = float(eval_spacing_mm)
         self.root = Path(bop_root)
@@ -259,22 +265,21 @@ class BopWriter:
             for name in SENSOR_FILES:
                 data[f"{name}_"] = read_json_or_empty(d / f"{name}_{self.sensor}.json")
             coco = read_json_or_empty(d / "scene_gt_coco.json")
-            per_image = {str(im["id"]): {"image": im, "annotations": []} for im in coco.get("images", [])}
-            for ann in coco.get("annotations", []):
-                a = {k: v for k, v in ann.items() if k != "id"}
-                per_image.setdefault(str(ann["image_id"]), {"image": None, "annotations": []})["annotations"].append(a)
-            data["coco"] = per_image
+            data["coco"] = _coco_per_image(coco)
+            if self.amodal_coco:
+                data["coco_amodal"] = _coco_per_image(read_json_or_empty(d / AMODAL_COCO_FILE))
             data["created"] = coco.get("info", {}).get("date_created")      # kept when the chunk grows
             self._chunks[chunk] = data
         return self._chunks[chunk]
 
-    def _coco(self, data: dict) -> dict:
-        """scene_gt_coco.json of a chunk (bop_toolkit's calc_gt_coco layout, amodal boxes, RLE masks)."""
-        obj_ids = sorted(self.models()) or sorted({a["category_id"] for e in data["coco"].values()
+    def _coco(self, data: dict, which: str = "coco") -> dict:
+        """scene_gt_coco.json of a chunk (bop_toolkit's calc_gt_coco layout, amodal boxes, RLE masks),
+        or (which="coco_amodal") its amodal sibling."""
+        obj_ids = sorted(self.models()) or sorted({a["category_id"] for e in data[which].values()
                                                    for a in e["annotations"]})
         images, anns = [], []
-        for key in sorted(data["coco"], key=int):
-            e = data["coco"][key]
+        for key in sorted(data[which], key=int):
+            e = data[which][key]
             if e["image"] is not None:
                 images.append(e["image"])
             for a in e["annotations"]:
@@ -299,6 +304,8 @@ class BopWriter:
                 if data[f"{name}_"]:
                     write_json_lines_atomic(d / f"{name}_{self.sensor}.json", data[f"{name}_"])
             write_json_lines_atomic(d / "scene_gt_coco.json", self._coco(data), compact=True)
+            if self.amodal_coco:
+                write_json_lines_atomic(d / AMODAL_COCO_FILE, self._coco(data, "coco_amodal"), compact=True)
             write_json_lines_atomic(d / "datapipe.json", data["datapipe"])
 
     # -- scenes -----------------------------------------------------------------------------------
@@ -317,6 +324,8 @@ class BopWriter:
             c = self._chunk(e.chunk)
             key = str(e.im_id)
             c["coco"][key] = e.coco
+            if e.coco_amodal is not None:
+                c["coco_amodal"][key] = e.coco_amodal
             c["scene_camera"][key] = e.camera
             c["scene_gt"][key] = e.gts
             c["scene_gt_info"][key] = e.infos
@@ -366,7 +375,8 @@ class BopWriter:
             imwrite_atomic(cdir / "depth_sl" / f"{stem}.png",
                            encode_depth(read_depth(sl_src), self.depth_scale, what=str(sl_src)))
         inst = read_mask(_required(scene_dir, rd, "mask"))
-        gts, infos, coco_anns, sils = self._annotate_objects(scene_dir, rd, models, inst, depth_valid, K, cdir, stem)
+        gts, infos, coco_anns, sils, amodal_anns = self._annotate_objects(scene_dir, rd, models, inst, depth_valid,
+                                                                          K, cdir, stem)
         sensor = self._write_sensor(scene_dir, rd, sl_src, cdir, stem, gts, sils) if sl_src.is_file() else None
         if not self._camera_written:
             write_json_lines_atomic(self.root / "camera.json", {
@@ -383,7 +393,12 @@ class BopWriter:
             self._write_object_coords(coords, cdir / OBJECT_COORDS_DIR / f"{stem}.exr", W, H)
         coco = {"image": {"id": im_id, "file_name": rgb_name, "width": W, "height": H},
                 "annotations": coco_anns}
-        return _ImageEntry(image_id, chunk, im_id, self._camera_entry(K, rd), gts, infos, meta, coco, sensor)
+        coco_amodal = None
+        if self.amodal_coco:
+            coco_amodal = {"image": {**coco["image"], "depth_file_name": f"depth/{stem}.png"},
+                           "annotations": amodal_anns}
+        return _ImageEntry(image_id, chunk, im_id, self._camera_entry(K, rd), gts, infos, meta, coco,
+                           sensor=sensor, coco_amodal=coco_amodal)
 
     def _write_sensor(self, scene_dir: Path, rd: dict, sl_src: Path, cdir: Path, stem: str, gts: list,
                       sils: list) -> dict:
@@ -454,7 +469,7 @@ class BopWriter:
                           depth_valid: np.ndarray, K: np.ndarray, cdir: Path, stem: str):
         """scene_gt, scene_gt_info and COCO entries of one render's objects; writes their masks."""
         W, H = (int(x) for x in rd["resolution"])
-        gts, infos, coco_anns, sils = [], [], [], []
+        gts, infos, coco_anns, sils, amodal_anns = [], [], [], [], []
         for gt_id, o in enumerate(rd.get("objects", [])):
             obj_id = int(o["obj_id"])
             T = _mat(o["T_cam_obj"], (4, 4))
@@ -475,11 +490,16 @@ class BopWriter:
                                   "bbox": [b[0], b[1], b[2] + 1, b[3] + 1],
                                   "segmentation": mask_to_rle(visib), "width": W, "height": H,
                                   "ignore": bool(infos[-1]["visib_fract"] < COCO_VISIB_MIN)})
+                if self.amodal_coco:
+                    amodal_anns.append(amodal_annotation(coco_anns[-1]["image_id"], obj_id, sil, visib, infos[-1]))
+            if self.xyz_crop:
+                xyz, hit = rasterize_xyz(m.verts_mm, m.faces, K, R, t_mm, W, H, dist=rd.get("distortion"))
+                write_xyz_crop(xyz_file(cdir.parent, int(cdir.name), int(stem), gt_id), xyz_crop_info(xyz, hit))
             name = f"{stem}_{gt_id:06d}.png"
             imwrite_atomic(cdir / "mask" / name, ((sil | visib).astype(np.uint8) * 255))
             imwrite_atomic(cdir / "mask_visib" / name, visib.astype(np.uint8) * 255)
             sils.append((sil, count, bbox, visib))
-        return gts, infos, coco_anns, sils
+        return gts, infos, coco_anns, sils, amodal_anns
 
     def _camera_entry(self, K: np.ndarray, rd: dict) -> dict:
         T_cw = np.linalg.inv(_mat(rd["T_world_cam"], (4, 4)))
@@ -495,6 +515,15 @@ class BopWriter:
         self._flush(self._chunks)
         return {"bop_root": str(self.root), "images": self.images_written, "sensor": self.sensor,
                 "chunks": sorted(self._chunks_touched | set(self._chunks)), "depth_scale": self.depth_scale}
+
+
+def _coco_per_image(coco: dict) -> dict:
+    """{image id: {"image", "annotations" (without their ids)}} of a chunk's COCO file read back."""
+    per_image = {str(im["id"]): {"image": im, "annotations": []} for im in coco.get("images", [])}
+    for ann in coco.get("annotations", []):
+        a = {k: v for k, v in ann.items() if k != "id"}
+        per_image.setdefault(str(ann["image_id"]), {"image": None, "annotations": []})["annotations"].append(a)
+    return per_image
 
 
 def _complete_scene(scene_dir: Path) -> dict:
@@ -534,9 +563,11 @@ def check_options(*, depth_scale: float = 0.1, chunk_size: int = 1000, split: st
 
 def export_bop(native_run_dir: str | os.PathLike, bop_root: str | os.PathLike, *, depth_scale: float = 0.1,
                chunk_size: int = 1000, split: str = SPLIT, rgb_format: str = RGB_FORMAT,
-               jpg_quality: int = JPG_QUALITY, sensor: str | None = None) -> dict:
+               jpg_quality: int = JPG_QUALITY, sensor: str | None = None, xyz_crop: bool = False,
+               amodal_coco: bool = False) -> dict:
     """Convert every complete scene of a native run (OUT/) into a BOP dataset at `bop_root`. The
-    scanner's folders are named `sensor`, else as the run's config says (io/bop_sensor.py)."""
+    scanner's folders are named `sensor`, else as the run's config says (io/bop_sensor.py);
+    xyz_crop / amodal_coco: GDRNPP's and UOAIS' amodal targets (io/xyz_crop.py, io/amodal.py)."""
     check_options(depth_scale=depth_scale, chunk_size=chunk_size, split=split, rgb_format=rgb_format,
                   jpg_quality=jpg_quality)
     run = Path(native_run_dir)
@@ -551,7 +582,7 @@ def export_bop(native_run_dir: str | os.PathLike, bop_root: str | os.PathLike, *
         raise DataPipeError(f"{run}: no complete scene (scene.*/scene.json) to export")
     writer = BopWriter(bop_root, depth_scale=depth_scale, chunk_size=chunk_size, split=split,
                        models_dir=run / layout.MODELS_DIR, rgb_format=rgb_format, jpg_quality=jpg_quality,
-                       sensor=sensor)
+                       sensor=sensor, xyz_crop=xyz_crop, amodal_coco=amodal_coco)
     for scene_dir, scene in scenes:
         writer.add_scene(scene_dir, scene)
     summary = writer.finish()

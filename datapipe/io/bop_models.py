@@ -9,7 +9,7 @@ name), obj_id the BOP id, symmetries copied from models_info.json; every other s
 mass, material ...) is the entry's. The export therefore writes the source's ids and symmetries, and
 the same model frame (the PLY's, in mm).
 
-Each expanded entry remembers where it came from (`origin`, e.g. "objects[0] (obj_id 5)"), so later
+Each expanded entry remembers where it came from (`source_field`, e.g. "objects[0] (obj_id 5)"), so later
 checks (the mesh preflight) name the preset's field.
 """
 from __future__ import annotations
@@ -150,7 +150,7 @@ def expand_bop_objects(cfg):
             e.name = f"{o.name}_{k:06d}" if o.name else f"obj_{k:06d}"
             if o.symmetries == "auto":
                 e.symmetries = {key: info[k][key] for key in SYMMETRY_KEYS if key in info[k]}
-            e.origin = f"{field} (obj_id {k})"
+            e.source_field = f"{field} (obj_id {k})"
             objects.append(e)
     cfg.objects = objects
     return cfg
@@ -158,7 +158,7 @@ def expand_bop_objects(cfg):
 
 def entry_field(entry, index: int) -> str:
     """The preset field an (expanded) object entry came from."""
-    return getattr(entry, "origin", None) or f"objects[{index}]"
+    return getattr(entry, "source_field", None) or f"objects[{index}]"
 
 
 def model_symmetries(entry, index: int, verts_mm, faces) -> dict:

@@ -85,5 +85,7 @@ def open_writers(output, out_dir: str | Path, *, batch: bool = False, sensor: st
     if "bop" in _output_value(output, "formats", ["native"]):
         from .bop import BopWriter
         from .bop_sensor import CUSTOM_RIG
-        writers.append(BopWriter(out / layout.BOP_DIR, sensor=sensor or CUSTOM_RIG))
+        writers.append(BopWriter(out / layout.BOP_DIR, sensor=sensor or CUSTOM_RIG,
+                                 xyz_crop=bool(_output_value(output, "xyz_crop", False)),
+                                 amodal_coco=bool(_output_value(output, "amodal_coco", False))))
     return Writers(writers)

@@ -212,6 +212,8 @@ class DATAPIPE_PT_objects(_DataPipePanel, Panel):
         col.prop(item, "annotate")
         if item.annotate and item.source != "SHAPE":
             col.prop(item, "symmetries")
+        if item.source != "SHAPE":
+            col.prop(item, "origin")
 
 
 class DATAPIPE_PT_camera(_DataPipePanel, Panel):
@@ -326,6 +328,10 @@ class DATAPIPE_PT_output(_DataPipePanel, Panel):
         col.prop(out, "bop_sensor")          # names the scanner's BOP folders (BOP + structured light)
         col.prop(out, "legacy_pickle")
         col.prop(out, "overview")
+        sub = col.column(align=True)
+        sub.active = "bop" in out.formats          # both go into the BOP export (validate refuses them without)
+        sub.prop(out, "xyz_crop")
+        sub.prop(out, "amodal_coco")
 
         box = layout.box()
         box.label(text="Preset", icon="PRESET")

@@ -54,6 +54,10 @@ class DATAPIPE_PG_object(PropertyGroup):
         name="Collision Shape", description="Rigid-body collision shape (Convex Hull is fast and stable; "
         "Mesh follows concave parts but is slower)",
         items=enum_choices(C.COLLISION_SHAPES), default=default(_O, "collision_shape"))
+    origin: EnumProperty(
+        name="Origin", description="The model frame's origin: the mesh file's own, or the centre of its 3D "
+        "bounding box (BOP's convention; poses and exported models follow it)",
+        items=enum_choices(C.ORIGINS), default=default(_O, "origin"))
     min_instances: IntProperty(
         name="Min Instances", description="Fewest copies of this part per scene. Raising it above Max "
         "raises Max", default=default(_O, "min_instances"), min=0, max=500, update=_inst_lo)

@@ -87,3 +87,7 @@ class DATAPIPE_PG_output(PropertyGroup):
     bop_sensor: StringProperty(name="BOP Sensor", description="BOP-Industrial name of the scanner's folders "
                                "(gray_NAME, depth_NAME ...); empty: after the device's maker, 'sl' without one",
                                default="")
+    xyz_crop: BoolProperty(name="GDRNPP xyz_crop", description="BOP: also write each instance's amodal object "
+                           "coordinates in GDRNPP's xyz_crop format", default=default(_T, "xyz_crop"))
+    amodal_coco: BoolProperty(name="Amodal COCO", description="BOP: also write scene_gt_coco_amodal.json (full "
+                              "silhouettes, UOAIS' fields)", default=default(_T, "amodal_coco"))
