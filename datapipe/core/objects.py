@@ -28,15 +28,13 @@ Instances
     copies (`obj.copy()`: same mesh data, no re-import), named f"{entry_name}_{k:03d}" (k from 0
     within the scene), with unique pass_index 1..n (a distractor, `annotate: false`: 0, the mask's
     background; a procedural `shape`: its own mesh at a size drawn per instance, core/shape_parts.py),
-    a uniformly random orientation, placed on a
-    grid of bounding spheres inside the drop zone's footprint in layers from the zone's centre
-    upward (spheres never overlap; `staged=True`: only the lowest STAGE_LAYERS layers at once, see
-    simulation.drop_in_stages), and an ACTIVE rigid body (the entry's mass, friction,
-    restitution and collision shape; an explicit collision margin of 4% of the part's thinnest
-    width, at most 0.5 mm: Blender's default 0.04 m is larger than small parts, and a fixed 0.5 mm
-    left a visible gap around a 2.4 mm peg). They live in "datapipe_objects". `populate()` first
-    clears the previous scene's instances; `clear()` deletes them; the templates (and their mesh
-    data) stay.
+    a uniformly random orientation, placed on a grid of bounding spheres inside the drop zone's
+    footprint in layers from the zone's centre upward (spheres never overlap; `staged=True`: only the
+    lowest STAGE_LAYERS layers at once, see simulation.drop_in_stages), and an ACTIVE rigid body
+    (the entry's mass, friction, restitution and collision shape; a collision margin of 4% of the
+    part's thinnest width, at most 0.5 mm: Blender's default 0.04 m is larger than small parts, a
+    fixed 0.5 mm left a visible gap around a 2.4 mm peg), in "datapipe_objects". `populate()` first
+    clears the previous scene's instances; `clear()` deletes them; the templates and meshes stay.
 
 Collision shapes (see collision.py)
     AUTO (the default) is DECOMPOSED for a clearly concave mesh (it fills less than 70% of its
@@ -309,16 +307,11 @@ class ObjectManager:
         me = raw_mesh.copy()
         me.name = name
         s = float(entry.scale)
-        me.transform(Matrix.Diagonal((s, s, s, 1.0)))
-        me.update()
-        if entry.origin == "bbox_center":
-            # BOP's model frame (thodan/bop_toolkit@cea62d651c7e395b2e1962b9749e4e89693c6ac4:
-            # docs/bop_datasets_format.md, "the origin coincides with the center of the 3D bounding box
-            # of the object model"): re-centre the mesh data itself, so that the exported models,
-            # models_info.json and every pose (T_cam_obj) are in that one frame
-            pts = _vertices(me)
+        me.transform(Matrix.Diagonal((s, s, s, 1.0)))   # (transform moves the vertices: _vertices reads them)
+        if entry.origin == "bbox_center":   # BOP's model frame, the bounding box's centre (docs/DATASETS.md):
+            pts = _vertices(me)              # the mesh data itself, so models, models_info and poses share it
             me.transform(Matrix.Translation(Vector((-(pts.min(axis=0) + pts.max(axis=0)) / 2).tolist())))
-            me.update()
+        me.update()
         obj = bpy.data.objects.new(name, me)
         self.templates_collection.objects.link(obj)
         pts = _vertices(me)
