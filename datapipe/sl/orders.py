@@ -249,12 +249,18 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     if sel.size == 0:
         return empty
     _, binv = np.unique(comp[sel].astype(np.int64) * ntiles + tile[sel], return_inverse=True)
+    # the pooled pixels in block order (ascending pixel order inside a block): the block sums then
+    # read contiguous columns, with no gathered copy of the (K_f, n) costs
+    by_block = np.argsort(binv, kind="stable")
+    sel, binv = sel[by_block], binv[by_block]
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
     cost = _offset_costs(fine, [c_[sel] for c_ in cyc], [v[sel] for v in var_c], per)
-    capped = np.minimum(cost, np.float32(ROBUST_CAP))
+    own_max = chi2.isf(OWN_P, max(1, F - 1))
+    # below the cap a pixel's own test reads the same from the capped costs: cap in place
+    capped = np.minimum(cost, np.float32(ROBUST_CAP), out=cost if own_max < ROBUST_CAP else None)
     blk = _block_posterior(capped, binv, max_wrong)
     mq = blk["best"][binv]
-    acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= chi2.isf(OWN_P, max(1, F - 1)))
+    acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= own_max)
     if dim[sel].any():                   # below the modulation floor: only inside the surface (4 linked neighbours)
         deg = np.bincount(a, minlength=cand.size) + np.bincount(b, minlength=cand.size)
         acc &= ~dim[sel] | (deg[sel] >= 4)
@@ -276,7 +282,8 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
         acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, 0.5 * T)
     if not acc.any():
         return empty
-    return cand[sel[acc]], xr[acc].astype(np.float32), blk["p"][binv[acc]].astype(np.float32)
+    back = np.argsort(sel[acc])                    # ascending pixel order, as the candidates came
+    return cand[sel[acc][back]], xr[acc][back].astype(np.float32), blk["p"][binv[acc][back]].astype(np.float32)
 
 
 def _block_medians(x, binv, starts, size):
@@ -368,11 +375,11 @@ def _offset_costs(fine, cyc, var_c, per, chunk: int = 2048):
 
 
 def _block_posterior(capped, binv, max_wrong):
-    """Per block: summed costs S (K_f, nb), best offset, probability that it is wrong (posterior
-    mass of the others, flat prior), size, and whether it decides (sure)."""
-    order = np.argsort(binv, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(binv[order]) != 0])
-    S = np.add.reduceat(capped[:, order], starts, axis=1)
+    """Per block (binv sorted: each block's pixels contiguous): summed costs S (K_f, nb), best
+    offset, probability that it is wrong (posterior mass of the others, flat prior), size, and
+    whether it decides (sure)."""
+    starts = np.flatnonzero(np.r_[True, np.diff(binv) != 0])
+    S = np.add.reduceat(capped, starts, axis=1)
     nb = S.shape[1]
     best = np.argmin(S, 0)
     sb = S[best, np.arange(nb)]
@@ -380,7 +387,7 @@ def _block_posterior(capped, binv, max_wrong):
     p = p / (1.0 + p)
     size = np.bincount(binv, minlength=nb)
     return dict(S=S, sb=sb, best=best, p=p, size=size, sure=(p <= max_wrong) & (size >= MIN_BLOCK),
-                order=order, starts=starts)
+                starts=starts)
 
 
 def _shifts_to_check(blk, max_wrong):
