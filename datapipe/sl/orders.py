@@ -96,16 +96,24 @@ def _links(ok, cf, shape):
     H, W = shape
     k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
     pa, pb, ps = [], [], []
-    z = np.zeros((H * W, 2), np.float32)         # phasors, real and imaginary part as two channels
+    # the filters run over the pixels' bounding box plus the window's reach (zero outside it, as the
+    # constant border is): the same sums, on less image
+    rows, cols = np.flatnonzero(ok.reshape(H, W).any(1)), np.flatnonzero(ok.reshape(H, W).any(0))
+    r0, c0 = max(rows[0] - GRAD // 2, 0), max(cols[0] - GRAD // 2, 0)
+    h, w = min(rows[-1] + GRAD // 2 + 1, H) - r0, min(cols[-1] + GRAD // 2 + 1, W) - c0
+    z = np.zeros((h * w, 2), np.float32)         # phasors, real and imaginary part as two channels
     for a, b in _pairs(ok, W):
         d = cf[b] - cf[a]
         ang = np.float32(2 * np.pi) * d
+        ra, ca = np.divmod(a, W)
+        la = (ra - r0) * w + (ca - c0)           # a and b in the box
+        lb = la + (b - a) // W * w + (b - a) % W
         z[:] = 0
-        z[a, 0] = np.cos(ang)
-        z[a, 1] = np.sin(ang)
-        sz = cv2.boxFilter(z.reshape(H, W, 2), -1, **k).reshape(H * W, 2)   # one pass for both parts
+        z[la, 0] = np.cos(ang)
+        z[la, 1] = np.sin(ang)
+        sz = cv2.boxFilter(z.reshape(h, w, 2), -1, **k).reshape(h * w, 2)   # one pass for both parts
         # the pair's gradient: the mean of its two ends' (windows centred on a and on b)
-        g = (np.arctan2(sz[a, 1] + sz[b, 1], sz[a, 0] + sz[b, 0]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
+        g = (np.arctan2(sz[la, 1] + sz[lb, 1], sz[la, 0] + sz[lb, 0]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
         t = g - d                                    # = N_b - N_a + noise on one smooth surface
         n = np.rint(t)
         keep = np.abs(t - n) <= LINK_MAX
