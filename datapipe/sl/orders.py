@@ -256,11 +256,12 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     sel = np.flatnonzero((comp >= 0) & (sizes[np.maximum(comp, 0)] >= MIN_BLOCK))
     if sel.size == 0:
         return empty
-    _, binv = np.unique(comp[sel].astype(np.int64) * ntiles + tile[sel], return_inverse=True)
-    # the pooled pixels in block order (ascending pixel order inside a block): the block sums then
-    # read contiguous columns, with no gathered copy of the (K_f, n) costs
-    by_block = np.argsort(binv, kind="stable")
-    sel, binv = sel[by_block], binv[by_block]
+    # the pooled pixels in block order (ascending pixel order inside a block, one stable sort): the
+    # block sums then read contiguous columns, with no gathered copy of the (K_f, n) costs
+    key = comp[sel].astype(np.int64) * ntiles + tile[sel]
+    by_block = np.argsort(key, kind="stable")
+    sel, key = sel[by_block], key[by_block]
+    binv = np.cumsum(np.r_[False, key[1:] != key[:-1]])      # block numbers 0, 1, ... in key order
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
     cost = _offset_costs(fine, [c_[sel] for c_ in cyc], [v[sel] for v in var_c], per)
     own_max = chi2.isf(OWN_P, max(1, F - 1))
@@ -290,8 +291,12 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
         acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, 0.5 * T)
     if not acc.any():
         return empty
-    back = np.argsort(sel[acc])                    # ascending pixel order, as the candidates came
-    return cand[sel[acc][back]], xr[acc][back].astype(np.float32), blk["p"][binv[acc][back]].astype(np.float32)
+    # back to ascending pixel order, as the candidates came (sel holds distinct candidate numbers)
+    xs, ps_ = np.zeros(cand.size), np.zeros(cand.size)
+    xs[sel[acc]], ps_[sel[acc]] = xr[acc], blk["p"][binv[acc]]
+    mine = np.zeros(cand.size, bool)
+    mine[sel[acc]] = True
+    return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32)
 
 
 def _block_medians(x, binv, starts, size):
