@@ -63,9 +63,14 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
     var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     if st.plan.integer:
         snr = [np.square(out.modulation[i].ravel()[idx] / np.maximum(s, np.float32(1e-30))) for i in range(F)]
-        with np.errstate(invalid="ignore"):
-            sure = (out.p_wrong <= np.float32(st.max_wrong)) & ~out.inconsistent & (out.reason == 0)
-        x_sure = np.where(sure, out.proj_x, np.float32(np.nan))
+        def x_sure(q):
+            """Coordinates of the pixels q decided on their own, NaN for the others (read at the
+            pooled pixels' neighbours only, not as a map)."""
+            with np.errstate(invalid="ignore"):
+                sure = (out.p_wrong.ravel()[q] <= np.float32(st.max_wrong)) & ~out.inconsistent.ravel()[q] \
+                    & (out.reason.ravel()[q] == 0)
+            return np.where(sure, out.proj_x.ravel()[q], np.float32(np.nan))
+
         ia, xf, pa = pooled_orders(idx, cyc, snr, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
                                    dim=dim, x_sure=x_sure)
         if ia.size:

@@ -227,7 +227,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     wrapped phases in cycles; snr: per frequency ``B_hat^2 / s^2`` (modulation over the noise of
     the least-squares coefficients); periods: integer frequencies; length: coded projector width
     (pixels); shape: (H, W); x_sure: optional (H, W) coordinates of the pixels decided on their own
-    (NaN elsewhere): a pooled pixel more than half a finest period away from one of its
+    (NaN elsewhere), or a function of flat indices giving them at those pixels: a pooled pixel more than half a finest period away from one of its
     4-neighbours there is refused (a depth step between them, or a wrong order on one side).
     Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
     in pixels, probability that the order is wrong)."""
@@ -288,7 +288,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     xr -= np.floor((med[binv] + 0.5) / length) * length
     acc &= (xr >= -0.5) & (xr < length - 0.5)
     if x_sure is not None:
-        acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, 0.5 * T)
+        acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, (H, W), 0.5 * T)
     if not acc.any():
         return empty
     # back to ascending pixel order, as the candidates came (sel holds distinct candidate numbers)
@@ -416,17 +416,18 @@ def _shifts_to_check(blk, max_wrong):
     return np.flatnonzero(near)
 
 
-def _agrees_with_sure(flat, x, x_sure, tol):
-    """False where a 4-neighbour decided on its own lies more than ``tol`` away from ``x``."""
-    H, W = x_sure.shape
+def _agrees_with_sure(flat, x, x_sure, shape, tol):
+    """False where a 4-neighbour decided on its own lies more than ``tol`` away from ``x`` (x_sure:
+    an (H, W) map or a function of flat indices, pooled_orders' doc)."""
+    H, W = shape
+    read = x_sure if callable(x_sure) else x_sure.ravel().__getitem__
     r, c = np.divmod(flat, W)
     ok = np.ones(flat.size, bool)
-    xs = x_sure.ravel()
     for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
         rr, cc = r + dr, c + dc
         inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
         nb = np.full(flat.size, np.nan, np.float32)
-        nb[inside] = xs[rr[inside] * W + cc[inside]]
+        nb[inside] = read(rr[inside] * W + cc[inside])
         with np.errstate(invalid="ignore"):
             ok &= ~(np.abs(nb - x) > tol)
     return ok
