@@ -96,8 +96,8 @@ def _links(ok, cf, shape):
     H, W = shape
     k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
     pa, pb, ps = [], [], []
-    # the filters run over the pixels' bounding box plus the window's reach (zero outside it, as the
-    # constant border is): the same sums, on less image
+    # the filters run over the pixels' bounding box plus the window's reach: the same sums, on less
+    # image (see _box)
     rows, cols = np.flatnonzero(ok.reshape(H, W).any(1)), np.flatnonzero(ok.reshape(H, W).any(0))
     r0, c0 = max(rows[0] - GRAD // 2, 0), max(cols[0] - GRAD // 2, 0)
     h, w = min(rows[-1] + GRAD // 2 + 1, H) - r0, min(cols[-1] + GRAD // 2 + 1, W) - c0
@@ -143,16 +143,28 @@ def _smoothed(cand, snr, shape):
     count."""
     import cv2
 
-    H, W = shape
     k = dict(ksize=(3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    m = np.zeros(H * W, np.float32)
-    m[cand] = 1
-    count = cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand]
+    box, h, w = _box(cand, shape, 1)
+    m = np.zeros(h * w, np.float32)
+    m[box] = 1
+    count = cv2.boxFilter(m.reshape(h, w), -1, **k).ravel()[box]
     out = []
     for q in snr:
-        m[cand] = q
-        out.append((cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand] / count).astype(np.float32))
+        m[box] = q
+        out.append((cv2.boxFilter(m.reshape(h, w), -1, **k).ravel()[box] / count).astype(np.float32))
     return out, count
+
+
+def _box(flat, shape, reach):
+    """The pixels ``flat`` as flat indices in their bounding box grown by ``reach`` (clipped to the
+    image), and the box's (h, w). A box filter of reach <= ``reach`` over the box gives the sums
+    it gives over the image (zero outside the box, as the constant border is; OpenCV sums float32
+    in float64, so the sums do not depend on where a row starts), on less image."""
+    H, W = shape
+    r, c = np.divmod(flat, W)
+    r0, c0 = max(int(r.min()) - reach, 0), max(int(c.min()) - reach, 0)
+    h, w = min(int(r.max()) + reach + 1, H) - r0, min(int(c.max()) + reach + 1, W) - c0
+    return (r - r0) * w + (c - c0), h, w
 
 
 def _relative_orders(n, a, b, step, flat, W):
