@@ -239,8 +239,9 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     wrapped phases in cycles; snr: per frequency ``B_hat^2 / s^2`` (modulation over the noise of
     the least-squares coefficients); periods: integer frequencies; length: coded projector width
     (pixels); shape: (H, W); x_sure: optional (H, W) coordinates of the pixels decided on their own
-    (NaN elsewhere), or a function of flat indices giving them at those pixels: a pooled pixel more than half a finest period away from one of its
-    4-neighbours there is refused (a depth step between them, or a wrong order on one side).
+    (NaN elsewhere), or a function of flat indices giving them at those pixels: a pooled pixel more
+    than half a finest period away from one of its 4-neighbours there is refused (a depth step
+    between them, or a wrong order on one side).
     Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
     in pixels, probability that the order is wrong)."""
     empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
