@@ -1,13 +1,15 @@
-"""Decoder speed at 1080p (issue #31): today's decoder, the decoder before issue #31 and OpenCV, in one run.
+"""Decoder speed at 1080p (issue #31): today's decoder, the decoder before the speed pass on the pooled
+order decision, the decoder before issue #31 and OpenCV, in one run.
 
 Run as a script (not a test):  .venv/bin/python benchmarks/bench_sl_speed.py [--repeat 7]
 
 Stack: issue #19's adversarial bin-like scene (tests/sl/synth.py `dark_step_scene`: tilted floor,
 boxes 0.13 / 0.25 m high, two spheres, projector shadows, a dark box top of albedo 0.04 beside the
 tall step), camera 1920x1080 at 1 m, projector 1280x800, baseline 5 cm; read 1 DN + shot noise
-(40 e-/DN), rounded to uint8; periods (1, 8, 64) x 4. The decoder before issue #31 is the package
-as of commit BEFORE, extracted with `git archive` into a temporary folder and imported under another
-name, so both run in this process on the same stack, in turns (round robin), CPU time
+(40 e-/DN), rounded to uint8; periods (1, 8, 64) x 4. The former decoders are the package as of
+commit BEFORE (before issue #31) and PREVIOUS (issue #31's pooled order decision merged, before its
+speed pass), each extracted with `git archive` into a temporary folder and imported under another
+name, so all run in this process on the same stack, in turns (round robin), CPU time
 (`time.process_time`, all threads) and wall time, median of `--repeat` runs. OpenCV:
 `structured_light.SinusoidalPattern` PSP on the 3 images of K = 64 plus its spatial
 `unwrapPhaseMap` (its design: 3 images, one period set, relative phase, no depth).
@@ -45,17 +47,20 @@ from datapipe.sl.decode_slab import DecodeMaps, decode_slab  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 BEFORE = "e769423"          # main when issue #31's decoder work began
+PREVIOUS = "559284f"        # issue #31's pooled order decision merged, before its speed pass
 PERIODS, STEPS = (1, 8, 64), 4
 
 
-def frozen_decoder(commit: str, tmp: Path):
-    """`datapipe.sl` as of `commit`, importable beside today's (package renamed datapipe_before)."""
+def frozen_decoder(commit: str, tmp: Path, name: str):
+    """`datapipe.sl` as of `commit`, importable beside today's (package renamed `name`)."""
     tar = subprocess.run(["git", "-C", str(ROOT), "archive", commit, "datapipe"], check=True,
                          capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tmp)], input=tar, check=True)
-    (tmp / "datapipe").rename(tmp / "datapipe_before")
-    sys.path.insert(0, str(tmp))
-    return importlib.import_module("datapipe_before.sl")
+    sub = tmp / name
+    sub.mkdir()
+    subprocess.run(["tar", "-x", "-C", str(sub)], input=tar, check=True)
+    (sub / "datapipe").rename(tmp / name / name)
+    sys.path.insert(0, str(sub))
+    return importlib.import_module(f"{name}.sl")
 
 
 def stack_1080p():
@@ -91,30 +96,55 @@ def round_robin(fns: dict, repeat: int) -> dict:
             for k, (c, w) in t.items()}
 
 
-def stages(images, kw, repeat):
-    """CPU ms of today's decode by stage (median): setup incl. the noise fit, the slab loop (phase,
-    noise, order decision, triangulation, reasons), the neighbour pass, the assembly."""
-    acc = {"setup + noise fit": [], "slabs": [], "neighbour pass": [], "assemble": []}
-    for _ in range(repeat + 1):
-        c = [time.process_time()]
-        st = prepare_decode(images, kw["periods"], kw["steps"], kw["P_cam"], kw["P_proj"], kw["proj_size"], "auto",
-                            None, None, None, 0.05, 1e-3, None, None, 1e-3, None, None, "x", True, None, True, 1.0)
-        c.append(time.process_time())
-        H, W = st.shape
-        out = DecodeMaps.allocate(H, W, len(st.plan.periods))
-        st.tri.coefficients
-        coefs = st.plan.stage_coefs()
-        rows = max(1, (1 << 16) // W)
-        with np.errstate(all="ignore"):
-            for r0 in range(0, H, rows):
-                decode_slab(st, out, r0, min(H, r0 + rows), coefs)
+def stages(pkg: str, images, kw, repeat):
+    """CPU ms of a decoder's steps (median), for package `pkg` (``datapipe`` or a frozen copy with the
+    same step modules): setup incl. the noise fit, the slab loop (phase, noise, order decision,
+    triangulation, reasons), the pooled order decision (``orders.pooled_orders``, timed by wrapping it
+    where ``decode_neighbours`` calls it), the rest of the neighbour pass (spatial pass of the pixels
+    still undecided, re-triangulation), the assembly."""
+    setup = importlib.import_module(f"{pkg}.sl.decode_setup")
+    slab = importlib.import_module(f"{pkg}.sl.decode_slab")
+    nb = importlib.import_module(f"{pkg}.sl.decode_neighbours")
+    dec = importlib.import_module(f"{pkg}.sl.decode")
+    pooled = nb.pooled_orders
+    spent = [0.0]
+
+    def timed(*a, **k):
+        c0 = time.process_time()
+        try:
+            return pooled(*a, **k)
+        finally:
+            spent[0] += time.process_time() - c0
+
+    acc = {"setup + noise fit": [], "slabs (per-pixel decode)": [], "pooled order decision": [],
+           "spatial neighbour pass + re-triangulation": [], "assemble": []}
+    nb.pooled_orders = timed
+    try:
+        for _ in range(repeat + 1):
+            spent[0] = 0.0
+            c = [time.process_time()]
+            st = setup.prepare_decode(images, kw["periods"], kw["steps"], kw["P_cam"], kw["P_proj"], kw["proj_size"],
+                                      "auto", None, None, None, 0.05, 1e-3, None, None, 1e-3, None, None, "x", True,
+                                      None, True, 1.0)
             c.append(time.process_time())
-            neighbour_pass(st, out)
-        c.append(time.process_time())
-        decode_mod._assemble(st, out)
-        c.append(time.process_time())
-        for k, a, b in zip(acc, c[:-1], c[1:]):
-            acc[k].append((b - a) * 1e3)
+            H, W = st.shape
+            out = slab.DecodeMaps.allocate(H, W, len(st.plan.periods))
+            st.tri.coefficients
+            coefs = st.plan.stage_coefs()
+            rows = max(1, (1 << 16) // W)
+            with np.errstate(all="ignore"):
+                for r0 in range(0, H, rows):
+                    slab.decode_slab(st, out, r0, min(H, r0 + rows), coefs)
+                c.append(time.process_time())
+                nb.neighbour_pass(st, out)
+            c.append(time.process_time())
+            dec._assemble(st, out)
+            c.append(time.process_time())
+            ms = [(b - a) * 1e3 for a, b in zip(c[:-1], c[1:])]
+            for k, v in zip(acc, (ms[0], ms[1], spent[0] * 1e3, ms[2] - spent[0] * 1e3, ms[3])):
+                acc[k].append(v)
+    finally:
+        nb.pooled_orders = pooled
     return {k: float(np.median(v[1:])) for k, v in acc.items()}
 
 
@@ -127,32 +157,37 @@ def main():
     u8_3 = np.clip(np.rint(synth.sensor_stack(synth.render(synth.dark_step_scene(), cam, proj, (64,), 3),
                                               seed=1)), 0, 255).astype(np.uint8)
     with tempfile.TemporaryDirectory() as tmp:
-        before = frozen_decoder(BEFORE, Path(tmp))
-        fns = {"today": lambda: sl.decode(u8, **kw),
-               "today, no neighbour pass": lambda: sl.decode(u8, **kw, spatial=False),
-               f"before (git {BEFORE})": lambda: before.decode(u8, **kw),
-               f"before, no neighbour pass": lambda: before.decode(u8, **kw, spatial=False),
-               "OpenCV PSP + unwrapPhaseMap (3 images, K = 64)": lambda: opencv_run(u8_3, proj.size, cam.size)}
+        previous = frozen_decoder(PREVIOUS, Path(tmp), "datapipe_previous")
+        before = frozen_decoder(BEFORE, Path(tmp), "datapipe_before")
+        decoders = {"today": sl.decode, f"before the speed pass (git {PREVIOUS})": previous.decode,
+                    f"before issue #31 (git {BEFORE})": before.decode}
+        fns = {}
+        for name, dec in decoders.items():
+            fns[name] = lambda dec=dec: dec(u8, **kw)
+            fns[name.split(" (")[0] + ", no neighbour pass"] = lambda dec=dec: dec(u8, **kw, spatial=False)
+        fns["OpenCV PSP + unwrapPhaseMap (3 images, K = 64)"] = lambda: opencv_run(u8_3, proj.size, cam.size)
         times = round_robin(fns, args.repeat)
         half = proj.size[0] / max(PERIODS) / 2
         quality = {}
-        for name, dec in (("today", sl.decode), (f"before (git {BEFORE})", before.decode)):
+        for name, dec in decoders.items():
             for spatial in (True, False):
                 r = dec(u8, **kw, spatial=spatial)
                 right = np.abs(r.proj_x - gt.proj_x) < half
                 quality[name if spatial else name.split(" (")[0] + ", no neighbour pass"] = (
                     float(np.mean((r.valid & right)[gt.lit])), int(np.sum(r.valid & ~right)), int(r.valid.sum()))
-        # the same maps? with the noise given (only the speed work differs) and fitted from the stack
+        # the same maps as before the speed pass? with the noise given and fitted from the stack
         same = {}
         for label, extra in (("noise given (noise_sigma=1.2)", dict(noise_sigma=1.2)), ("noise fitted", {})):
             a = sl.decode(u8, **kw, **extra)
-            b = before.decode(u8, **kw, **extra)
+            b = previous.decode(u8, **kw, **extra)
             same[label] = dict(reason=int(np.sum(a.reason != b.reason)),
                                depth=float(np.nanmax(np.abs(a.depth - b.depth))),
+                               nan=int(np.sum(np.isnan(a.depth) != np.isnan(b.depth))),
                                confidence=float(np.max(np.abs(a.confidence - b.confidence))),
                                phase=float(max(np.max(np.abs(x.astype(np.float64) - y))
                                                for x, y in zip(a.wrapped, b.wrapped))))
-    st = stages(u8, kw, args.repeat)
+        st = {"today": stages("datapipe", u8, kw, args.repeat),
+              f"before the speed pass (git {PREVIOUS})": stages("datapipe_previous", u8, kw, args.repeat)}
     rows = [dict(decoder=k, **{m: round(v, 1) for m, v in t.items()},
                  correct_of_lit=quality.get(k, (np.nan,))[0])
             for k, t in times.items()]
@@ -175,20 +210,21 @@ def main():
         md.append(f"| {k} | {t['cpu_med']:.0f} ({t['cpu_best']:.0f}) | {t['wall_med']:.0f} ({t['wall_best']:.0f}) | {qs} |")
     md += [
         "",
-        "Where today's decode spends its CPU time (median ms, same stack; `decode`'s own steps timed one by one):",
+        "Where the CPU time goes, today and before the speed pass (median ms, same stack, same run; `decode`'s own "
+        "steps timed one by one, the pooled decision by a timer around `orders.pooled_orders`):",
         "",
-        "| stage | CPU ms |",
-        "|---|---|",
-    ] + [f"| {k} | {v:.0f} |" for k, v in st.items()] + [
+        "| stage | " + " | ".join(f"{k} CPU ms" for k in st) + " |",
+        "|---|" + "---|" * len(st),
+    ] + [f"| {k} | " + " | ".join(f"{v[k]:.0f}" for v in st.values()) + " |" for k in next(iter(st.values()))] + [
+        f"| sum | " + " | ".join(f"{sum(v.values()):.0f}" for v in st.values()) + " |",
         "",
-        "Same outputs, today's against the former decoder's maps on this stack:",
+        f"Same outputs, today's against the maps of the decoder before the speed pass (git {PREVIOUS}) on this stack:",
         "",
-        "| noise | reason codes differing | max depth difference m | max confidence difference | max wrapped phase difference rad |",
-        "|---|---|---|---|---|",
-    ] + [f"| {k} | {v['reason']} | {v['depth']:.1e} | {v['confidence']:.1e} | {v['phase']:.1e} |" for k, v in same.items()] + [
-        "",
-        "(The noise fit keeps its former statistic on a linear camera's stack like this one; it differs only where "
-        "it finds a tone curve, see the notes.)",
+        "| noise | reason codes differing | NaN depth differing | max depth difference m | max confidence difference "
+        "| max wrapped phase difference rad |",
+        "|---|---|---|---|---|---|",
+    ] + [f"| {k} | {v['reason']} | {v['nan']} | {v['depth']:.1e} | {v['confidence']:.1e} | {v['phase']:.1e} |"
+         for k, v in same.items()] + [
         "",
     ]
     write_with_notes(RESULTS / "sl_speed.md", md)

@@ -63,9 +63,14 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
     var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     if st.plan.integer:
         snr = [np.square(out.modulation[i].ravel()[idx] / np.maximum(s, np.float32(1e-30))) for i in range(F)]
-        with np.errstate(invalid="ignore"):
-            sure = (out.p_wrong <= np.float32(st.max_wrong)) & ~out.inconsistent & (out.reason == 0)
-        x_sure = np.where(sure, out.proj_x, np.float32(np.nan))
+        def x_sure(q):
+            """Coordinates of the pixels q decided on their own, NaN for the others (read at the
+            pooled pixels' neighbours only, not as a map)."""
+            with np.errstate(invalid="ignore"):
+                sure = (out.p_wrong.ravel()[q] <= np.float32(st.max_wrong)) & ~out.inconsistent.ravel()[q] \
+                    & (out.reason.ravel()[q] == 0)
+            return np.where(sure, out.proj_x.ravel()[q], np.float32(np.nan))
+
         ia, xf, pa = pooled_orders(idx, cyc, snr, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
                                    dim=dim, x_sure=x_sure)
         if ia.size:
@@ -99,26 +104,14 @@ def _kept_weights(periods):
 
 
 def _apply(st: DecodeSetup, out: DecodeMaps, ia, xa, pa):
-    """Write the new coordinates of pixels ia, mark them filled, re-triangulate their rows."""
+    """Write the new coordinates of pixels ia, mark them filled, triangulate them again (at those
+    pixels only: :meth:`.Triangulator.at`, the same values as their rows' evaluation)."""
     out.proj_x.ravel()[ia] = xa
     out.p_wrong.ravel()[ia] = pa
     out.filled.ravel()[ia] = True
     out.phase.ravel()[ia] = xa * (2 * np.pi * max(st.plan.periods) / st.wcoded)
-    H, W = st.shape
-    hit_rows = np.zeros(H, bool)
-    hit_rows[ia // W] = True
-    rows = np.flatnonzero(hit_rows)
-    # re-triangulate the touched rows (contiguous runs), keep the result only for corrected pixels
-    hit = np.zeros((H, W), bool)
-    hit.ravel()[ia] = True
-    starts = rows[np.r_[True, np.diff(rows) > 1]]
-    ends = rows[np.r_[np.diff(rows) > 1, True]] + 1
-    for r0, r1 in zip(starts, ends):
-        z, ill, outside = st.tri.slab(out.proj_x[r0:r1], r0, r1, max_depth_slope=st.max_depth_slope,
-                                      check_other_axis=st.check_other_axis)
-        h = hit[r0:r1]
-        out.depth[r0:r1][h] = z[h]
-        rs = out.reason[r0:r1]
-        rs[h] = 0
-        rs[h & ill] = Reason.ILL_CONDITIONED
-        rs[h & outside] = Reason.OUTSIDE_PROJECTOR
+    z, ill, outside = st.tri.at(out.proj_x.ravel()[ia], ia, max_depth_slope=st.max_depth_slope,
+                                check_other_axis=st.check_other_axis)
+    out.depth.ravel()[ia] = z
+    out.reason.ravel()[ia] = np.where(outside, np.uint8(Reason.OUTSIDE_PROJECTOR),
+                                      np.where(ill, np.uint8(Reason.ILL_CONDITIONED), np.uint8(0)))

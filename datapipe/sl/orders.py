@@ -96,19 +96,24 @@ def _links(ok, cf, shape):
     H, W = shape
     k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
     pa, pb, ps = [], [], []
-    zr = np.zeros(H * W, np.float32)
-    zi = np.zeros(H * W, np.float32)
+    # the filters run over the pixels' bounding box plus the window's reach: the same sums, on less
+    # image (see _box)
+    rows, cols = np.flatnonzero(ok.reshape(H, W).any(1)), np.flatnonzero(ok.reshape(H, W).any(0))
+    r0, c0 = max(rows[0] - GRAD // 2, 0), max(cols[0] - GRAD // 2, 0)
+    h, w = min(rows[-1] + GRAD // 2 + 1, H) - r0, min(cols[-1] + GRAD // 2 + 1, W) - c0
+    z = np.zeros((h * w, 2), np.float32)         # phasors, real and imaginary part as two channels
     for a, b in _pairs(ok, W):
         d = cf[b] - cf[a]
         ang = np.float32(2 * np.pi) * d
-        zr[:] = 0
-        zi[:] = 0
-        zr[a] = np.cos(ang)
-        zi[a] = np.sin(ang)
-        sr = cv2.boxFilter(zr.reshape(H, W), -1, **k).ravel()
-        si = cv2.boxFilter(zi.reshape(H, W), -1, **k).ravel()
+        ra, ca = np.divmod(a, W)
+        la = (ra - r0) * w + (ca - c0)           # a and b in the box
+        lb = la + (b - a) // W * w + (b - a) % W
+        z[:] = 0
+        z[la, 0] = np.cos(ang)
+        z[la, 1] = np.sin(ang)
+        sz = cv2.boxFilter(z.reshape(h, w, 2), -1, **k).reshape(h * w, 2)   # one pass for both parts
         # the pair's gradient: the mean of its two ends' (windows centred on a and on b)
-        g = (np.arctan2(si[a] + si[b], sr[a] + sr[b]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
+        g = (np.arctan2(sz[la, 1] + sz[lb, 1], sz[la, 0] + sz[lb, 0]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
         t = g - d                                    # = N_b - N_a + noise on one smooth surface
         n = np.rint(t)
         keep = np.abs(t - n) <= LINK_MAX
@@ -118,26 +123,53 @@ def _links(ok, cf, shape):
     return np.concatenate(pa), np.concatenate(pb), np.concatenate(ps)
 
 
+def _tree_steps(pred, child, a, b, step, flat, W):
+    """Finest-order step of each tree edge ``pred -> child`` (local node numbers) from the links
+    (a, b, step): a link joins 4-neighbours, so its end ``b`` lies at ``a + 1`` or ``a + W`` in the
+    image; the edge's direction there picks the link, without a lookup table over all pairs."""
+    n = flat.size
+    right, down = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    across = flat[b] - flat[a] == 1
+    right[a[across]] = step[across]
+    down[a[~across]] = step[~across]
+    diff = flat[child] - flat[pred]
+    return np.select([diff == 1, diff == -1, diff == W],
+                     [right[pred], -right[child], down[pred]], -down[child])
+
+
 def _smoothed(cand, snr, shape):
     """Per frequency the mean of ``B_hat^2 / s^2`` over each candidate's 3 x 3 candidate neighbours
     (the phase noise follows from it far more precisely than from one pixel's B_hat), and their
     count."""
     import cv2
 
-    H, W = shape
     k = dict(ksize=(3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    m = np.zeros(H * W, np.float32)
-    m[cand] = 1
-    count = cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand]
+    box, h, w = _box(cand, shape, 1)
+    m = np.zeros(h * w, np.float32)
+    m[box] = 1
+    count = cv2.boxFilter(m.reshape(h, w), -1, **k).ravel()[box]
     out = []
     for q in snr:
-        m[cand] = q
-        out.append((cv2.boxFilter(m.reshape(H, W), -1, **k).ravel()[cand] / count).astype(np.float32))
+        m[box] = q
+        out.append((cv2.boxFilter(m.reshape(h, w), -1, **k).ravel()[box] / count).astype(np.float32))
     return out, count
 
 
-def _relative_orders(n, a, b, step):
-    """Components and relative finest orders of n nodes linked by (a, b) (local node numbers)."""
+def _box(flat, shape, reach):
+    """The pixels ``flat`` as flat indices in their bounding box grown by ``reach`` (clipped to the
+    image), and the box's (h, w). A box filter of reach <= ``reach`` over the box gives the sums
+    it gives over the image (zero outside the box, as the constant border is; OpenCV sums float32
+    in float64, so the sums do not depend on where a row starts), on less image."""
+    H, W = shape
+    r, c = np.divmod(flat, W)
+    r0, c0 = max(int(r.min()) - reach, 0), max(int(c.min()) - reach, 0)
+    h, w = min(int(r.max()) + reach + 1, H) - r0, min(int(c.max()) + reach + 1, W) - c0
+    return (r - r0) * w + (c - c0), h, w
+
+
+def _relative_orders(n, a, b, step, flat, W):
+    """Components and relative finest orders of n nodes linked by (a, b) (local node numbers; ``flat``
+    their pixels' flat indices in an image ``W`` wide)."""
     ncomp, comp = csgraph.connected_components(
         sparse.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n)), directed=False)
     # a virtual root joined to the first node of every component: one breadth-first tree for all
@@ -150,13 +182,10 @@ def _relative_orders(n, a, b, step):
     _, pred = csgraph.breadth_first_order(g, root, directed=True, return_predecessors=True)
     pred = pred.astype(np.int64)
     pred[root] = root
-    # delta of every tree edge pred -> node from the link list (both directions)
-    lut = sparse.csr_matrix((np.concatenate([step, -step]).astype(float) + 0.5,
-                             (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n, n))
     acc = np.zeros(n + 1, np.int64)
     child = np.flatnonzero(pred[:n] != root)
     if child.size:
-        acc[child] = np.rint(np.asarray(lut[pred[child], child]).ravel() - 0.5).astype(np.int64)
+        acc[child] = _tree_steps(pred[child], child, a, b, step, flat, W)
     ptr = pred.copy()
     while np.any(ptr[:n] != root):
         acc = acc + acc[ptr]
@@ -210,8 +239,9 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     wrapped phases in cycles; snr: per frequency ``B_hat^2 / s^2`` (modulation over the noise of
     the least-squares coefficients); periods: integer frequencies; length: coded projector width
     (pixels); shape: (H, W); x_sure: optional (H, W) coordinates of the pixels decided on their own
-    (NaN elsewhere): a pooled pixel more than half a finest period away from one of its
-    4-neighbours there is refused (a depth step between them, or a wrong order on one side).
+    (NaN elsewhere), or a function of flat indices giving them at those pixels: a pooled pixel more
+    than half a finest period away from one of its 4-neighbours there is refused (a depth step
+    between them, or a wrong order on one side).
     Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
     in pixels, probability that the order is wrong)."""
     empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
@@ -239,17 +269,25 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     sel = np.flatnonzero((comp >= 0) & (sizes[np.maximum(comp, 0)] >= MIN_BLOCK))
     if sel.size == 0:
         return empty
-    _, binv = np.unique(comp[sel].astype(np.int64) * ntiles + tile[sel], return_inverse=True)
+    # the pooled pixels in block order (ascending pixel order inside a block, one stable sort): the
+    # block sums then read contiguous columns, with no gathered copy of the (K_f, n) costs
+    key = comp[sel].astype(np.int64) * ntiles + tile[sel]
+    by_block = np.argsort(key, kind="stable")
+    sel, key = sel[by_block], key[by_block]
+    binv = np.cumsum(np.r_[False, key[1:] != key[:-1]])      # block numbers 0, 1, ... in key order
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
     cost = _offset_costs(fine, [c_[sel] for c_ in cyc], [v[sel] for v in var_c], per)
-    blk = _block_posterior(np.minimum(cost, ROBUST_CAP), binv, max_wrong)
+    own_max = chi2.isf(OWN_P, max(1, F - 1))
+    # below the cap a pixel's own test reads the same from the capped costs: cap in place
+    capped = np.minimum(cost, np.float32(ROBUST_CAP), out=cost if own_max < ROBUST_CAP else None)
+    blk = _block_posterior(capped, binv, max_wrong)
     mq = blk["best"][binv]
-    acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= chi2.isf(OWN_P, max(1, F - 1)))
+    acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= own_max)
     if dim[sel].any():                   # below the modulation floor: only inside the surface (4 linked neighbours)
         deg = np.bincount(a, minlength=cand.size) + np.bincount(b, minlength=cand.size)
         acc &= ~dim[sel] | (deg[sel] >= 4)
     if acc.any():
-        full, half = _local_support(cand[sel], np.minimum(cost, ROBUST_CAP), mq, (H, W),
+        full, half = _local_support(cand[sel], capped, mq, (H, W),
                                     _shifts_to_check(blk, max_wrong))
         acc &= (full >= 2.0 * np.log(1.0 / max_wrong)) & (half >= 0)
     if not acc.any():
@@ -259,14 +297,29 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     # move them a whole width)
     T = length / per[f]
     xr = (fine + mq) * T
-    med = np.array([np.median(v) for v in np.split(xr[blk["order"]], blk["starts"][1:])])
+    med = _block_medians(xr, binv, blk["starts"], blk["size"])
     xr -= np.floor((med[binv] + 0.5) / length) * length
     acc &= (xr >= -0.5) & (xr < length - 0.5)
     if x_sure is not None:
-        acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, 0.5 * T)
+        acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, (H, W), 0.5 * T)
     if not acc.any():
         return empty
-    return cand[sel[acc]], xr[acc].astype(np.float32), blk["p"][binv[acc]].astype(np.float32)
+    # back to ascending pixel order, as the candidates came (sel holds distinct candidate numbers)
+    xs, ps_ = np.zeros(cand.size), np.zeros(cand.size)
+    xs[sel[acc]], ps_[sel[acc]] = xr[acc], blk["p"][binv[acc]]
+    mine = np.zeros(cand.size, bool)
+    mine[sel[acc]] = True
+    return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32)
+
+
+def _block_medians(x, binv, starts, size):
+    """``np.median`` of x over each block (blocks numbered 0.. by binv; ``starts`` of the blocks in
+    block order, ``size`` their sizes), by one sort instead of a median per block: the middle value,
+    or the mean of the two middle values."""
+    v = x[np.lexsort((x, binv))]
+    hi = starts + size // 2
+    lo = np.where(size % 2 == 1, hi, hi - 1)
+    return np.where(lo == hi, v[hi], (v[lo] + v[hi]) / 2)
 
 
 def _precise_and_lit(cand, snr, dim, shape, f):
@@ -277,7 +330,9 @@ def _precise_and_lit(cand, snr, dim, shape, f):
     var_c = [phase_var_from_snr(q) for q in qbar]
     keep = var_c[f] <= MAX_FINE_NOISE ** 2
     if dim.any():                        # lit after all? the 3 x 3 candidates' joint modulation test
-        lit = 0.5 * count * sum(qbar) > gammainccinv(len(snr) * count, DIM_FALSE_RATE)
+        # count is a whole number 1..9: the Gamma quantile from a 10-entry table, not per pixel
+        quantile = gammainccinv(len(snr) * np.arange(10, dtype=np.float32), DIM_FALSE_RATE)
+        lit = 0.5 * count * sum(qbar) > quantile[count.astype(np.intp)]
         keep &= ~dim | lit
     return keep, var_c
 
@@ -291,6 +346,8 @@ def _surfaces(cand, cf, shape):
     n = cand.size
     cf_full = np.zeros(H * W, np.float32)
     cf_full[cand] = cf
+    local = np.zeros(H * W, np.int64)            # flat index -> candidate number (no binary searches)
+    local[cand] = np.arange(n)
     alive = np.ones(n, bool)
     for _ in range(LOOP_ROUNDS):
         ok = np.zeros(H * W, bool)
@@ -298,8 +355,8 @@ def _surfaces(cand, cf, shape):
         ga, gb, step = _links(ok, cf_full, (H, W))
         if ga.size == 0:
             return None
-        a, b = np.searchsorted(cand, ga), np.searchsorted(cand, gb)
-        comp, ncomp, rel, bad = _relative_orders(n, a, b, step)
+        a, b = local[ga], local[gb]
+        comp, ncomp, rel, bad = _relative_orders(n, a, b, step, cand, W)
         if not bad.any():
             break
         alive[a[bad]] = False
@@ -311,32 +368,44 @@ def _surfaces(cand, cf, shape):
     return comp, ncomp, rel, a, b
 
 
-def _offset_costs(fine, cyc, var_c, per):
+def _offset_costs(fine, cyc, var_c, per, chunk: int = 2048):
     """(K_f, n) float32: ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2
-    v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest frequency."""
+    v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest frequency.
+
+    Computed ``chunk`` pixels at a time into one reused (K_f, chunk) buffer (it stays in the cache:
+    the same float32 operations as over the whole array, a third of the time)."""
     f = int(np.argmax(per))
     m = np.arange(int(round(per[f])), dtype=np.float32)[:, None]
     cost = np.zeros((m.size, fine.size), np.float32)
+    terms = []
     for i in range(per.size):
         if i == f:
             continue
         ratio = per[i] / per[f]
         # the phase each offset predicts, reduced to one cycle first (float32 keeps 1e-7 of a cycle)
         t0 = ratio * fine - cyc[i]
-        t = np.float32(ratio) * m + (t0 - np.rint(t0)).astype(np.float32)[None, :]
-        t -= np.rint(t)
-        t *= t
-        t *= (np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f]))[None, :]
-        cost += t
+        terms.append((np.float32(ratio) * m, (t0 - np.rint(t0)).astype(np.float32),
+                      np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f])))
+    buf = np.empty((m.size, min(chunk, fine.size)), np.float32)
+    rnd = np.empty_like(buf)
+    for j0 in range(0, fine.size, chunk):
+        j1 = min(fine.size, j0 + chunk)
+        t, r, out = buf[:, :j1 - j0], rnd[:, :j1 - j0], cost[:, j0:j1]
+        for mk, frac, w in terms:
+            np.add(mk, frac[None, j0:j1], out=t)
+            t -= np.rint(t, out=r)
+            t *= t
+            t *= w[None, j0:j1]
+            out += t
     return cost
 
 
 def _block_posterior(capped, binv, max_wrong):
-    """Per block: summed costs S (K_f, nb), best offset, probability that it is wrong (posterior
-    mass of the others, flat prior), size, and whether it decides (sure)."""
-    order = np.argsort(binv, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(binv[order]) != 0])
-    S = np.add.reduceat(capped[:, order], starts, axis=1)
+    """Per block (binv sorted: each block's pixels contiguous): summed costs S (K_f, nb), best
+    offset, probability that it is wrong (posterior mass of the others, flat prior), size, and
+    whether it decides (sure)."""
+    starts = np.flatnonzero(np.r_[True, np.diff(binv) != 0])
+    S = np.add.reduceat(capped, starts, axis=1)
     nb = S.shape[1]
     best = np.argmin(S, 0)
     sb = S[best, np.arange(nb)]
@@ -344,7 +413,7 @@ def _block_posterior(capped, binv, max_wrong):
     p = p / (1.0 + p)
     size = np.bincount(binv, minlength=nb)
     return dict(S=S, sb=sb, best=best, p=p, size=size, sure=(p <= max_wrong) & (size >= MIN_BLOCK),
-                order=order, starts=starts)
+                starts=starts)
 
 
 def _shifts_to_check(blk, max_wrong):
@@ -360,17 +429,18 @@ def _shifts_to_check(blk, max_wrong):
     return np.flatnonzero(near)
 
 
-def _agrees_with_sure(flat, x, x_sure, tol):
-    """False where a 4-neighbour decided on its own lies more than ``tol`` away from ``x``."""
-    H, W = x_sure.shape
+def _agrees_with_sure(flat, x, x_sure, shape, tol):
+    """False where a 4-neighbour decided on its own lies more than ``tol`` away from ``x`` (x_sure:
+    an (H, W) map or a function of flat indices, pooled_orders' doc)."""
+    H, W = shape
+    read = x_sure if callable(x_sure) else x_sure.ravel().__getitem__
     r, c = np.divmod(flat, W)
     ok = np.ones(flat.size, bool)
-    xs = x_sure.ravel()
     for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
         rr, cc = r + dr, c + dc
         inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
         nb = np.full(flat.size, np.nan, np.float32)
-        nb[inside] = xs[rr[inside] * W + cc[inside]]
+        nb[inside] = read(rr[inside] * W + cc[inside])
         with np.errstate(invalid="ignore"):
             ok &= ~(np.abs(nb - x) > tol)
     return ok

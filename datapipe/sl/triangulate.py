@@ -224,20 +224,43 @@ class Triangulator:
 
         Returns ``(depth, ill, outside)``: depth float32 (not NaN-filled), bool masks.
         """
-        xinf = self.coefficients["xinf"][r0:r1]
+        return self._evaluate(x, self.coefficients["xinf"][r0:r1], lambda name, out=None: self._lin(name, r0, r1, out),
+                              max_depth_slope, check_other_axis, out_depth)
+
+    def at(self, x, flat, *, max_depth_slope=None, check_other_axis=True):
+        """:meth:`slab` at the pixels ``flat`` (flat indices) only, for their coordinates ``x`` (1D
+        float32): the same float32 operations on each pixel, so the same values, without
+        evaluating the rest of their rows."""
+        W = self.cam_size[0]
+        r, c = np.divmod(np.asarray(flat), W)
+        co = self.coefficients
+
+        def lin(name, out=None):
+            row, col = co["lin"][name]
+            v = row[r, c] if col is None else np.add(row[0, c], col[r, 0])
+            if out is None:
+                return v
+            np.copyto(out, v)
+            return out
+
+        return self._evaluate(x, co["xinf"][r, c], lin, max_depth_slope, check_other_axis, None)
+
+    def _evaluate(self, x, xinf, lin, max_depth_slope, check_other_axis, out_depth):
+        """Depth, ill-conditioned and outside masks from coordinates x, the disparity origin xinf
+        and ``lin(name, out=None)``, the linear coefficient maps at the same pixels."""
         b0, b1, b2 = (np.float32(v) for v in self._beta)
         f32 = np.float32
         num = np.multiply(x, -b2)
         num += b0
         d = np.subtract(x, xinf)                          # disparity w.r.t. infinity
         num /= d                                          # inf/nan where d == 0: flagged below
-        a2 = self._lin("a2", r0, r1)
+        a2 = lin("a2")
         z = np.divide(num, a2, out=out_depth)
         zp = np.multiply(a2, z, out=a2)
         zp += b2                                          # depth in the projector frame
         # ill-conditioned: |dZ/dx| = Zp^2/|q| > cap  <=>  not (Zp^2 <= cap*|q|); NaN -> ill
         lhs = np.multiply(zp, zp, out=num)
-        rhs = self._lin("q", r0, r1)
+        rhs = lin("q")
         np.abs(rhs, out=rhs)
         if max_depth_slope is None:              # default: relative cap |dZ/dx| <= Z per pixel
             rhs *= z
@@ -248,7 +271,7 @@ class Triangulator:
         ok &= np.isfinite(z)
         outside = ~(zp > 0)
         if check_other_axis:
-            y = self._lin("a1", r0, r1, out=lhs)
+            y = lin("a1", out=lhs)
             y *= z
             y += b1
             y /= zp

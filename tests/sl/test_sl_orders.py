@@ -97,3 +97,19 @@ def test_confidence_of_pooled_pixels_is_calibrated():
                 low = min(low, float(res.confidence[pooled].min()))
     assert n_pooled > 20000
     assert n_wrong <= (1 - low) * n_pooled, (n_wrong, n_pooled, low)
+
+
+def test_block_medians_are_numpy_medians():
+    """The blocks' medians (placing each block in the projector's range) by one sort equal
+    ``np.median`` per block: odd and even sizes, ties, one-pixel blocks."""
+    from datapipe.sl.orders import _block_medians
+
+    rng = np.random.default_rng(3)
+    size = np.array([1, 2, 5, 8, 33, 64])
+    binv = np.repeat(np.arange(size.size), size)
+    x = np.round(rng.normal(600, 300, binv.size), 1)          # rounded: ties inside blocks
+    perm = rng.permutation(binv.size)
+    starts = np.r_[0, np.cumsum(size)[:-1]]
+    got = _block_medians(x[perm], binv[perm], starts, size)
+    want = [np.median(x[binv == k]) for k in range(size.size)]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)

@@ -135,3 +135,40 @@ def test_bad_geometry(rig, kw, exc, msg):
     with pytest.raises(exc, match=msg) as ei:
         Triangulator(**args)
     assert isinstance(ei.value, DataPipeError)
+
+
+@pytest.mark.parametrize("lens", [False, True])
+def test_at_pixels_matches_analytic_depth_and_the_slab(lens):
+    """`Triangulator.at` (the neighbour pass re-triangulates only the pixels it decided): depth of
+    analytic points within the round trip's float32 bound, and the same depth / flags as the
+    whole-row evaluation at those pixels (per-pixel coefficients too: a distorting lens' ideal
+    pixel coordinates, here the pixel grid moved by up to 2 px)."""
+    cam, proj = synth.make_rig(proj_offset=(0.15, 0.0, 0.0))
+    w, h = cam.size
+    pixels = None
+    if lens:
+        vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+        pixels = np.stack([uu + 2 * np.sin(vv / h), vv - 2 * np.cos(uu / w)], -1)
+    tri = Triangulator(cam.P, proj.P, cam.size, proj.size, pixels=pixels)
+    rng = np.random.default_rng(1)
+    u, v, z, Xc = _random_points(cam, 3000, rng)
+    if lens:                                 # the pixel sees the ray through its ideal coordinates
+        uv = pixels[v, u]
+        Xc = z[:, None] * (np.stack([uv[:, 0], uv[:, 1], np.ones(u.size)], -1) @ np.linalg.inv(cam.K).T)
+    Xw = Xc @ cam.T[:3, :3].T + cam.T[:3, 3]
+    x = proj.project(Xw)[0][:, 0]
+    flat = v * w + u
+    zz, ill, out = tri.at(x.astype(np.float32), flat)
+    zmap = np.full((h, w), np.nan)
+    zmap[v, u] = z
+    slope = tri.depth_slope(zmap)[v, u].astype(float)
+    bound = 3 * slope * np.spacing(np.abs(x).astype(np.float32)) + 4 * np.spacing(z.astype(np.float32))
+    assert np.all(np.abs(zz - z) <= bound)
+    xmap = np.full((h, w), 250.0, np.float32)
+    xmap[v, u] = x
+    zs, ills, outs = tri.slab(xmap, 0, h)
+    # the same IEEE float32 operations on the same operands: equal, not merely close (the decoder's
+    # "same outputs" rests on it)
+    np.testing.assert_array_equal(zz, zs[v, u])
+    np.testing.assert_array_equal(ill, ills[v, u])
+    np.testing.assert_array_equal(out, outs[v, u])
