@@ -129,7 +129,7 @@ class ProjectorConfig:
 
 @dataclass
 class StructuredLightConfig:
-    """Defaults chosen in benchmarks/results/sl_render.md (README: "Structured light defaults")."""
+    """Defaults chosen in benchmarks/results/sl_render.md (docs/SL_SETTINGS.md)."""
     enabled: bool = False
     periods: list[int] = _vec(1, 8, 64)   # fringe periods across the projector width, coarse -> fine;
                                           # finest ~5 camera px per period at 320 px wide (keep >= 4)

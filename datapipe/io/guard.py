@@ -15,7 +15,7 @@ an opened directory handle of the folder instead of a path (datapipe/io/files.py
 - the ledger records each file (path, size, sha256) before it is renamed into place.
 
 Linux only (dir_fd and /proc/self/fd): elsewhere `active_for` returns None and the writes use paths
-as before (README, data safety). Every refusal is an OutputStateError naming the path (exit 1).
+as before (docs/RUNNING.md, data safety). Every refusal is an OutputStateError naming the path (exit 1).
 """
 from __future__ import annotations
 

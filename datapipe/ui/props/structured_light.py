@@ -60,7 +60,7 @@ class DATAPIPE_PG_structured_light(PropertyGroup):
                               "from them (the same light as render, 7 images instead of 12, three per rendered layer when every material is grey); "
                               "auto: quadrature when a configured material is shiny (render with a projector gamma), else fast",
                               items=enum_choices(C.FRINGE_MODES), default=default(_L, "fringe_mode"))
-    samples: IntProperty(name="Samples", description="Render paths per camera pixel for each fringe image (point-sampled at 2x2 per pixel; 4 is enough once bounce light is blurred, see README)",
+    samples: IntProperty(name="Samples", description="Render paths per camera pixel for each fringe image (point-sampled at 2x2 per pixel; 4 is enough once bounce light is blurred, see docs/SL_SETTINGS.md)",
                          default=default(_L, "samples"), min=1, soft_max=4096)
     sensor: StringProperty(name="Sensor Model", description="Camera noise model preset (datapipe.sl.sensor: "
                            "shot and read noise, ADC bits, saturation), e.g. ideal, industrial",
