@@ -20,7 +20,7 @@ from datapipe.errors import DataPipeError
 from datapipe.io.exr import read_exr
 
 import fixtures_native as fx
-from distributed_helpers import killing, legacy, local_ray  # noqa: F401  (local_ray: a fixture)
+from distributed_helpers import assert_recorded_as_written, killing, legacy, local_ray  # noqa: F401  (local_ray: a fixture)
 
 TESTS = Path(__file__).resolve().parent
 FAKE_RUNNER = [sys.executable, str(TESTS / "fixtures_native.py"), "run"]
@@ -142,6 +142,17 @@ def test_ray_two_shards_match_one_process(tmp_path, local_ray):
     assert sorted(p.name for p in (out / "logs").iterdir()) == ["shard_0000_of_0002.log", "shard_0001_of_0002.log"]
     assert (out / "sheets" / "overview.png").is_file()                     # output.overview
     assert any("shard 1/2 done" in m for m in logs)
+    # the merged run's manifest, as a one-process run's: --force removes exactly the run's files
+    assert_recorded_as_written(out)
+    from datapipe.io import outdir
+    from tree_hash import hashes
+    user = {"logs/my_notes.txt": "notes", "sheets/overview_annotated.png": "mine", "_shards": "a file of mine"}
+    for rel, text in user.items():
+        (out / rel).write_text(text)
+    user_hashes = {k: hashes(out)[k] for k in user}
+    removed, kept = outdir.remove_run_files(outdir.check_force(out))      # before: refused (no manifest)
+    assert kept == sorted(user) and removed > 10
+    assert {k: v for k, v in hashes(out).items() if v != "dir"} == user_hashes
 
 
 def test_ray_killed_shard_is_retried_and_resumes(tmp_path, local_ray, monkeypatch):
@@ -159,6 +170,7 @@ def test_ray_killed_shard_is_retried_and_resumes(tmp_path, local_ray, monkeypatc
     # the preset asks for BOP: exported once, on the merged run, with the global image ids
     gt = json.loads((out / "bop" / "train_pbr" / "000000" / "scene_gt.json").read_text())
     assert sorted(int(k) for k in gt) == [0, 1, 2, 3]
+    assert_recorded_as_written(out)                         # the BOP files too, written through the guard
 
 
 def test_ray_failing_shard_is_reported_and_a_rerun_resumes(tmp_path, local_ray):
