@@ -9,11 +9,13 @@ Ray task that launches the headless runner in its own process (bpy is one per pr
 
 A failed shard (non-zero exit, killed process, lost worker) is retried up to `retries` times; with
 --resume the retry continues where the shard stopped, making only the scenes that are not complete.
-When every shard is done the shard folders are merged into DIR: scene folders are moved (their
-names and image ids are global already), models/ is copied, the preset's writers run on the merged
-scenes (datapipe.io.writers: output_dict.pickle rebuilt from the scenes' scene.json, BOP when the
-preset asks for it), run.json says the whole run is complete; then the overview sheet is drawn if
-the preset asks for it. Re-running the same command after a failure resumes: finished shards are
+When every shard is done the shard folders are merged into DIR: the scene folders' files are moved
+(their names and image ids are global already), models/ is copied, the preset's writers run on the
+merged scenes (datapipe.io.writers: output_dict.pickle rebuilt from the scenes' scene.json, BOP when
+the preset asks for it), run.json says the whole run is complete; then the overview sheet is drawn
+if the preset asks for it. Every write into DIR goes through its opened handle, never a link
+(datapipe/io/guard.py), and the merge records DIR's manifest as a one-process run does, so --force
+and --resume treat the merged run alike (docs/OUTPUT_SAFETY.md). Re-running the same command after a failure resumes: finished shards are
 kept.
 
 Shards run with output.formats = ["native"] (BOP is exported once, after the merge) and no overview.
