@@ -20,7 +20,7 @@ from datapipe.errors import DataPipeError
 from datapipe.io.exr import read_exr
 
 import fixtures_native as fx
-from distributed_helpers import killing, legacy, local_ray  # noqa: F401  (local_ray: a fixture)
+from distributed_helpers import assert_recorded_as_written, killing, legacy, local_ray  # noqa: F401  (local_ray: a fixture)
 
 TESTS = Path(__file__).resolve().parent
 FAKE_RUNNER = [sys.executable, str(TESTS / "fixtures_native.py"), "run"]
@@ -142,6 +142,17 @@ def test_ray_two_shards_match_one_process(tmp_path, local_ray):
     assert sorted(p.name for p in (out / "logs").iterdir()) == ["shard_0000_of_0002.log", "shard_0001_of_0002.log"]
     assert (out / "sheets" / "overview.png").is_file()                     # output.overview
     assert any("shard 1/2 done" in m for m in logs)
+    # the merged run's manifest, as a one-process run's: --force removes exactly the run's files
+    assert_recorded_as_written(out)
+    from datapipe.io import outdir
+    from tree_hash import hashes
+    user = {"logs/my_notes.txt": "notes", "sheets/overview_annotated.png": "mine", "_shards": "a file of mine"}
+    for rel, text in user.items():
+        (out / rel).write_text(text)
+    user_hashes = {k: hashes(out)[k] for k in user}
+    removed, kept = outdir.remove_run_files(outdir.check_force(out))      # before: refused (no manifest)
+    assert kept == sorted(user) and removed > 10
+    assert {k: v for k, v in hashes(out).items() if v != "dir"} == user_hashes
 
 
 def test_ray_killed_shard_is_retried_and_resumes(tmp_path, local_ray, monkeypatch):
@@ -159,6 +170,7 @@ def test_ray_killed_shard_is_retried_and_resumes(tmp_path, local_ray, monkeypatc
     # the preset asks for BOP: exported once, on the merged run, with the global image ids
     gt = json.loads((out / "bop" / "train_pbr" / "000000" / "scene_gt.json").read_text())
     assert sorted(int(k) for k in gt) == [0, 1, 2, 3]
+    assert_recorded_as_written(out)                         # the BOP files too, written through the guard
 
 
 def test_ray_failing_shard_is_reported_and_a_rerun_resumes(tmp_path, local_ray):
@@ -199,3 +211,154 @@ def test_a_left_behind_runner_is_stopped_but_nothing_else(tmp_path):
             if p.poll() is None:
                 p.kill()
             p.wait()
+
+
+# ------------------------------------------------------------------------------------------------
+# the merge writes through the output folder's guard and records a manifest (issue #33)
+#
+# Shards and a one-process run of the same preset made by the pipeline on the fake world (tests/
+# fake_world.py, no Blender), once per module; each test merges copies of the shards. Every test
+# here fails on the code before the change (the merge wrote by path and recorded nothing: --force
+# and --resume refused the merged folder, a link at the temporary file or models/ was followed into
+# the victim folder, a link at a scene or render folder gave an OSError, not a refusal naming it).
+
+from datapipe.engine.distributed import _copy_models, _place_scene  # noqa: E402  (wrapped below)
+from datapipe.engine.pipeline import Pipeline  # noqa: E402
+from datapipe.io import outdir  # noqa: E402
+from datapipe.io.writers import Writers  # noqa: E402
+from fake_world import BoxWorld  # noqa: E402
+from test_outdir_by_record import ISSUE_FORCE_FILES, user_files  # noqa: E402
+from test_outdir_safety import _victim  # noqa: E402
+from test_run_loop import small_cfg as loop_cfg  # noqa: E402
+from tree_hash import hashes  # noqa: E402
+
+
+def pipeline_run(cfg, out, **kw):
+    events = list(Pipeline(cfg, out, world=BoxWorld.factory(), **kw).run())
+    assert events[-1].stage == "done", events[-1]
+    return events
+
+
+@pytest.fixture(scope="module")
+def fake_shards(tmp_path_factory):
+    """(preset, one-process run, [shard 0/2, shard 1/2]) of test_run_loop's preset (5 renders in 4 scenes),
+    native only and symmetries given (no detection): about 0.3 s a run. BOP through the merge: the Ray tests."""
+    tmp = tmp_path_factory.mktemp("fake_shards")
+    cfg = loop_cfg(tmp, formats=("native",))
+    for e in cfg.objects:
+        e.symmetries = "none"
+    pipeline_run(cfg, tmp / "single")
+    shards = [tmp / f"shard{i}" for i in range(2)]
+    for i, d in enumerate(shards):
+        pipeline_run(cfg, d, shard=(i, 2))
+    return cfg, tmp / "single", shards
+
+
+def shard_copies(fake_shards, tmp_path) -> list[Path]:
+    _, _, shards = fake_shards
+    return [Path(shutil.copytree(d, tmp_path / d.name, symlinks=True)) for d in shards]
+
+
+def test_merged_run_has_the_manifest_of_a_one_process_run(fake_shards, tmp_path):
+    cfg, single, _ = fake_shards
+    merge_shards(shard_copies(fake_shards, tmp_path), tmp_path / "merged", config=cfg.to_dict())
+    merged = tmp_path / "merged"
+    # the same records (path, size, sha256; run.json and the COCO files by path), the same folders
+    assert (merged / "manifest.json").read_bytes() == (single / "manifest.json").read_bytes()
+    a, b = hashes(single, skip={"run.json"}), hashes(merged, skip={"run.json"})
+    assert a == b                                       # and the same bytes everywhere else
+
+
+def test_force_and_resume_treat_a_merged_run_as_a_one_process_run(fake_shards, tmp_path):
+    cfg, single, _ = fake_shards
+    out = tmp_path / "merged"
+    merge_shards(shard_copies(fake_shards, tmp_path), out, config=cfg.to_dict())
+    dataset = hashes(out, skip={"run.json"})
+    pipeline_run(cfg, out, resume=True)                 # before: refused (no record of run.json)
+    assert hashes(out, skip={"run.json"}) == dataset    # nothing to do, nothing rewritten
+    user = user_files(out, ISSUE_FORCE_FILES)
+    events = pipeline_run(cfg, out, force=True)         # before: refused (no DataPipe manifest)
+    assert {k: hashes(out).get(k) for k in user} == user
+    said = next(e.message for e in events if e.message.startswith("--force:"))
+    assert all(k in said for k in user), said
+    assert (hashes(out, skip={"run.json", "manifest.json", "sheets", "bop", *user})     # the user's folders
+            == hashes(single, skip={"run.json", "manifest.json"}))
+
+
+def _wrap(monkeypatch, name, before):
+    """Run `before(dst)` ahead of distributed.NAME(..., dst, ...) (the same last positional argument
+    before and after the change)."""
+    from datapipe.engine import distributed
+    orig = getattr(distributed, name)
+
+    def wrapped(*args, **kw):
+        before(Path(args[-1]))
+        return orig(*args, **kw)
+    monkeypatch.setattr(distributed, name, wrapped)
+
+
+def _plant(link: Path, target: Path) -> Path:
+    link.symlink_to(target)
+    return link
+
+
+def _plant_temporary(mp, out, victim):      # a link at run.json's temporary, made while BOP is written
+    orig, planted = Writers.catch_up, []
+
+    def catch_up(self, scene_dir, scene):
+        if not planted:
+            planted.append(_plant(out / "run.json.tmp", victim / "scene.json"))
+        return orig(self, scene_dir, scene)
+    mp.setattr(Writers, "catch_up", catch_up)
+    return planted
+
+
+def _plant_at(rel, target_of, *, real_scene=False):
+    def plant(mp, out, victim):
+        planted = []
+
+        def before(dst):
+            if not planted and (dst.name == rel.split("/")[0]):
+                if real_scene:                  # the scene folder made meanwhile, a link in it
+                    dst.mkdir()
+                planted.append(_plant(out / rel, target_of(victim)))
+        _wrap(mp, "_copy_models" if rel == "models" else "_place_scene", before)
+        return planted
+    return plant
+
+
+MID_MERGE = {
+    "temporary_file": _plant_temporary,
+    "models": _plant_at("models", lambda v: v),
+    "scene_folder": _plant_at("scene.0002", lambda v: v),
+    "render_folder": _plant_at("scene.0002/render.0001", lambda v: v / "sub", real_scene=True),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MID_MERGE))
+def test_a_link_made_during_the_merge_is_refused_and_never_followed(fake_shards, tmp_path, monkeypatch, case):
+    cfg, _, _ = fake_shards
+    shards = shard_copies(fake_shards, tmp_path)
+    victim = _victim(tmp_path)
+    victim_before = hashes(victim)
+    planted = MID_MERGE[case](monkeypatch, tmp_path / "merged", victim)
+    with pytest.raises(outdir.OutputStateError) as ei:
+        merge_shards(shards, tmp_path / "merged", config=cfg.to_dict())
+    msg = str(ei.value)
+    assert planted and str(planted[0]) in msg and "symbolic link" in msg and "fix:" in msg, msg
+    assert hashes(victim) == victim_before
+
+
+def test_a_link_in_a_shards_scene_is_refused_not_moved_into_the_run(fake_shards, tmp_path):
+    cfg, _, _ = fake_shards
+    shards = shard_copies(fake_shards, tmp_path)
+    victim = _victim(tmp_path)
+    victim_before = hashes(victim)
+    rdir = next(p for p in sorted(shards[1].glob("scene.*/render.0001")))
+    shutil.rmtree(rdir)
+    rdir.symlink_to(victim / "sub")
+    with pytest.raises(outdir.OutputStateError) as ei:
+        merge_shards(shards, tmp_path / "merged", config=cfg.to_dict())
+    assert str(rdir) in str(ei.value) and "symbolic link" in str(ei.value)
+    assert hashes(victim) == victim_before
+    assert not any(p.is_symlink() for p in (tmp_path / "merged").rglob("*"))

@@ -9,11 +9,13 @@ Ray task that launches the headless runner in its own process (bpy is one per pr
 
 A failed shard (non-zero exit, killed process, lost worker) is retried up to `retries` times; with
 --resume the retry continues where the shard stopped, making only the scenes that are not complete.
-When every shard is done the shard folders are merged into DIR: scene folders are moved (their
-names and image ids are global already), models/ is copied, the preset's writers run on the merged
-scenes (datapipe.io.writers: output_dict.pickle rebuilt from the scenes' scene.json, BOP when the
-preset asks for it), run.json says the whole run is complete; then the overview sheet is drawn if
-the preset asks for it. Re-running the same command after a failure resumes: finished shards are
+When every shard is done the shard folders are merged into DIR: the scene folders' files are moved
+(their names and image ids are global already), models/ is copied, the preset's writers run on the
+merged scenes (datapipe.io.writers: output_dict.pickle rebuilt from the scenes' scene.json, BOP when
+the preset asks for it), run.json says the whole run is complete; then the overview sheet is drawn
+if the preset asks for it. Every write into DIR goes through its opened handle, never a link
+(datapipe/io/guard.py), and the merge records DIR's manifest as a one-process run does, so --force
+and --resume treat the merged run alike (docs/OUTPUT_SAFETY.md). Re-running the same command after a failure resumes: finished shards are
 kept.
 
 Shards run with output.formats = ["native"] (BOP is exported once, after the merge) and no overview.
@@ -34,12 +36,13 @@ from pathlib import Path
 from typing import Callable, ContextManager, Iterable, Sequence
 
 from .. import config as config_mod
-from ..io import outdir
+from ..io import guard, outdir
 from ..io.bop_sensor import sensor_for_config
 from ..checks import gate
 from ..errors import DataPipeError
 from ..io import layout
-from ..io.files import copy_atomic, read_json, write_json_atomic
+from ..io.files import copy_atomic, make_dirs, open_append, read_json, write_json_atomic, write_text_atomic
+from ..io.manifest import Manifest
 from ..io.layout import config_identity, scene_name
 from ..io.writers import open_writers
 from ..draws.seeds import plan_scenes, shard_scenes
@@ -105,12 +108,20 @@ def run_shard(spec: dict) -> dict:
 
     spec: preset, shard_dir, shard (i, n), seed, scenes (names it must make), extra_args, runner,
     env (extra environment variables)."""
-    i, n = spec["shard"]
     shard_dir = Path(spec["shard_dir"])
-    shard_dir.mkdir(parents=True, exist_ok=True)
+    # the shard's folder, attempts, pid and log files: written through the handle of the run's output
+    # folder (OUT/_shards/... never through a link); not recorded, the merge drops them (the logs are
+    # recorded as it moves them into OUT/logs)
+    with guard.guarding(Path(spec.get("out") or shard_dir.parent.parent)):
+        return _run_shard(spec, shard_dir)
+
+
+def _run_shard(spec: dict, shard_dir: Path) -> dict:
+    i, n = spec["shard"]
+    make_dirs(shard_dir)
     attempts_file = shard_dir.parent / f"{shard_dir.name}{ATTEMPTS_FILE}"
     attempt = (int(attempts_file.read_text()) if attempts_file.is_file() else 0) + 1
-    attempts_file.write_text(str(attempt))
+    write_text_atomic(attempts_file, str(attempt))
     runner = list(spec.get("runner") or [sys.executable, "-m", "datapipe", "run"])
     cmd = runner + [spec["preset"], "--out", str(shard_dir), "--shard", f"{i}/{n}", "--seed", str(spec["seed"]),
                     "--resume", *spec.get("extra_args", ())]
@@ -118,14 +129,14 @@ def run_shard(spec: dict) -> dict:
     env = dict(os.environ)
     env.update({str(k): str(v) for k, v in (spec.get("env") or {}).items()})
     t0 = time.time()
-    with open(log_path, "a") as log:
-        log.write(f"\n=== attempt {attempt} on {socket.gethostname()}: {' '.join(cmd)}\n")
+    with open_append(log_path) as log:
+        log.write(f"\n=== attempt {attempt} on {socket.gethostname()}: {' '.join(cmd)}\n".encode())
         log.flush()
         pid_file = shard_dir.parent / f"{shard_dir.name}.pid"
         _stop_previous_runner(pid_file, shard_dir)
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=str(shard_dir.parent), env=env,
                                 preexec_fn=_die_with_parent if _PRCTL is not None else None)
-        pid_file.write_text(f"{socket.gethostname()} {proc.pid}\n")
+        write_text_atomic(pid_file, f"{socket.gethostname()} {proc.pid}\n")
         try:
             while proc.poll() is None:
                 time.sleep(0.05)
@@ -135,7 +146,7 @@ def run_shard(spec: dict) -> dict:
             raise
         finally:
             if proc.poll() is not None:
-                pid_file.unlink(missing_ok=True)
+                _remove_file(pid_file)
     rc = proc.returncode
     missing = [s for s in spec["scenes"] if not layout.scene_complete(shard_dir / s)]
     if rc != 0 or missing:
@@ -147,11 +158,27 @@ def run_shard(spec: dict) -> dict:
             "seconds": round(time.time() - t0, 3), "scenes": list(spec["scenes"])}
 
 
+def _remove_file(path: Path) -> None:
+    """Unlink `path`; inside a guarded output folder from its folder's handle (no link on the way)."""
+    g = guard.active_for(path)
+    if g is None:
+        path.unlink(missing_ok=True)
+        return
+    d = g.open_dir(g.rel(path.parent) or "", create=False)
+    try:
+        os.unlink(path.name, dir_fd=d)
+    except FileNotFoundError:
+        pass
+    finally:
+        os.close(d)
+
+
 # ------------------------------------------------------------------------------------------------
 # merging
 
 def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *, move: bool = True,
-                 config: dict | None = None, shard_reports: Iterable[dict] = ()) -> dict:
+                 config: dict | None = None, shard_reports: Iterable[dict] = (),
+                 manifest: Manifest | None = None) -> dict:
     """Merge shard output folders into one native run folder `out_dir`.
 
     Checks everything before touching anything: each shard is a DataPipe run of the same plan, seed
@@ -160,7 +187,13 @@ def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.Path
     moves (or copies, move=False) the scene folders, copies models/, runs the preset's writers on
     the merged scenes (output_dict.pickle rebuilt from the scenes' scene.json; BOP when the preset
     asks for it) and writes run.json for the whole run. `config`: the preset dict to record in
-    run.json (default: the shards' own)."""
+    run.json (default: the shards' own).
+
+    Every write into `out_dir` goes through its opened handle (datapipe/io/guard.py: a link put at a
+    scene or render folder or a temporary file at any moment is refused, naming it) and is recorded
+    in its manifest as a one-process run records it, so --force and --resume treat the merged run
+    alike. `manifest`: the run's (the Ray driver's, which holds the folder's lock); default: the
+    folder's own, under its lock for the merge."""
     shard_dirs = [Path(d) for d in shard_dirs]
     out = Path(out_dir)
     runs = _shard_runs(shard_dirs)
@@ -175,10 +208,32 @@ def merge_shards(shard_dirs: Sequence[str | os.PathLike], out_dir: str | os.Path
         raise DataPipeError("merge refused, nothing was moved:\n  - " + "\n  - ".join(problems))
 
     out.mkdir(parents=True, exist_ok=True)
+    if manifest is not None:
+        return _merge(manifest, shard_dirs, out, runs, owner, scene_docs, model_src, move, config, shard_reports)
+    with outdir.OutLock(out):
+        m = Manifest.load(out) or Manifest(out)
+        try:
+            return _merge(m, shard_dirs, out, runs, owner, scene_docs, model_src, move, config, shard_reports)
+        finally:
+            m.close()
+
+
+def _merge(m: Manifest, shard_dirs, out: Path, runs, owner, scene_docs, model_src, move, config, shard_reports):
+    """merge_shards' writes, once everything is checked: through OUT's handle, recorded in `m`."""
+    with m.writing() as g:
+        summary = _merge_writes(g, shard_dirs, out, runs, owner, scene_docs, model_src, move, config, shard_reports)
+        m.update()
+    return summary
+
+
+def _merge_writes(g, shard_dirs, out: Path, runs, owner, scene_docs, model_src, move, config, shard_reports):
+    ref = runs[0]
+    plan = [int(x) for x in ref["plan"]]
+    expected = [scene_name(i) for i in range(len(plan))]
     if model_src is not None:
-        _copy_models(model_src, out / layout.MODELS_DIR)
+        _copy_models(g, model_src, out / layout.MODELS_DIR)
     for s in expected:
-        _place_scene(owner[s] / s, out / s, move=move)
+        _place_scene(g, owner[s] / s, out / s, move=move)
     cfg_dict = json.loads(json.dumps(config if config is not None else ref.get("config", {})))
     cfg_dict.setdefault("output", {})["path"] = str(out.resolve())
     writers = open_writers(cfg_dict["output"], out, batch=True, sensor=sensor_for_config(cfg_dict))
@@ -314,17 +369,30 @@ def _model_source(shard_dirs: list[Path], problems: list[str]) -> Path | None:
     return model_src
 
 
-def _copy_models(src: Path, dst: Path) -> None:
+def _copy_models(g: guard.OutGuard | None, src: Path, dst: Path) -> None:
     if src.resolve() == dst.resolve():
         return
-    dst.mkdir(exist_ok=True)
+    if g is not None:
+        g.move_tree(src, g.rel(dst), copy=True)
+        return
+    dst.mkdir(exist_ok=True)                    # no dir_fd here: by path (docs/OUTPUT_SAFETY.md)
     for p in sorted(src.iterdir()):
         if p.is_file() and not p.name.endswith(".tmp"):
             copy_atomic(p, dst / p.name)
 
 
-def _place_scene(src: Path, dst: Path, *, move: bool) -> None:
+def _place_scene(g: guard.OutGuard | None, src: Path, dst: Path, *, move: bool) -> None:
+    """The scene folder `src` moved (or copied) to `dst` in OUT: file by file through OUT's handle
+    (each recorded, as a one-process run records its files), the emptied folder removed."""
     if src.resolve() == dst.resolve():
+        return
+    if g is not None:
+        g.move_tree(src, g.rel(dst), copy=not move)
+        if move:
+            try:
+                os.rmdir(src)
+            except OSError:
+                pass                            # a temporary left out: stays with its shard
         return
     if move:
         os.replace(src, dst) if _same_fs(src, dst.parent) else shutil.move(str(src), str(dst))
@@ -386,28 +454,39 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
     s = cfg.scene
     plan = plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
     shards_root = out / SHARDS_DIR
-    shards_root.mkdir(parents=True, exist_ok=True)
-    preset = _write_shard_preset(cfg, shards_root)
-    spec = {"preset": str(preset), "seed": cfg.scene.seed, "extra_args": list(extra_args),
-            "runner": list(runner) if runner else None, "env": dict(env or {})}
-    dirs, reports = _run_shards_on_ray(spec, plan, shards_root, address=address, num_shards=num_shards,
-                                       retries=retries, cpus_per_shard=cpus_per_shard,
-                                       gpus_per_shard=gpus_per_shard, say=say)
-    for d in dirs:
-        if not d.is_dir():
-            raise DataPipeError(f"{d} is not visible on this machine: the output folder must be on a filesystem "
-                                "that every Ray node mounts at the same path")
-    reports.sort(key=lambda r: r["shard"][0])
-    summary = merge_shards(dirs, out, move=True, config=cfg.to_dict(), shard_reports=reports)
-    _keep_logs(shards_root, out / "logs", drop_shards=not keep_shards)
-    summary["attempts"] = {r["shard"][0]: r["attempts"] for r in reports}
-    say(f"ray: merged {summary['scenes']} scenes ({summary['images']} renders) from {len(dirs)} shard(s) into {out}")
-    if "bop" in summary:
-        say(f"ray: BOP dataset written to {out / layout.BOP_DIR}")
-    from ..show import overview_after_run
-    overview = overview_after_run(out, cfg.output)
-    if overview is not None:
-        summary["overview"] = str(overview)
+    # one run per output folder (a one-process run into it is refused meanwhile); the driver's own
+    # files (OUT/_shards/) written through OUT's handle, not recorded: dropped after the merge
+    with outdir.OutLock(out), guard.guarding(out):
+        make_dirs(shards_root)
+        preset = _write_shard_preset(cfg, shards_root)
+        spec = {"preset": str(preset), "seed": cfg.scene.seed, "extra_args": list(extra_args),
+                "runner": list(runner) if runner else None, "env": dict(env or {}), "out": str(out)}
+        dirs, reports = _run_shards_on_ray(spec, plan, shards_root, address=address, num_shards=num_shards,
+                                           retries=retries, cpus_per_shard=cpus_per_shard,
+                                           gpus_per_shard=gpus_per_shard, say=say)
+        for d in dirs:
+            if not d.is_dir():
+                raise DataPipeError(f"{d} is not visible on this machine: the output folder must be on a filesystem "
+                                    "that every Ray node mounts at the same path")
+        reports.sort(key=lambda r: r["shard"][0])
+        manifest = Manifest.load(out) or Manifest(out)    # the merged run's, as a one-process run's
+        try:
+            summary = merge_shards(dirs, out, move=True, config=cfg.to_dict(), shard_reports=reports,
+                                   manifest=manifest)
+            with manifest.writing() as g:                  # the logs and the sheets are the run's files too
+                _keep_logs(g, shards_root, out / "logs", drop_shards=not keep_shards)
+                summary["attempts"] = {r["shard"][0]: r["attempts"] for r in reports}
+                say(f"ray: merged {summary['scenes']} scenes ({summary['images']} renders) from {len(dirs)} "
+                    f"shard(s) into {out}")
+                if "bop" in summary:
+                    say(f"ray: BOP dataset written to {out / layout.BOP_DIR}")
+                from ..show import overview_after_run
+                overview = overview_after_run(out, cfg.output)
+                if overview is not None:
+                    summary["overview"] = str(overview)
+                manifest.update()
+        finally:
+            manifest.close()
     return summary
 
 
@@ -491,14 +570,25 @@ def _wait_for_shards(ray, refs: dict, n: int, retries: int, say) -> tuple[list[d
     return reports, failures
 
 
-def _keep_logs(shards_root: Path, logs: Path, *, drop_shards: bool) -> None:
+def _keep_logs(g: guard.OutGuard | None, shards_root: Path, logs: Path, *, drop_shards: bool) -> None:
     """Move the shard logs (the runner's terminal output, SHARD.log, and Blender's own output,
-    SHARD/blender.log as SHARD.blender.log) into OUT/logs; drop the emptied shard folders unless
-    asked to keep them."""
-    logs.mkdir(exist_ok=True)
-    for p in sorted(shards_root.glob("*.log")):
-        os.replace(p, logs / p.name)
-    for p in sorted(shards_root.glob(f"*/{layout.BLENDER_LOG}")):
-        os.replace(p, logs / f"{p.parent.name}.{layout.BLENDER_LOG}")
+    SHARD/blender.log as SHARD.blender.log) into OUT/logs (through OUT's handle, recorded by path:
+    their bytes say when the run ran, as blender.log's); drop the emptied shard folders unless
+    asked to keep them (rmtree never follows a link)."""
+    moves = [(p.parent, p.name, p.name) for p in sorted(shards_root.glob("*.log"))]
+    moves += [(p.parent, p.name, f"{p.parent.name}.{layout.BLENDER_LOG}")
+              for p in sorted(shards_root.glob(f"*/{layout.BLENDER_LOG}"))]
+    if g is None:                               # no dir_fd here: by path (docs/OUTPUT_SAFETY.md)
+        logs.mkdir(exist_ok=True)
+        for folder, name, dst in moves:
+            os.replace(folder / name, logs / dst)
+    else:
+        g.make_dirs(logs)
+        for folder, name, dst in moves:
+            src = g.open_source(folder)
+            try:
+                g.move_in(src, name, f"{g.rel(logs)}/{dst}", by_path=True)
+            finally:
+                os.close(src)
     if drop_shards:
         shutil.rmtree(shards_root, ignore_errors=True)

@@ -253,6 +253,127 @@ class OutGuard:
         finally:
             os.close(d)
 
+    def open_source(self, path: str | os.PathLike) -> int:
+        """A handle of a folder files are moved in from (a shard's scene folder): inside OUT entered
+        as every folder of OUT (no link on the way), elsewhere opened at the path given. The caller
+        closes it."""
+        rel = self.rel(path)
+        if rel is not None:
+            return self.open_dir(rel, create=False)
+        return os.open(path, _DIR_FLAGS & ~os.O_NOFOLLOW)
+
+    def move_in(self, src_dir: int, name: str, rel: str, *, copy: bool = False, by_path: bool = False) -> None:
+        """Put the regular file `name` of the opened folder `src_dir` at OUT/`rel`, never through a
+        link: the source opened without following one, the destination folder entered as for an
+        atomic write and checked as its destination is; recorded (path, size, SHA-256, or by path
+        only when `by_path`: a log the run appended to) before it is renamed into place (copied
+        through a temporary beside it when `copy` or on another filesystem)."""
+        folder, _, dname = rel.rpartition("/")
+        src_rel = name
+        try:
+            fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=src_dir)
+        except OSError as e:
+            if e.errno == errno.ELOOP:
+                raise OutputStateError(
+                    f"output: {self._source_path(src_dir, src_rel)} is a symbolic link (to "
+                    f"{os.readlink(name, dir_fd=src_dir)}) where a file of the run was to be moved into {self.out}; "
+                    "DataPipe never moves or follows a link (fix: remove the link, make that scene again with "
+                    "--resume, then run again)") from None
+            raise
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                raise OutputStateError(f"output: {self._source_path(src_dir, src_rel)} is not a regular file "
+                                       "(fix: remove it, then run again)")
+            if copy:
+                self._copy_in(fd, rel, by_path)
+                return
+            d = self.open_dir(folder, create=True)
+            try:
+                self.check_destination(d, dname, rel)
+                self._record(fd, rel, st, by_path)
+                try:
+                    os.replace(name, dname, src_dir_fd=src_dir, dst_dir_fd=d)
+                except OSError as e:
+                    if e.errno != errno.EXDEV:
+                        raise
+                    self._copy_in(fd, rel, by_path)
+                    self._remove_if_same(src_dir, name, fd)
+                    return
+                now = os.stat(dname, dir_fd=d, follow_symlinks=False)
+                if (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):      # the source name was swapped meanwhile
+                    raise not_ours_refusal(self.out, rel)
+            finally:
+                os.close(d)
+        finally:
+            os.close(fd)
+
+    def move_tree(self, src: str | os.PathLike, rel: str, *, copy: bool = False) -> None:
+        """Every file under folder `src` put at the same place under OUT/`rel` by `move_in` (its
+        temporaries `*.tmp` left out), folders made as a write makes them; a moved-from folder is
+        removed once empty. A link met on either side is refused, naming it."""
+        fd = self.open_source(src)
+        try:
+            self._move_entries(fd, rel, copy)
+        finally:
+            os.close(fd)
+
+    def _move_entries(self, src_dir: int, rel: str, copy: bool) -> None:
+        self.make_dirs(self.out / rel)
+        with os.scandir(src_dir) as it:
+            entries = sorted((e.name, e.is_dir(follow_symlinks=False)) for e in it)
+        for name, is_dir in entries:
+            if not is_dir:
+                if not name.endswith(".tmp"):
+                    self.move_in(src_dir, name, f"{rel}/{name}", copy=copy)
+                continue
+            try:
+                sub = os.open(name, _DIR_FLAGS, dir_fd=src_dir)
+            except OSError as e:
+                if e.errno in (errno.ELOOP, errno.ENOTDIR):
+                    raise OutputStateError(
+                        f"output: {self._source_path(src_dir, name)} is no longer a folder (a symbolic link or a "
+                        f"file was put there) while its files were moved into {self.out} (fix: remove it, make "
+                        "that scene again with --resume, then run again)") from None
+                raise
+            try:
+                self._move_entries(sub, f"{rel}/{name}", copy)
+            finally:
+                os.close(sub)
+            if not copy:
+                try:
+                    os.rmdir(name, dir_fd=src_dir)
+                except OSError:
+                    pass                            # not empty (a temporary left out): stays with its shard
+
+    def _copy_in(self, src_fd: int, rel: str, by_path: bool) -> None:
+        import shutil
+        name = rel.rpartition("/")[2]
+        with self.atomic(self.out / rel, name + ".tmp") as through, open(through, "wb") as f:
+            os.lseek(src_fd, 0, os.SEEK_SET)
+            with os.fdopen(os.dup(src_fd), "rb") as src:
+                shutil.copyfileobj(src, f)
+        if by_path and self.ledger is not None:
+            self.ledger.record_append(rel)
+
+    def _record(self, fd: int, rel: str, st: os.stat_result, by_path: bool) -> None:
+        if self.ledger is None:
+            return
+        if by_path:
+            self.ledger.record_append(rel)
+            return
+        os.lseek(fd, 0, os.SEEK_SET)
+        with os.fdopen(os.dup(fd), "rb") as f:
+            digest = hashlib.file_digest(f, "sha256").hexdigest()
+        self.ledger.record_file(rel, st, digest)
+
+    @staticmethod
+    def _source_path(src_dir: int, name: str) -> str:
+        try:
+            return os.path.join(os.readlink(f"/proc/self/fd/{src_dir}"), name)
+        except OSError:
+            return name
+
     def scratch_dir(self) -> Path:
         """A private folder inside OUT for files another program writes by path (Blender's pass
         files), as `/proc/self/fd/N`: reached through its handle whatever is put at its name."""

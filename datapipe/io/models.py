@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import DataPipeError
 from . import layout
-from .files import atomic_path, write_json_lines_atomic
+from .files import atomic_path, make_dirs, write_json_lines_atomic
 from .input_files import MAX_MESH_BYTES, read_regular
 
 def write_ply(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray,
@@ -179,7 +179,7 @@ def write_models(models_dir: str | os.PathLike, meshes: Mapping[int, tuple], *, 
     [...], "symmetries_continuous": [...]}} (mm, io/symmetry.py) added to the object's entry.
     Returns the models_info dict."""
     models_dir = Path(models_dir)
-    models_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(models_dir)              # in a run's output folder: never through a link, and recorded
     info = {}
     for obj_id in sorted(meshes, key=int):
         verts_m, faces, normals = (tuple(meshes[obj_id]) + (None, None))[:3]

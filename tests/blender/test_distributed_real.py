@@ -14,7 +14,7 @@ from datapipe import config as config_mod
 from datapipe.engine.distributed import run_distributed
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from distributed_helpers import killing, legacy, local_ray  # noqa: E402,F401  (local_ray: a fixture)
+from distributed_helpers import assert_recorded_as_written, killing, legacy, local_ray  # noqa: E402,F401
 
 REAL_RUNNER = [sys.executable, "-m", "datapipe", "run"]
 
@@ -59,3 +59,4 @@ def test_ray_real_pipeline_two_shards_with_a_kill_match_one_process(tmp_path, lo
     for i in range(2):                         # with the runner's log, which has none of it
         assert "render           | Saved: '" in (logs / f"shard_000{i}_of_0002.blender.log").read_text()
         assert "Saved: '" not in (logs / f"shard_000{i}_of_0002.log").read_text()
+    assert_recorded_as_written(tmp_path / "out")     # the merged run's manifest, as a one-process run's
