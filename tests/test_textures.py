@@ -28,7 +28,7 @@ def _fields(cfg) -> dict:
 # texture sets by file name
 
 def test_texture_sets_recognise_the_cc0_names(tmp_path):
-    """ambientCG / Poly Haven style names: colour, roughness and normal grouped by set; OpenGL's
+    """Names as CC0 PBR sets commonly spell them: colour, roughness and normal grouped by set; OpenGL's
     normal preferred over DirectX's; a set without a colour map and non-images are no set."""
     for f in ("Wood051_1K_Color.jpg", "Wood051_1K_Roughness.jpg", "Wood051_1K_NormalDX.jpg",
               "Wood051_1K_NormalGL.jpg", "Wood051_1K_Displacement.jpg",

@@ -3,12 +3,16 @@ headers checked before any work, and one map's drawn rotation and strength. No b
 builds the world from a draw).
 
 Headers, read without decoding the pixels:
-- Radiance RGBE (.hdr): the first line is the "#?RADIANCE" (or "#?RGBE") identifier, header lines
-  follow up to an empty line, then the resolution line "-Y <height> +X <width>" (Greg Ward, "Real
-  Pixels", Graphics Gems II, 1991; the format as radiance-online.org documents it in "The RADIANCE
-  Picture File Format": "-Y N +X M" is the standard orientation, other sign/axis orders are allowed);
-- OpenEXR (.exr): the magic number 20000630 (bytes 76 2f 31 01, openexr.com "OpenEXR File Layout":
-  "The magic number, of type int, is always 20000630"), then the header the OpenEXR package reads.
+- Radiance RGBE (.hdr): Wikipedia, "Radiance (software)", section "HDR image format": "The file
+  starts with the signature '#?RADIANCE'", then "a blank line signifying the end of the header. A
+  single line describes the resolution and pixel order. As produced by the Radiance tools this
+  always takes the form of '-Y height +X width'" (other sign/axis orders are accepted here too: the
+  format's own reference is Greg Ward's radsite.lbl.gov/radiance/refer/filefmts.pdf, "Picture");
+  "#?RGBE" is accepted as well (fileformats.archiveteam.org/wiki/Radiance_HDR: "some apparently
+  begin with "#?RGBE" instead", e.g. files of other tools);
+- OpenEXR (.exr): github.com/AcademySoftwareFoundation/openexr, src/lib/OpenEXR/ImfVersion.h: "The
+  MAGIC number is stored in the first four bytes of every OpenEXR image file", MAGIC = 20000630
+  (bytes 76 2f 31 01, little-endian); then the header, which the OpenEXR package reads.
 """
 from __future__ import annotations
 
