@@ -5,6 +5,8 @@
 - A textured floor is the same material for the RGB and the fringes: the fringe offset's ratio to
   the untextured floor's is the checker's albedo ratio, and the RGB shows the same squares.
 """
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -99,3 +101,91 @@ def test_textured_floor_is_one_material_for_rgb_and_fringes(tmp_path):
     thr = 0.5 * (np.median(r[bright]) + np.median(r[dark]))
     agree = np.mean((r[bright | dark] > thr) == bright[bright | dark])
     assert agree > 0.9, agree
+
+
+def _run_config(tmp_path) -> C.Config:
+    """1 scene x 2 renders at 48x36, every look option on: textures on all targets from all kinds
+    (one image set: a pure red colour map), lighting per render from a folder of two skies."""
+    sets = tmp_path / "sets" / "paint"
+    sets.mkdir(parents=True, exist_ok=True)
+    red = np.zeros((8, 8, 3), np.uint8)
+    red[..., 2] = 255                                          # BGR: pure red
+    assert cv2.imwrite(str(sets / "paint_Color.png"), red)
+    assert cv2.imwrite(str(sets / "paint_Roughness.png"), np.full((8, 8), 128, np.uint8))
+    skies = tmp_path / "skies"
+    skies.mkdir(exist_ok=True)
+    for name, v in (("blue.hdr", (1.0, 0.5, 0.2)), ("warm.exr", None)):
+        if v is not None:
+            assert cv2.imwrite(str(skies / name), np.tile(np.float32(v), (8, 16, 1)))
+    from datapipe.io.exr import write_exr
+    write_exr(skies / "warm.exr", {c: np.full((8, 16), x, np.float32) for c, x in zip("RGB", (1.0, 0.6, 0.3))})
+    cfg = C.default_config()
+    cfg.scene.num_renders = 2
+    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 2
+    cfg.scene.textures = C.TexturesConfig(targets=["bin", "floor", "parts"], kinds=[*C.TEXTURE_KINDS],
+                                          image_folder=str(tmp_path / "sets"))
+    cfg.lighting = C.LightingConfig(per_render=True, environment=str(skies))
+    cfg.camera.resolution = [48, 36]
+    cfg.render.samples = 2
+    cfg.render.threads = 2
+    cfg.render.outputs = ["rgb", "depth", "mask"]
+    cfg.structured_light.enabled = False
+    cfg.output.legacy_pickle = cfg.output.overview = False
+    cfg.simulation.max_frames = 60
+    for o in cfg.objects:
+        o.min_instances, o.max_instances = 2, 2
+    return cfg.validate()
+
+
+def test_a_run_records_its_textures_and_light_per_render_and_is_made_again_alike(tmp_path):
+    """scene.json: per scene the bin, floor and one texture per part (every kind of the list, the
+    image set by name), no scene lighting; per render its own lighting draw with a map of the
+    folder. Made again from the seed (a second run), every record and image is the same."""
+    import json
+    from datapipe.engine.pipeline import Pipeline
+
+    def run(out):
+        events = list(Pipeline(_run_config(tmp_path), out).run())
+        assert events[-1].stage == "done", events[-1]
+        return [json.loads(p.read_text()) for p in sorted(out.glob("scene.*/scene.json"))]
+
+    scenes = run(tmp_path / "a")
+    assert len(scenes) == 1
+    kinds, maps = set(), set()
+    for s in scenes:
+        t = s["textures"]
+        assert set(t) == {"bin", "floor", "parts"} and len(t["parts"]) == len(s["objects"])
+        kinds |= {d["kind"] for d in [t["bin"], t["floor"], *t["parts"]]}
+        assert all(d["set"] == "paint/paint" for d in [t["bin"], t["floor"], *t["parts"]] if d["kind"] == "image")
+        assert "lighting" not in s
+        lights = [r["lighting"] for r in s["renders"]]
+        assert lights[0]["key_power"] != lights[1]["key_power"]
+        maps |= {Path(li["environment"]["map"]).name for li in lights}
+    assert len(kinds) >= 3 and maps <= {"blue.hdr", "warm.exr"}
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    again = run(tmp_path / "b")
+    for s, t in zip(scenes, again):
+        assert s["textures"] == t["textures"] and [r["lighting"] for r in s["renders"]] == \
+            [r["lighting"] for r in t["renders"]]
+    for f in sorted((tmp_path / "a").glob("scene.*/render.*/rgb.png")):
+        same = tmp_path / "b" / f.relative_to(tmp_path / "a")
+        assert np.array_equal(cv2.imread(str(f)), cv2.imread(str(same))), f
+
+
+def test_an_image_set_colours_the_floor(tmp_path):
+    """A set whose colour map is pure red on the floor: the floor's RGB turns red (red channel
+    well above green and blue), where the untextured grey floor is grey."""
+    cfg = _run_config(tmp_path)
+    blend, ren, slc, T = _build("off")
+    grey = ren.render(tmp_path / "g", SEED).rgb.astype(np.float64)
+    from datapipe.draws.textures import texture_sets
+    s = texture_sets(tmp_path / "sets")[0]
+    assert s["roughness"].endswith("paint_Roughness.png")
+    blend.set_textures({"floor": {"kind": "image", "colors": [[1, 1, 1], [0, 0, 0]], "contrast": 0.0,
+                                  "feature_size": 0.1, "param": 0.0, "set": s}})
+    red = ren.render(tmp_path / "r", SEED).rgb.astype(np.float64)
+    g = np.median(grey.reshape(-1, 3), axis=0)
+    r = np.median(red.reshape(-1, 3), axis=0)
+    assert abs(g[0] - g[1]) < 10 and abs(g[1] - g[2]) < 10                 # grey: R = G = B
+    assert r[0] > 3 * max(r[1], r[2]) + 10, r                              # red
+    assert cfg.scene.textures.targets
