@@ -112,6 +112,15 @@ def test_texture_folder_without_images_is_refused_naming_the_field(tmp_path):
                                                         image_folder=str(tmp_path)))   # never drawn
     p = _fields(_cfg(targets=["bin"], kinds=["image"], image_folder=str(tmp_path / "nope")))
     assert "is not a folder" in p["scene.textures.image_folder"].message
+    (tmp_path / "wood_Color.png").write_text("not a PNG")          # named like a map, not an image
+    p = _fields(_cfg(targets=["bin"], kinds=["image"], image_folder=str(tmp_path)))["scene.textures.image_folder"]
+    assert "wood_Color.png is named like a texture map but is not an image" in p.message
+    assert cv2.imwrite(str(tmp_path / "wood_Color.png"), np.zeros((4, 4, 3), np.uint8))
+    assert "scene.textures.image_folder" in _fields(_cfg(targets=["bin"], kinds=["image"],
+                                                        image_folder=str(tmp_path)))   # the empty roughness map
+    assert cv2.imwrite(str(tmp_path / "wood_Roughness.png"), np.zeros((4, 4), np.uint8))
+    assert "scene.textures.image_folder" not in _fields(_cfg(targets=["bin"], kinds=["image"],
+                                                            image_folder=str(tmp_path)))
 
 
 def test_unknown_targets_kinds_and_ranges_are_refused():

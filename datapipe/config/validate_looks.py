@@ -60,8 +60,14 @@ def _check_textures(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
         elif not os.path.isdir(folder):
             ck.add(f"{p}.image_folder", f"{folder} is not a folder", "give the folder that holds the texture images")
         else:
-            from ..draws.textures import texture_sets
-            if not texture_sets(folder):
+            from ..draws.textures import texture_sets, unreadable_maps
+            sets = texture_sets(folder)
+            bad_maps = unreadable_maps(sets)
+            if bad_maps:
+                ck.add(f"{p}.image_folder", f"{bad_maps[0]} is named like a texture map but is not an image "
+                       f"OpenCV can read ({len(bad_maps)} such file(s))",
+                       "replace or remove it (PNG, JPEG, TIFF, EXR, HDR, BMP, TGA are read)")
+            elif not sets:
                 ck.add(f"{p}.image_folder", f"{folder} holds no texture image with a colour map in its name "
                        "(e.g. wood_Color.png, metal_basecolor.jpg, rock_albedo.png)",
                        "put colour maps there, named with color/albedo/basecolor/diffuse "

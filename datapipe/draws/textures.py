@@ -55,26 +55,32 @@ def _map_of(stem: str) -> tuple[str, str] | None:
     return None
 
 
-def texture_sets(folder: str | os.PathLike) -> list[dict]:
-    """The texture sets under `folder` (searched to any depth, sorted by path so that the draws
-    do not depend on the file system's order): [{"name", "color", "roughness"?, "normal"?}, ...]."""
-    groups: dict[tuple[str, str], dict] = {}
+def _files(folder):
+    """(folder, name) of the files under `folder`, sorted, at most MAX_SET_FILES of them."""
     seen = 0
     for root, dirs, files in os.walk(folder):
         dirs.sort()
         for f in sorted(files):
             seen += 1
             if seen > MAX_SET_FILES:
-                break
-            p = Path(root) / f
-            if p.suffix.lower() not in IMAGE_SUFFIXES:
-                continue
-            found = _map_of(p.stem)
-            if found is None:
-                continue
-            kind, name = found
-            g = groups.setdefault((root, name.lower()), {"name": f"{Path(root).name}/{name}"})
-            g.setdefault(kind, str(p))
+                return
+            yield root, f
+
+
+def texture_sets(folder: str | os.PathLike) -> list[dict]:
+    """The texture sets under `folder` (searched to any depth, sorted by path so that the draws
+    do not depend on the file system's order): [{"name", "color", "roughness"?, "normal"?}, ...]."""
+    groups: dict[tuple[str, str], dict] = {}
+    for root, f in _files(folder):
+        p = Path(root) / f
+        if p.suffix.lower() not in IMAGE_SUFFIXES:
+            continue
+        found = _map_of(p.stem)
+        if found is None:
+            continue
+        kind, name = found
+        g = groups.setdefault((root, name.lower()), {"name": f"{Path(root).name}/{name}"})
+        g.setdefault(kind, str(p))
     sets = []
     for key in sorted(groups):
         g = groups[key]
@@ -123,6 +129,13 @@ def draw_parts(tex, rng: np.random.Generator, n_parts: int, sets: list[dict] | N
     if "parts" not in tex.targets:
         return []
     return [draw_one(tex, rng, sets or []) for _ in range(int(n_parts))]
+
+
+def unreadable_maps(sets: list[dict]) -> list[str]:
+    """The maps of `sets` whose first bytes no image decoder of OpenCV recognises (cv2.haveImageReader
+    reads the signature only): a file named like a map that is not an image."""
+    import cv2
+    return [s[k] for s in sets for k in ("color", "roughness", "normal") if k in s and not cv2.haveImageReader(s[k])]
 
 
 def record(draw: dict) -> dict:
