@@ -18,9 +18,9 @@ stream (before the drop), the part instances in the order the simulation kept th
 Texture sets (`image_folder`): image files are grouped by folder and by the name before their map
 word; a map word (case-insensitive, separated by '_', '-', '.' or a space) says which map a file is
 (the words CC0 PBR sets commonly put in their file names, e.g. Wood051_1K_Color.jpg or
-metal_plate_diff_1k.png: an assumption from such names, there is no standard): colour ``color``, ``colour``, ``albedo``, ``basecolor``,
-``diffuse``, ``diff``, ``col``; roughness ``roughness``, ``rough``; normal ``normal``, ``nor``,
-``nrm``, with ``normalgl``/``nor_gl`` preferred over the DirectX ``normaldx``/``nor_dx`` (Blender's
+metal_plate_diff_1k.png: an assumption from such names, there is no standard): colour ``color``,
+``colour``, ``albedo``, ``basecolor``, ``diffuse``, ``diff``, ``col``; roughness ``roughness``,
+``rough``; normal ``normal``, ``nor``, ``nrm``, with ``normalgl``/``nor_gl`` preferred over the DirectX ``normaldx``/``nor_dx`` (Blender's
 Normal Map node expects OpenGL's green-up convention; a DirectX map's green would be inverted).
 A set needs a colour map; the other maps are optional.
 """

@@ -226,6 +226,7 @@ def test_textures_and_environment_survive_the_sidebar(ui_registered, tmp_path):
     assert t.contrast == pytest.approx([0.25, 0.5]) and t.albedo == pytest.approx([0.5, 0.75])
     li = back.lighting
     assert li.per_render is True and li.environment == str(tmp_path / "sky.hdr")
-    assert li.environment_strength == pytest.approx([0.5, 2.0]) and li.environment_rotation_deg == pytest.approx([0, 90])
+    assert li.environment_strength == pytest.approx([0.5, 2.0])
+    assert li.environment_rotation_deg == pytest.approx([0, 90])
     config_to_props(C.default_config(), ui_registered)               # off again: no targets, no lighting
     assert props_to_config(ui_registered).scene.textures.targets == []
