@@ -20,9 +20,9 @@ word; a map word (case-insensitive, separated by '_', '-', '.' or a space) says 
 (the words CC0 PBR sets commonly put in their file names, e.g. Wood051_1K_Color.jpg or
 metal_plate_diff_1k.png: an assumption from such names, there is no standard): colour ``color``,
 ``colour``, ``albedo``, ``basecolor``, ``diffuse``, ``diff``, ``col``; roughness ``roughness``,
-``rough``; normal ``normal``, ``nor``, ``nrm``, with ``normalgl``/``nor_gl`` preferred over the DirectX ``normaldx``/``nor_dx`` (Blender's
-Normal Map node expects OpenGL's green-up convention; a DirectX map's green would be inverted).
-A set needs a colour map; the other maps are optional.
+``rough``; normal ``normal``, ``nor``, ``nrm``, with ``normalgl``/``nor_gl`` preferred over the
+DirectX ``normaldx``/``nor_dx`` (Blender's Normal Map node expects OpenGL's green-up convention; a
+DirectX map's green would be inverted). A set needs a colour map; the other maps are optional.
 """
 from __future__ import annotations
 
