@@ -33,10 +33,12 @@ def test_texture_sets_recognise_the_cc0_names(tmp_path):
     for f in ("Wood051_1K_Color.jpg", "Wood051_1K_Roughness.jpg", "Wood051_1K_NormalDX.jpg",
               "Wood051_1K_NormalGL.jpg", "Wood051_1K_Displacement.jpg",
               "metal_plate_diff_1k.png", "metal_plate_rough_1k.png", "metal_plate_nor_dx_1k.png",
-              "lonely_Roughness.png", "notes_color.txt"):
+              "lonely_Roughness.png", "notes_color.txt",
+              "rough_concrete_diff_1k.png", "rough_concrete_rough_1k.png"):
         (tmp_path / f).write_bytes(b"")
     sets = {s["name"].split("/")[1]: s for s in textures.texture_sets(tmp_path)}
-    assert set(sets) == {"Wood051_1K", "metal_plate"}
+    assert set(sets) == {"Wood051_1K", "metal_plate", "rough_concrete"}
+    assert sets["rough_concrete"]["roughness"].endswith("rough_concrete_rough_1k.png")
     w, m = sets["Wood051_1K"], sets["metal_plate"]
     assert w["color"].endswith("Wood051_1K_Color.jpg") and w["roughness"].endswith("_Roughness.jpg")
     assert w["normal"].endswith("NormalGL.jpg") and "normal_dx_green" not in w

@@ -49,9 +49,9 @@ def _map_of(stem: str) -> tuple[str, str] | None:
     low = stem.lower()
     for kind, words in _MAP_WORDS.items():
         for w in words:
-            m = re.search(rf"(^|[_\-. ]){re.escape(w)}([_\-. ]|$)", low)
-            if m:
-                return kind, stem[:m.start()] or stem
+            found = list(re.finditer(rf"(?:^|[_\-. ]){re.escape(w)}(?=[_\-. ]|$)", low))
+            if found:                  # the last one: "rough_concrete_rough_1k" is set "rough_concrete"
+                return kind, stem[:found[-1].start()] or stem
     return None
 
 
