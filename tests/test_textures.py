@@ -117,6 +117,11 @@ def test_texture_folder_without_images_is_refused_naming_the_field(tmp_path):
     (tmp_path / "wood_Color.png").write_text("not a PNG")          # named like a map, not an image
     p = _fields(_cfg(targets=["bin"], kinds=["image"], image_folder=str(tmp_path)))["scene.textures.image_folder"]
     assert "wood_Color.png is named like a texture map but is not an image" in p.message
+    import os
+    (tmp_path / "wood_Color.png").unlink()
+    os.mkfifo(tmp_path / "wood_Color.png")                        # would block a read: refused unread
+    assert "scene.textures.image_folder" in _fields(_cfg(targets=["bin"], kinds=["image"], image_folder=str(tmp_path)))
+    (tmp_path / "wood_Color.png").unlink()
     assert cv2.imwrite(str(tmp_path / "wood_Color.png"), np.zeros((4, 4, 3), np.uint8))
     assert "scene.textures.image_folder" in _fields(_cfg(targets=["bin"], kinds=["image"],
                                                         image_folder=str(tmp_path)))   # the empty roughness map
@@ -162,6 +167,9 @@ def test_unreadable_environment_maps_are_refused_before_any_work(tmp_path):
                       ("sky.png", "not an .hdr or .exr")):
         p = _fields(_env_cfg(tmp_path / name))["lighting.environment"]
         assert why in p.message and "not a readable HDR/EXR" in p.message and ".exr" in p.fix, name
+    import os
+    os.mkfifo(tmp_path / "pipe.hdr")                              # would block a read: refused unread
+    assert "not a regular file" in _fields(_env_cfg(tmp_path / "pipe.hdr"))["lighting.environment"].message
     (tmp_path / "empty").mkdir()
     p = _fields(_env_cfg(tmp_path / "empty"))["lighting.environment"]
     assert "holds no .hdr or .exr" in p.message

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,8 @@ def header_problem(path: str | os.PathLike) -> str | None:
     if suffix not in SUFFIXES:
         return f"{p.name} is not an .hdr or .exr file"
     try:
+        if not stat.S_ISREG(os.stat(p).st_mode):     # a FIFO or device would block or never end
+            return f"{p.name} is not a regular file"
         with open(p, "rb") as f:
             head = f.read(_HDR_HEADER_MAX)
     except OSError as e:

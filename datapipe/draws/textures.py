@@ -29,6 +29,7 @@ from __future__ import annotations
 import colorsys
 import os
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -135,7 +136,13 @@ def unreadable_maps(sets: list[dict]) -> list[str]:
     """The maps of `sets` whose first bytes no image decoder of OpenCV recognises (cv2.haveImageReader
     reads the signature only): a file named like a map that is not an image."""
     import cv2
-    return [s[k] for s in sets for k in ("color", "roughness", "normal") if k in s and not cv2.haveImageReader(s[k])]
+
+    def readable(path: str) -> bool:           # regular files only: a FIFO would block the read
+        try:
+            return stat.S_ISREG(os.stat(path).st_mode) and bool(cv2.haveImageReader(path))
+        except OSError:
+            return False
+    return [s[k] for s in sets for k in ("color", "roughness", "normal") if k in s and not readable(s[k])]
 
 
 def record(draw: dict) -> dict:
