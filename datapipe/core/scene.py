@@ -431,10 +431,11 @@ class BlendScene:
             nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
             self._env_nodes = (mapping, tex, env_bg)
         mapping, tex, env_bg = self._env_nodes
+        from .textures import IMAGE_TAG, load_image
         old = tex.image
-        tex.image = bpy.data.images.load(str(draw["map"]), check_existing=True)
-        if old is not None and old is not tex.image and old.users == 0:   # one map held at a time
-            bpy.data.images.remove(old)
+        tex.image = load_image(draw["map"])
+        if old is not None and old is not tex.image and old.users == 0 and old.get(IMAGE_TAG):
+            bpy.data.images.remove(old)                               # one map of ours held at a time
         mapping.inputs["Rotation"].default_value = (0.0, 0.0, math.radians(float(draw["rotation_deg"])))
         env_bg.inputs["Strength"].default_value = float(draw["strength"])
 

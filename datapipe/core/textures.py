@@ -132,8 +132,7 @@ def _procedural(nt, vec, draw: dict):
 
 
 def _image(nt, vec, path: str, colour: bool):
-    import bpy
-    img = bpy.data.images.load(path, check_existing=True)
+    img = load_image(path)
     if not colour:
         img.colorspace_settings.name = "Non-Color"
     t = nt.nodes.new("ShaderNodeTexImage")
@@ -169,10 +168,25 @@ def _image_set(nt, bsdf, vec, s: dict) -> None:
         nt.links.new(nm.outputs["Normal"], bsdf.inputs["Normal"])
 
 
+IMAGE_TAG = "datapipe_loaded"      # on the images DataPipe loaded: only those are ever removed
+
+
+def load_image(path: str):
+    """The bpy image of `path`: one already loaded is reused (and left alone by `remove_unused`
+    when it was not ours), a new one is tagged as DataPipe's."""
+    import bpy
+    before = set(bpy.data.images)
+    img = bpy.data.images.load(str(path), check_existing=True)
+    if img not in before:
+        img[IMAGE_TAG] = True
+    return img
+
+
 def remove_unused() -> None:
-    """Remove textured materials no object uses any more (the last scene's) and their images."""
+    """Remove the textured materials no object uses any more (the last scene's) and the images
+    DataPipe loaded that nothing uses (never one of the open file's own)."""
     import bpy
     for mat in [m for m in bpy.data.materials if m.name.startswith(PREFIX) and m.users == 0]:
         bpy.data.materials.remove(mat)
-    for img in [i for i in bpy.data.images if i.users == 0 and i.filepath]:
+    for img in [i for i in bpy.data.images if i.users == 0 and i.get(IMAGE_TAG)]:
         bpy.data.images.remove(img)

@@ -189,3 +189,10 @@ def test_an_image_set_colours_the_floor(tmp_path):
     assert abs(g[0] - g[1]) < 10 and abs(g[1] - g[2]) < 10                 # grey: R = G = B
     assert r[0] > 3 * max(r[1], r[2]) + 10, r                              # red
     assert cfg.scene.textures.targets
+    # the open file's own unused image (a file's, no user) stays; ours goes once no material uses it
+    assert cv2.imwrite(str(tmp_path / "user.png"), np.zeros((4, 4, 3), np.uint8))
+    own = bpy.data.images.load(str(tmp_path / "user.png"))
+    ours = [i.name for i in bpy.data.images if i.get("datapipe_loaded")]
+    assert ours and own.users == 0 and own.name not in ours
+    blend.set_textures({})
+    assert own.name in bpy.data.images and not [n for n in ours if n in bpy.data.images]
