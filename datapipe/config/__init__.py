@@ -20,7 +20,8 @@ from .limits import (AMBIENT_MODES, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS,
                      MAX_FREE_NESTING, MAX_FRINGE_BYTES, MAX_INSTANCES, MAX_PERIODS, MAX_PICKLE_NESTING,
                      MAX_RENDERS, MAX_RESOLUTION, MAX_SAMPLES, MAX_SL_SAMPLES, MAX_STEPS, MESH_SUFFIXES,
                      MIN_FRINGE_CAMERA_PX, OTHER_OBJECTS, OUTPUT_KINDS, REFLECTION_FILTERS, SAMPLER_KINDS,
-                     SCHEMA_VERSION, SENSOR_FITS, TEXTURE_KINDS, TEXTURE_TARGETS, UNWRAP_METHODS)
+                     SCHEMA_VERSION, SENSOR_FITS, UNWRAP_METHODS)
+from .limits import TEXTURE_KINDS, TEXTURE_TARGETS
 from .schema import (CameraConfig, CameraPose, CameraSamplerConfig,
                      Config, LightingConfig, ObjectEntry, OutputConfig, ProjectorConfig, RenderConfig,
                      SceneConfig, SimulationConfig, StructuredLightConfig, TexturesConfig)
