@@ -136,6 +136,7 @@ def test_unknown_targets_kinds_and_ranges_are_refused():
     f = _fields(_cfg(targets=["bin"], kinds=["marble"], contrast=[0.5, 1.5], feature_size=[0.0, 0.1]))
     assert {"scene.textures.kinds", "scene.textures.contrast", "scene.textures.feature_size"} <= set(f)
     assert "scene.textures.kinds" in _fields(_cfg(targets=["bin"], kinds=[]))
+    assert "scene.textures.contrast" in _fields(_cfg(contrast=[0.0, 2.0]))       # off, still what the sidebar holds
     assert not [p for p in _cfg(targets=["bin", "floor", "parts"]).problems() if p.path.startswith("scene.textures")]
 
 
@@ -197,5 +198,7 @@ def test_ranges_of_the_environment_are_checked(tmp_path):
     assert cv2.imwrite(str(tmp_path / "sky.hdr"), np.ones((4, 8, 3), np.float32))
     cfg = _env_cfg(tmp_path / "sky.hdr")
     cfg.lighting.environment_strength = [2.0, 1.0]
+    assert "lighting.environment_strength" in _fields(cfg)
+    cfg.lighting.environment = ""                                 # no map: the range is still checked
     assert "lighting.environment_strength" in _fields(cfg)
     assert pytest.approx(environment.rotation_rad({"rotation_deg": 180.0})) == np.pi

@@ -35,15 +35,16 @@ def _check_textures(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
     if bad is not None:
         ck.problems.append(bad)
         return
-    if not t.targets:              # off: nothing else is read
-        return
-    bad = _choices_problem(f"{p}.kinds", t.kinds, TEXTURE_KINDS, allow_empty=False)
-    if bad is not None:
-        ck.problems.append(bad)
+    # the ranges even when off: every preset validate() accepts can be shown in the sidebar
     ck.problems += _range_problems(f"{p}.feature_size", t.feature_size, lo_bound=1e-4, hi_bound=10.0, unit=" m")
     ck.problems += _range_problems(f"{p}.contrast", t.contrast, lo_bound=0.0, hi_bound=1.0)
     ck.problems += _range_problems(f"{p}.albedo", t.albedo, lo_bound=0.0, hi_bound=1.0)
     ck.problems += _range_problems(f"{p}.saturation", t.saturation, lo_bound=0.0, hi_bound=1.0)
+    if not t.targets:              # off: no kinds, no folder read
+        return
+    bad = _choices_problem(f"{p}.kinds", t.kinds, TEXTURE_KINDS, allow_empty=False)
+    if bad is not None:
+        ck.problems.append(bad)
     wants_images = bad is None and "image" in t.kinds
     folder = t.image_folder
     if wants_images and not folder:
@@ -82,12 +83,10 @@ def _check_environment(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
     p = "lighting"
     if not isinstance(li.per_render, bool):
         ck.add(f"{p}.per_render", f"must be true or false, got {li.per_render!r}", "give true or false")
-    if not li.environment:
-        return
     ck.problems += _range_problems(f"{p}.environment_strength", li.environment_strength, lo_bound=0.0,
-                                   hi_bound=1e4)
+                                   hi_bound=1e4)   # even without a map: the sidebar holds what validate takes
     ck.problems += _range_problems(f"{p}.environment_rotation_deg", li.environment_rotation_deg)
-    if not check_files:
+    if not li.environment or not check_files:
         return
     from ..draws.environment import find_maps, header_problem
     f = f"{p}.environment"
