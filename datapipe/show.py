@@ -528,9 +528,15 @@ def _grid_caption(scene_dir: Path, scene: dict, rd: dict) -> list[str]:
     cam = rd.get("camera_sampler")
     if cam:
         lines.append(f"{cam['distance']:.2f} m, tilt {cam['tilt_deg']:.0f}, roll {cam['roll_deg']:.0f} deg")
-    light = scene.get("lighting")
+    light = rd.get("lighting") or scene.get("lighting")        # per render (lighting.per_render) or per scene
     if light:
-        lines.append(f"{light['key_power']:.0f} W {light['key_color_temperature']:.0f} K amb {light['ambient']:.2f}")
+        env = light.get("environment")
+        lines.append(f"{light['key_power']:.0f} W {light['key_color_temperature']:.0f} K amb {light['ambient']:.2f}"
+                     + (f" env {env['strength']:.1f}" if env else ""))
+    tex = scene.get("textures")
+    if tex:
+        kinds = [tex[t]["kind"] for t in ("bin", "floor") if t in tex]
+        lines.append("tex " + " / ".join(kinds + ([f"{len(tex['parts'])} parts"] if "parts" in tex else [])))
     return lines
 
 
@@ -550,7 +556,8 @@ def grid_image(run_dir: str | Path, n: int, *, seed: int = 0) -> np.ndarray:
     rows = math.ceil(len(pick) / cols)
     W, H = (int(x) for x in renders[pick[0]][2]["resolution"])
     tw, th = GRID_TILE_W, max(1, round(GRID_TILE_W * H / W))
-    cap = 16 * 3 + 4
+    captions = [_grid_caption(*renders[idx]) for idx in pick]
+    cap = 16 * max(3, *(len(c) for c in captions)) + 4
     img = np.full((HEADER + rows * (th + cap + PAD), PAD + cols * (tw + PAD), 3), BG, np.uint8)
     for k, idx in enumerate(pick):
         sd, sc, rd = renders[idx]
@@ -560,7 +567,7 @@ def grid_image(run_dir: str | Path, n: int, *, seed: int = 0) -> np.ndarray:
         row, col = divmod(k, cols)
         x, y = PAD + col * (tw + PAD), HEADER + row * (th + cap + PAD)
         img[y:y + th, x:x + tw] = tile
-        for j, line in enumerate(_grid_caption(sd, sc, rd)):
+        for j, line in enumerate(captions[k]):
             _text(img, line, (x + 1, y + th + 14 + 16 * j), 0.38)
     _text(img, f"{run_dir.name}: {len(pick)} of {len(renders)} renders (seed {seed})", (PAD, 22), 0.55)
     return img

@@ -142,3 +142,9 @@ def test_grid_captions_show_drawn_values():
     assert show._grid_caption(Path("scene.0003"), sc, rd) == [
         "scene.0003/render.0002  2 obj", "0.71 m, tilt 18, roll -33 deg", "61 W 4100 K amb 0.12"]
     assert show._grid_caption(Path("scene.0001"), {}, {"name": "render.0001"}) == ["scene.0001/render.0001  0 obj"]
+    # per-render lighting (with an environment map) wins over the scene's; the textures' kinds
+    rd["lighting"] = {"key_power": 30.0, "key_color_temperature": 5000.0, "ambient": 0.0,
+                      "environment": {"map": "sky.hdr", "strength": 1.25, "rotation_deg": 10.0}}
+    sc["textures"] = {"bin": {"kind": "brick"}, "floor": {"kind": "noise"}, "parts": [{}, {}]}
+    assert show._grid_caption(Path("scene.0003"), sc, rd)[2:] == ["30 W 5000 K amb 0.00 env 1.2",
+                                                                 "tex brick / noise / 2 parts"]

@@ -22,6 +22,8 @@ FRINGE_MODES = ("auto", "fast", "quadrature", "render")   # structured_light.fri
                                             # is shiny (render with a projector gamma), else fast
 REFLECTION_FILTERS = ("auto", "local", "global", "off")
 AMBIENT_MODES = ("off", "scene")          # structured_light.ambient (core/fringe_ambient.py)
+TEXTURE_TARGETS = ("bin", "floor", "parts")     # scene.textures.targets (draws/textures.py)
+TEXTURE_KINDS = ("noise", "voronoi", "wave", "brick", "checker", "image")   # scene.textures.kinds
 OTHER_OBJECTS = ("auto", "hide", "keep")   # scene.other_objects (core/scene.py)   # structured_light.reflection_filter (sl/filters.py)
 MAX_RESOLUTION = 8192
 # The sidebar holds what validate() accepts, and validate() refuses what the sidebar cannot hold, with one

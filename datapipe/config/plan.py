@@ -122,7 +122,11 @@ def grey_materials(cfg) -> bool:
     the frames by at most 0.2% of the peak, a copper plate mirroring a red wall by up to 9%;
     steel parts in a blue bin decode with median +19% and p99 +7% against render mode
     (benchmarks/results/sl_glossy_modes.md). Mesh file materials ("file") may carry any colour:
-    not packed (the bin's "file" is grey)."""
+    not packed (the bin's "file" is grey). Drawn textures (scene.textures) are grey only with
+    saturation 0 and no image sets (an image's colours may be any)."""
+    tex = cfg.scene.textures
+    if tex.targets and ("image" in tex.kinds or max(float(v) for v in tex.saturation) > 0):
+        return False
     bin_specs = [s for s in _listed(cfg.scene.bin_material) if s != FILE]   # the bin's "file": built-in grey
     for spec in bin_specs + _object_materials(cfg):
         if spec == FILE:

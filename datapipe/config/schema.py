@@ -25,6 +25,21 @@ def _vec(*values: float):
 
 
 @dataclass
+class TexturesConfig:
+    """Textures drawn per scene (datapipe/draws/textures.py, built by core/textures.py) on the `targets`:
+    a procedural Blender texture of one of `kinds` (its parameters and two colours drawn), or with
+    "image" in `kinds` a texture set of `image_folder` (colour, roughness and normal maps recognised by
+    file name). No target: off (nothing drawn, nothing built)."""
+    targets: list[str] = field(default_factory=list)   # of TEXTURE_TARGETS: "bin" (walls), "floor", "parts"
+    kinds: list[str] = _vec("noise", "voronoi", "wave", "brick", "checker")   # of TEXTURE_KINDS
+    image_folder: str = ""             # texture sets (e.g. CC0 PBR sets); needs "image" in kinds
+    feature_size: list[float] = _vec(0.005, 0.05)   # m, size of the texture's features (1 / Blender scale)
+    contrast: list[float] = _vec(0.2, 0.8)          # 1 - dark albedo / bright albedo of the two colours
+    albedo: list[float] = _vec(0.2, 0.8)            # linear albedo (value) of the bright colour
+    saturation: list[float] = _vec(0.0, 0.6)        # HSV saturation of the colours (hue uniform)
+
+
+@dataclass
 class SceneConfig:
     """How many renders, how they group into scenes (one drop each), and where parts are dropped."""
     num_renders: int = 4               # total renders in the run
@@ -48,6 +63,8 @@ class SceneConfig:
     bin_material: Any = "file"         # floor + walls: "file" (built-in 0.5 grey, roughness 0.6), a
                                        # preset name, a dict of Principled BSDF values, or a list of
                                        # those: one drawn per scene (core/materials.py)
+    textures: TexturesConfig = field(default_factory=TexturesConfig)   # textures drawn per scene on bin,
+                                       # floor and parts (off: no targets)
 
 
 @dataclass
@@ -175,6 +192,11 @@ class LightingConfig:
     key_size: list[float] = _vec(0.5, 1.5)                      # m, side of the square area light
     key_position_jitter: float = 0.5                            # m, horizontal offset (uniform in a disc)
     ambient: list[float] = _vec(0.0, 0.2)                       # world (white) background strength
+    per_render: bool = False                                    # draw all of the above per render, not per scene
+    environment: str = ""                                       # an .hdr/.exr environment map or a folder of
+                                                                # them (one drawn per draw); "": none
+    environment_strength: list[float] = _vec(0.5, 1.5)          # its world strength
+    environment_rotation_deg: list[float] = _vec(0.0, 360.0)    # its rotation about the world's Z axis
 
 
 @dataclass
@@ -265,6 +287,9 @@ class Config:
             obj.filepath = resolved(obj.filepath)
             obj.bop_models = resolved(obj.bop_models)
         self.scene.blend_file = resolved(self.scene.blend_file)
+        self.scene.textures.image_folder = resolved(self.scene.textures.image_folder)
+        if self.lighting is not None:
+            self.lighting.environment = resolved(self.lighting.environment)
 
     def copy(self) -> "Config":
         return copy.deepcopy(self)

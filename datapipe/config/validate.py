@@ -18,6 +18,7 @@ from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _
 from .limits import (ORIGINS, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS,
                      MAX_SAMPLES, MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS,
                      SL_OUTPUT_KINDS)
+from .validate_looks import _check_environment, _check_textures
 from .validate_sl import _check_projector, _check_structured_light
 
 if TYPE_CHECKING:                 # annotations only: Config's methods call the rules, not the other way
@@ -484,4 +485,5 @@ def _check_lens(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
 # The steps validate() runs, in order. A new field's checks go into a small step function here.
 VALIDATION_STEPS = (_check_scene, _check_objects, _check_camera, _check_lens, _check_variety, _check_projector,
                     _check_structured_light, _check_render, _check_simulation, _check_output, _check_materials,
+                    _check_textures, _check_environment,
                     _check_device)

@@ -90,9 +90,8 @@ def assign(obj, mat) -> None:
         slot.material = mat
 
 
-def apply_to_instances(cfg, instances, scene_seed: int) -> list[str]:
-    """Materials of this scene's part instances (per the config); returns each one's label."""
-    labels = []
+def instance_specs(cfg, instances, scene_seed: int) -> dict:
+    """{instance name: its material spec} (a list drawn per instance from the material stream)."""
     by_entry: dict[int, list] = {}
     for inst in instances:
         by_entry.setdefault(inst.entry_index, []).append(inst)
@@ -100,6 +99,13 @@ def apply_to_instances(cfg, instances, scene_seed: int) -> list[str]:
     for i, insts in by_entry.items():
         for inst, spec in zip(insts, draw(cfg.objects[i].material, len(insts), scene_seed, i)):
             specs[inst.name] = spec
+    return specs
+
+
+def apply_to_instances(cfg, instances, scene_seed: int) -> list[str]:
+    """Materials of this scene's part instances (per the config); returns each one's label."""
+    labels = []
+    specs = instance_specs(cfg, instances, scene_seed)
     for inst in instances:
         spec = specs[inst.name]
         assign(inst.obj, build(spec))

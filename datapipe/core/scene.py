@@ -153,6 +153,8 @@ class BlendScene:
         self.occlusion_box: bpy.types.Object | None = None
         self.key_light: bpy.types.Object | None = None
         self.wall_height: float | None = None  # None: as high as the drop zone (apply_bin draws it)
+        self.textured: dict = {}               # {"bin"/"floor": a drawn textured material} (core/textures.py)
+        self._env_nodes = None                 # the world's environment map nodes, made on first use
         m = cfg.scene.bin_material           # a list is drawn per scene (core/variety.py); its first
         self.bin_material_spec = m[0] if isinstance(m, list) else m     # item until the first draw
 
@@ -341,7 +343,7 @@ class BlendScene:
         g = max(GROUND_HALF_SIZE, GROUND_FACTOR * float(max(h[0], h[1]) + t))
         outer_lo = np.array([c[0] - g, c[1] - g])
         outer_hi = np.array([c[0] + g, c[1] + g])
-        self.floor = self._box("datapipe_floor", [*outer_lo, fz - t], [*outer_hi, fz], mat)
+        self.floor = self._box("datapipe_floor", [*outer_lo, fz - t], [*outer_hi, fz], self.textured.get("floor", mat))
         self.walls = []
         if self.cfg.scene.make_bin:
             x0, x1, y0, y1 = c[0] - h[0], c[0] + h[0], c[1] - h[1], c[1] + h[1]
@@ -352,7 +354,7 @@ class BlendScene:
                 "datapipe_wall_ypos": ([x0, y1], [x1, y1 + t]),
             }
             for name, (lo, hi) in spans.items():
-                self.walls.append(self._box(name, [*lo, fz], [*hi, self.wall_top_z], mat))
+                self.walls.append(self._box(name, [*lo, fz], [*hi, self.wall_top_z], self.textured.get("bin", mat)))
         # the occlusion box: thick, right under the floor, a collider that never renders
         depth = max(2.0 * float(h[2]), 0.05)
         self.occlusion_box = self._box("datapipe_occlusion_box", [*outer_lo, fz - t - depth], [*outer_hi, fz - t])
@@ -384,7 +386,17 @@ class BlendScene:
         for obj in [self.floor, *self.walls]:
             if obj is not None:
                 obj.data.materials.clear()
-                obj.data.materials.append(mat)
+                obj.data.materials.append(self.textured.get("floor" if obj is self.floor else "bin", mat))
+
+    def set_textures(self, draws: dict) -> None:
+        """Give the walls ("bin") and the floor ("floor") one scene's drawn textures
+        (datapipe.draws.textures.draw_static), on the bin material's own Principled values."""
+        from . import textures
+        spec = self.bin_material_spec
+        self.textured = {t: textures.build(spec, d, world_space=True, default=textures.BIN_DEFAULT, tag=t)
+                         for t, d in draws.items()}
+        self.set_bin_material(spec)
+        textures.remove_unused()
 
     def apply_bin(self, draw: dict) -> None:
         """Rebuild floor, walls and occlusion box for one scene's `datapipe.draws.bin_shape.draw_bin`: the
@@ -413,7 +425,40 @@ class BlendScene:
         bg = next(n for n in self.scene.world.node_tree.nodes if n.type == 'BACKGROUND')
         bg.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
         bg.inputs["Strength"].default_value = float(draw["ambient"])
+        if "environment" in draw:
+            self.apply_environment(draw["environment"])
         bpy.context.view_layer.update()
+
+    def apply_environment(self, draw: dict) -> None:
+        """Add the environment map of one draw (datapipe.draws.environment.draw_environment) to the world:
+        a second Background node, its image rotated about world Z and of the drawn strength, added to
+        the white ambient. The fringe layers keep their black world override (the projector alone
+        lights them); the projector-off layer of structured_light.ambient "scene" sees it."""
+        import math
+        nt = self.scene.world.node_tree
+        if self._env_nodes is None:
+            out = next(n for n in nt.nodes if n.type == 'OUTPUT_WORLD')
+            bg = next(n for n in nt.nodes if n.type == 'BACKGROUND')
+            coord = nt.nodes.new("ShaderNodeTexCoord")
+            mapping = nt.nodes.new("ShaderNodeMapping")
+            tex = nt.nodes.new("ShaderNodeTexEnvironment")
+            env_bg = nt.nodes.new("ShaderNodeBackground")
+            add = nt.nodes.new("ShaderNodeAddShader")
+            nt.links.new(coord.outputs["Generated"], mapping.inputs["Vector"])
+            nt.links.new(mapping.outputs["Vector"], tex.inputs["Vector"])
+            nt.links.new(tex.outputs["Color"], env_bg.inputs["Color"])
+            nt.links.new(bg.outputs["Background"], add.inputs[0])
+            nt.links.new(env_bg.outputs["Background"], add.inputs[1])
+            nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+            self._env_nodes = (mapping, tex, env_bg)
+        mapping, tex, env_bg = self._env_nodes
+        from .textures import IMAGE_TAG, load_image
+        old = tex.image
+        tex.image = load_image(draw["map"])
+        if old is not None and old is not tex.image and old.users == 0 and old.get(IMAGE_TAG):
+            bpy.data.images.remove(old)                               # one map of ours held at a time
+        mapping.inputs["Rotation"].default_value = (0.0, 0.0, math.radians(float(draw["rotation_deg"])))
+        env_bg.inputs["Strength"].default_value = float(draw["strength"])
 
 
 def find_layer_collection(layer_collection, name: str):

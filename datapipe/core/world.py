@@ -74,6 +74,9 @@ class BlenderWorld:
         pose_indices = self.variety.pose_plan(rng, n_renders)
         from . import materials        # on a random stream of their own: a list changes no pose
         labels = materials.apply_to_instances(self.cfg, sim.kept, scene_seed(base_seed, scene_id))
+        part_textures = self.variety.apply_parts(sim.kept, base_seed, scene_id, labels)   # None: no part textures
+        if part_textures is not None:
+            drawn.setdefault("textures", {})["parts"] = part_textures
         # distractors (objects[i].annotate: false) fall, occlude and render, but are no part of the
         # annotations: neither here nor in any T_world_obj of the renders
         annotated = [(inst, lab) for inst, lab in zip(sim.kept, labels) if inst.annotated]
@@ -90,6 +93,7 @@ class BlenderWorld:
     def render(self, render_dir: Path, pose_index: int | None, seed: int, *, scene_id: int, render_id: int,
                base_seed: int) -> View:
         T_world_cam, sampled = self.variety.place_camera(pose_index, base_seed, scene_id, render_id)
+        lighting = self.variety.apply_render(base_seed, scene_id, render_id)      # None: lighting per scene
         T_world_blcam = np.array(self.camera.obj.matrix_world, dtype=np.float64)
         t0 = time.perf_counter()
         out = self.renderer.render(render_dir, seed)
@@ -99,6 +103,7 @@ class BlenderWorld:
                     T_world_cam=T_world_cam, T_world_blcam=T_world_blcam,
                     T_world_obj=[np.array(inst.obj.matrix_world, dtype=np.float64) for inst in self.instances],
                     mask=out.mask, rgb=out.rgb, camera_sampler=sampled, distortion=self.camera.distortion,
+                    lighting=lighting,
                     seconds={"render": cycles_s, "write": max(0.0, (t1 - t0) - cycles_s)})  # EXR read-back + writes
         if self.sl is not None:
             t2 = time.perf_counter()

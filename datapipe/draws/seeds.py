@@ -12,6 +12,8 @@ import numpy as np
 
 _PLAN, _SCENE, _RENDER = 0x504C414E, 0x5343454E, 0x52454E44   # domain tags: 'PLAN', 'SCEN', 'REND'
 _CAMERA, _LIGHT, _BIN = 0x43414D53, 0x4C494748, 0x42494E53       # 'CAMS', 'LIGH', 'BINS'
+_TEXTURE, _LIGHT_RENDER = 0x54455854, 0x4C495252                  # 'TEXT', 'LIRR'
+TEXTURE_STATIC, TEXTURE_PARTS = 0, 1                              # texture_rng's two streams
 
 
 def _derive(*words: int) -> int:
@@ -41,6 +43,18 @@ def camera_rng(base: int, scene: int, render: int) -> np.random.Generator:
 def lighting_rng(base: int, scene: int) -> np.random.Generator:
     """The generator of one scene's drawn lighting (its own stream, like `camera_rng`)."""
     return np.random.default_rng(_derive(_LIGHT, base, scene))
+
+
+def lighting_render_rng(base: int, scene: int, render: int) -> np.random.Generator:
+    """The generator of one render's drawn lighting (`lighting.per_render`): a stream apart from the
+    per-scene one, so switching per_render on changes no other draw."""
+    return np.random.default_rng(_derive(_LIGHT_RENDER, base, scene, render))
+
+
+def texture_rng(base: int, scene: int, which: int) -> np.random.Generator:
+    """The generator of one scene's drawn textures: `TEXTURE_STATIC` (bin, floor: before the drop)
+    or `TEXTURE_PARTS` (the part instances: after it). Streams of their own (draws/textures.py)."""
+    return np.random.default_rng(_derive(_TEXTURE, base, scene, which))
 
 
 def bin_rng(base: int, scene: int) -> np.random.Generator:

@@ -50,6 +50,7 @@ class View:
     mask: np.ndarray | None             # (H, W) pass indices, None without a mask output
     rgb: np.ndarray | None = None       # (H, W, 3) uint8, for the quality gates (not kept)
     camera_sampler: dict | None = None      # the drawn camera pose's parameters (bin_view sampler)
+    lighting: dict | None = None            # the render's drawn lighting (lighting.per_render)
     structured_light: dict | None = None    # the render's structured_light record (files excluded)
     seconds: dict = field(default_factory=dict)      # {"render": s, "write": s, "structured_light": s}
     distortion: list | None = None      # the lens's OpenCV k1 k2 p1 p2 k3 (docs/CALIBRATION.md), None: none

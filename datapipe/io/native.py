@@ -83,6 +83,8 @@ def render_record(render_id: int, image_id: int, pose_index: int, seed: int, vie
     }
     if view.camera_sampler is not None:
         rec["camera_sampler"] = view.camera_sampler
+    if getattr(view, "lighting", None) is not None:        # lighting.per_render only
+        rec["lighting"] = view.lighting
     T_cam_world = np.linalg.inv(view.T_world_cam)
     T_blcam_world = np.linalg.inv(view.T_world_blcam)
     for part, T_world_obj in zip(parts, view.T_world_obj):

@@ -28,7 +28,8 @@ INT_MAX = 2**31 - 1          # Blender's IntProperty is a signed 32-bit integer
 
 SECTIONS = ("scene", "camera", "projector", "structured_light", "render", "simulation", "output")
 _COLLECTIONS = {("camera", "poses")}          # handled with the object list
-_NESTED = {("camera", "sampler"): C.CameraSamplerConfig}    # a sub-group: fields map by name again
+_NESTED = {("camera", "sampler"): C.CameraSamplerConfig,    # a sub-group: fields map by name again
+           ("scene", "textures"): C.TexturesConfig}
 
 
 def parse_periods(text: str) -> list[int]:
@@ -137,6 +138,12 @@ _SPECIAL = {
                                                 else json.dumps(value))]),
     ("render", "outputs"): (_ordered(C.OUTPUT_KINDS), lambda value: [("outputs", set(value))]),
     ("output", "formats"): (_ordered(C.FORMATS), lambda value: [("formats", set(value))]),
+    ("textures", "targets"): (_ordered(C.TEXTURE_TARGETS), lambda value: [("targets", set(value))]),
+    ("textures", "kinds"): (_ordered(C.TEXTURE_KINDS), lambda value: [("kinds", set(value))]),
+    ("textures", "image_folder"): (lambda grp, name: _abspath(grp.image_folder),
+                                   lambda value: [("image_folder", value)]),
+    ("lighting", "environment"): (lambda grp, name: _abspath(grp.environment),
+                                  lambda value: [("environment", value)]),
     ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),
     ("output", "bop_sensor"): (lambda grp, name: grp.bop_sensor or None, lambda value: [("bop_sensor", value or "")]),
 }

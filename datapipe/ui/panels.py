@@ -157,6 +157,32 @@ class DATAPIPE_PT_lighting(_DataPipePanel, Panel):
                                ("key_size", "Key Size")))
         col.prop(li, "key_position_jitter")
         _draw_ranges(col, li, (("ambient", "Ambient"),))
+        col.prop(li, "per_render")
+        col.prop(li, "environment")
+        sub = col.column()
+        sub.active = bool(li.environment)
+        _draw_ranges(sub, li, (("environment_strength", "Env. Strength"),
+                               ("environment_rotation_deg", "Env. Rotation (deg)")))
+
+
+class DATAPIPE_PT_textures(_DataPipePanel, Panel):
+    bl_label = "Textures"
+    bl_idname = "DATAPIPE_PT_textures"
+    bl_parent_id = "DATAPIPE_PT_scene"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        tx = _props(context).scene.textures
+        layout.prop(tx, "targets")
+        col = layout.column()
+        col.active = bool(tx.targets)
+        col.prop(tx, "kinds")
+        col.prop(tx, "image_folder")
+        _draw_ranges(col, tx, (("feature_size", "Feature Size"), ("contrast", "Contrast"), ("albedo", "Albedo"),
+                               ("saturation", "Saturation")))
 
 
 class DATAPIPE_PT_simulation(_DataPipePanel, Panel):
@@ -390,6 +416,7 @@ CLASSES = (
     DATAPIPE_PT_initialize,
     DATAPIPE_PT_scene,
     DATAPIPE_PT_lighting,
+    DATAPIPE_PT_textures,
     DATAPIPE_PT_simulation,
     DATAPIPE_PT_objects,
     DATAPIPE_PT_camera,

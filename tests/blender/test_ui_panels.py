@@ -150,7 +150,8 @@ def test_draw_filled_with_previews_and_status(d, mode):
     drawn = {(type(e[1]).__name__ if e[0] == "prop" else None, e[2]) for e in log if e[0] == "prop"}
     # every Config-facing property of each group is drawn somewhere
     # (an object entry shows the fields of its Source: a mesh file's here, test_ui_bop.py the BOP ones)
-    for group, skip in ((d.scene, set()), (d.camera, {"poses", "poses_index", "sampler"}),
+    for group, skip in ((d.scene, {"textures"}), (d.scene.textures, set()), (d.lighting, set()),
+                        (d.camera, {"poses", "poses_index", "sampler"}),
                         (d.objects[0], {"bop_models", "bop_obj_ids", "shape"}),
                         (d.structured_light, {"periods_text", "hdr_text"}), (d.render, set()), (d.simulation, set()),
                         (d.output, set()),

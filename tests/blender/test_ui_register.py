@@ -190,9 +190,14 @@ def test_every_config_field_has_a_property(ui_registered):
             if key in convert._COLLECTIONS or key in convert._SPECIAL:
                 continue
             assert f.name in group.bl_rna.properties, key
-    for dc, pg in ((C.ObjectEntry, P.DATAPIPE_PG_object), (C.CameraPose, P.DATAPIPE_PG_pose)):
+    for dc, pg in ((C.ObjectEntry, P.DATAPIPE_PG_object), (C.CameraPose, P.DATAPIPE_PG_pose),
+                   (C.LightingConfig, P.DATAPIPE_PG_lighting)):
         for f in dataclasses.fields(dc):
             assert f.name in pg.bl_rna.properties, (dc.__name__, f.name)
+    for (section, name), dc in convert._NESTED.items():          # sub-groups (camera.sampler, scene.textures)
+        group = getattr(getattr(ui_registered, section), name)
+        for f in dataclasses.fields(dc):
+            assert f.name in group.bl_rna.properties, (section, name, f.name)
 
 
 def test_sensor_field_suggests_presets(ui_registered):
@@ -201,3 +206,27 @@ def test_sensor_field_suggests_presets(ui_registered):
     assert _sensor_search(None, None, "") == sorted(PRESETS)
     assert all("ind" in name for name in _sensor_search(None, None, "IND"))
     assert ui_registered.structured_light.sensor == C.StructuredLightConfig().sensor
+
+
+def test_textures_and_environment_survive_the_sidebar(ui_registered, tmp_path):
+    """scene.textures and the lighting's per_render / environment fields go to the properties and
+    come back unchanged (ranges as float32, as every range field)."""
+    from datapipe.ui.convert import config_to_props
+    cfg = C.default_config()
+    cfg.scene.textures = C.TexturesConfig(targets=["bin", "parts"], kinds=["wave", "image"],
+                                          image_folder=str(tmp_path), feature_size=[0.01, 0.02],
+                                          contrast=[0.25, 0.5], albedo=[0.5, 0.75], saturation=[0.0, 0.5])
+    cfg.lighting = C.LightingConfig(per_render=True, environment=str(tmp_path / "sky.hdr"),
+                                    environment_strength=[0.5, 2.0], environment_rotation_deg=[0.0, 90.0])
+    config_to_props(cfg, ui_registered)
+    back = props_to_config(ui_registered)
+    t = back.scene.textures
+    assert (t.targets, t.kinds, t.image_folder) == (["bin", "parts"], ["wave", "image"], str(tmp_path))
+    assert t.feature_size == pytest.approx([0.01, 0.02], rel=1e-6)
+    assert t.contrast == pytest.approx([0.25, 0.5]) and t.albedo == pytest.approx([0.5, 0.75])
+    li = back.lighting
+    assert li.per_render is True and li.environment == str(tmp_path / "sky.hdr")
+    assert li.environment_strength == pytest.approx([0.5, 2.0])
+    assert li.environment_rotation_deg == pytest.approx([0, 90])
+    config_to_props(C.default_config(), ui_registered)               # off again: no targets, no lighting
+    assert props_to_config(ui_registered).scene.textures.targets == []

@@ -23,13 +23,13 @@ from .camera import DATAPIPE_PG_camera, DATAPIPE_PG_camera_sampler, DATAPIPE_PG_
 from .objects import DATAPIPE_PG_object
 from .projector import DATAPIPE_PG_projector
 from .render import DATAPIPE_PG_lighting, DATAPIPE_PG_output, DATAPIPE_PG_render
-from .scene import DATAPIPE_PG_scene, DATAPIPE_PG_simulation
+from .scene import DATAPIPE_PG_scene, DATAPIPE_PG_simulation, DATAPIPE_PG_textures
 from .structured_light import DATAPIPE_PG_structured_light
 
 __all__ = ["CLASSES", "register_pointer", "unregister_pointer", "DATAPIPE_PG_root", "DATAPIPE_PG_scene",
            "DATAPIPE_PG_simulation", "DATAPIPE_PG_object", "DATAPIPE_PG_pose", "DATAPIPE_PG_camera_sampler",
            "DATAPIPE_PG_camera", "DATAPIPE_PG_projector", "DATAPIPE_PG_structured_light", "DATAPIPE_PG_render",
-           "DATAPIPE_PG_lighting", "DATAPIPE_PG_output"]
+           "DATAPIPE_PG_lighting", "DATAPIPE_PG_output", "DATAPIPE_PG_textures"]
 
 
 def _preset_items(self, context):
@@ -97,6 +97,7 @@ class DATAPIPE_PG_root(PropertyGroup):
 # registration order: a group before the groups whose PointerProperty / CollectionProperty name it
 # (Blender refuses a pointer to an unregistered type); unregistered in reverse
 CLASSES = (
+    DATAPIPE_PG_textures,
     DATAPIPE_PG_scene,
     DATAPIPE_PG_simulation,
     DATAPIPE_PG_object,

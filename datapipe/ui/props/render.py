@@ -59,6 +59,17 @@ class DATAPIPE_PG_lighting(PropertyGroup):
         name="Key Jitter", description="Horizontal offset of the key light from above the bin, up to this far",
         subtype="DISTANCE", unit="LENGTH", min=0.0, soft_max=2.0, default=default(_LI, "key_position_jitter"))
     ambient: range_property("ambient", "Ambient", "Strength of a white world background", _LI, lo=0.0, soft_max=2.0)
+    per_render: BoolProperty(name="Per Render", description="Draw the lighting for every render (off: once per "
+                             "scene)", default=default(_LI, "per_render"))
+    environment: StringProperty(name="Environment Map", description="An .hdr/.exr environment map, or a folder "
+                                "of them (one drawn per draw); empty: none. The fringe images see it only with "
+                                "structured light's Ambient 'scene'", subtype="FILE_PATH",
+                                default=default(_LI, "environment"))
+    environment_strength: range_property("environment_strength", "Environment Strength", "World strength of the "
+                                         "environment map", _LI, lo=0.0, hi=1e4, soft_max=5.0)
+    environment_rotation_deg: range_property("environment_rotation_deg", "Environment Rotation", "Rotation of the "
+                                             "environment map about the world's Z axis, degrees", _LI,
+                                             precision=1)
 
 
 # ------------------------------------------------------------------------------------------------

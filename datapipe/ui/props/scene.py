@@ -1,11 +1,40 @@
 """`Scene.datapipe.scene` (renders, drop zone, bin, seed) and `.simulation` (the rigid-body drop):
 `Config.scene` and `Config.simulation`."""
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
-                       StringProperty)
+                       PointerProperty, StringProperty)
 from bpy.types import PropertyGroup
 
 from ... import config as C
 from .fields import default, enum_choices, keep_order, keep_range, material_search, range_property
+
+
+_X = C.TexturesConfig
+
+
+class DATAPIPE_PG_textures(PropertyGroup):
+    """`Config.scene.textures`: textures drawn per scene (no target: off)."""
+    targets: EnumProperty(
+        name="Textured", description="What gets a texture drawn per scene (none: textures off)",
+        items=[("bin", "Bin", "The bin's walls"), ("floor", "Floor", "The floor under the bin"),
+               ("parts", "Parts", "Every part instance (on its own material's roughness and metallic)")],
+        options={"ENUM_FLAG"}, default=set(default(_X, "targets")))
+    kinds: EnumProperty(
+        name="Kinds", description="The textures a draw picks from: Blender's procedural noise, Voronoi cells, "
+        "waves, bricks, checker, or a texture set of the image folder",
+        items=enum_choices(C.TEXTURE_KINDS, {"image": "A texture set (colour, roughness, normal maps) of the "
+                                                      "image folder"}),
+        options={"ENUM_FLAG"}, default=set(default(_X, "kinds")))
+    image_folder: StringProperty(
+        name="Image Folder", description="Texture sets (e.g. CC0 PBR sets): colour, roughness and normal maps "
+        "recognised by file name (wood_Color.png, wood_Roughness.png, wood_NormalGL.png); needs Image in Kinds",
+        subtype="DIR_PATH", default=default(_X, "image_folder"))
+    feature_size: range_property("feature_size", "Feature Size", "Size of the texture's features", _X,
+                                 unit="LENGTH", lo=1e-4, hi=10.0)
+    contrast: range_property("contrast", "Contrast", "1 - dark albedo / bright albedo of the two colours", _X,
+                             lo=0.0, hi=1.0)
+    albedo: range_property("albedo", "Albedo", "Linear albedo of the bright colour", _X, lo=0.0, hi=1.0)
+    saturation: range_property("saturation", "Saturation", "Saturation of the colours (hue drawn uniformly)", _X,
+                               lo=0.0, hi=1.0)
 
 
 _renders_lo, _renders_hi = keep_order("min_renders_per_scene", "max_renders_per_scene")
@@ -69,6 +98,8 @@ class DATAPIPE_PG_scene(PropertyGroup):
         "{\"base_color\": [0.5, 0.5, 0.5], \"roughness\": 0.2}; a comma-separated list draws one per scene",
         default=default(_S, "bin_material"),
         search=lambda self, context, text: material_search(text))
+    textures: PointerProperty(type=DATAPIPE_PG_textures, name="Textures",
+                              description="Textures drawn per scene on bin, floor and parts")
 
 
 # ------------------------------------------------------------------------------------------------
