@@ -74,10 +74,36 @@ class BlenderWorld:
         self.instances = sim.kept
         from . import materials        # on a random stream of their own: a list changes no pose
         labels = materials.apply_to_instances(self.cfg, sim.kept, scene_seed(base_seed, scene_id))
-        return SceneStart(parts=[_part(inst, lab, self.cfg.obj_id(inst.entry_index)) for inst, lab in zip(sim.kept, labels)], simulation=sim.summary(),
+        self.labels = {inst.name: lab for inst, lab in zip(sim.kept, labels)}
+        self.drawn = drawn
+        return SceneStart(parts=self._parts(), simulation=sim.summary(),
                           pose_indices=list(pose_indices), drawn=drawn,
                           seconds={"placement": t1 - t0 + sim.placement_seconds,
-                                   "simulation": t2 - t1 - sim.placement_seconds})
+                                   "simulation": t2 - t1 - sim.placement_seconds},
+                          poses=[sim.poses[inst.name] for inst in sim.kept])
+
+    def pick_step(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int,
+                  remove: list[str]) -> SceneStart:
+        """scene.picks: delete the parts named `remove`, give the others their rigid bodies again and
+        let them settle from where they lay (a simulation from rest, checked like a drop), then draw
+        the step's camera poses. The bin, lights and materials stay the pile's."""
+        import bpy
+        t0 = time.perf_counter()
+        gone = set(remove)
+        for inst in self.instances:           # settled parts are plain objects (no rigid body, no pieces)
+            if inst.name in gone:
+                bpy.data.objects.remove(inst.obj, do_unlink=True)
+        rest = [inst for inst in self.instances if inst.name not in gone]
+        self.objects.activate(rest)
+        sim = self.simulation.run(rest)
+        self.instances = sim.kept
+        pose_indices = self.variety.pose_plan(rng, n_renders)
+        return SceneStart(parts=self._parts(), simulation=sim.summary(), pose_indices=list(pose_indices),
+                          drawn=self.drawn, seconds={"simulation": time.perf_counter() - t0},
+                          poses=[sim.poses[inst.name] for inst in sim.kept])
+
+    def _parts(self) -> list[Part]:
+        return [_part(inst, self.labels[inst.name], self.cfg.obj_id(inst.entry_index)) for inst in self.instances]
 
     def render(self, render_dir: Path, pose_index: int | None, seed: int, *, scene_id: int, render_id: int,
                base_seed: int) -> View:
