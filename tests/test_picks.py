@@ -18,6 +18,7 @@ from datapipe.engine.distributed import merge_shards
 from datapipe.engine.pipeline import Pipeline
 from datapipe.errors import ConfigError
 from datapipe.io import layout
+from datapipe.io.reader import read_run
 from test_run_loop import annotations
 
 
@@ -118,6 +119,8 @@ def test_each_step_is_a_scene_without_the_removed_parts(reference):
     L = pipe.sequence_length
     assert L == 4 and len(pipe.plan) == 9          # piles at scenes 0 and 4; the third cut short by the plan
     recs = scenes(out)
+    read = read_run(out)                           # the reader takes the steps as scenes like any other
+    assert [sc.record["picks"]["step"] for sc in read.scenes] == [i % L for i in range(len(pipe.plan))]
     gt = json.loads((out / "bop/train_pbr/000000/scene_gt.json").read_text())
     for i in range(len(pipe.plan)):
         rec = recs[layout.scene_name(i)]
