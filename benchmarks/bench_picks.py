@@ -7,8 +7,9 @@ from the top until 10 remain: 80, 73, ..., 10 (11 scenes, one render each at 64 
 structured light: what is measured is the drop and the settles). Per step: parts, parts lost, the
 independent check's interpenetrating pairs (checks/physics_check.py: deeper than its tolerance),
 below the floor, floating, frames, and whether a removed part is in a later step's ground truth.
-`--resume-check` also runs it again killed (SIGKILL) once scene.0005 is complete, resumes with
---resume and compares every file byte for byte with the uninterrupted run.
+`--resume-check` also runs it again, killed (SIGKILL) at the first progress line of scene.0005
+that names its parts (mid-sequence: the pile and its first steps written, scene.0005 in progress),
+resumes with --resume and compares every file byte for byte with the uninterrupted run.
 
 Writes benchmarks/results/picks.md.
 """
@@ -86,9 +87,10 @@ def main() -> None:
     lines += ["| " + " | ".join(str(v) for v in r) + " |" for r in rows]
     sim = steps.get("simulation", {})
     lines += ["", f"Removed parts found in a later step's ground truth: {leaks}.",
-              f"Whole run (one process, CLI): {wall:.0f} s wall, {cpu:.0f} s CPU; the drop and the 10 settles: "
-              f"{sim.get('wall_s', float('nan')):.0f} s wall, {sim.get('cpu_s', float('nan')):.0f} s CPU "
-              f"(run.json stats.steps.simulation).", ""]
+              f"Whole run (one process, CLI): {wall:.0f} s wall, {cpu:.0f} s CPU; simulation (the drop and the "
+              f"{sim.get('n', 0) - 1} settles after picks): {sim.get('wall_s', float('nan')):.0f} s wall, "
+              f"{sim.get('cpu_s', float('nan')):.0f} s CPU (run.json stats.steps.simulation; the machine's 2 cores "
+              "are shared, so wall > CPU).", ""]
     if args.resume_check:
         part = tmp / "part"
         proc = subprocess.Popen(cmd + ["--out", str(part)], stderr=subprocess.PIPE, text=True)
@@ -101,8 +103,8 @@ def main() -> None:
         done = sorted(p.parent.name for p in part.glob("scene.*/scene.json"))
         r = subprocess.run(cmd + ["--out", str(part), "--resume"], capture_output=True, text=True)
         same = r.returncode == 0 and files(full) == files(part)
-        lines += [f"Killed (SIGKILL) after scene.0005 completed (killed: {killed}; scene folders then: "
-                  f"{len(done)}), resumed with --resume: exit {r.returncode}, every file byte for byte the "
+        lines += [f"Killed (SIGKILL) at scene.0005's first progress line naming its parts (killed: {killed}; "
+                  f"scene.json files then: {len(done)}), resumed with --resume: exit {r.returncode}, every file byte for byte the "
                   f"same as the uninterrupted run's (run.json and logs aside): {same}.", ""]
     text = "\n".join(lines)
     print(text)

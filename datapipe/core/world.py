@@ -10,6 +10,7 @@ import numpy as np
 
 from ..config import Config
 from ..draws.seeds import scene_seed
+from ..engine import progress
 from ..engine.world import Part, SceneStart, View
 
 
@@ -94,6 +95,7 @@ class BlenderWorld:
             if inst.name in gone:
                 bpy.data.objects.remove(inst.obj, do_unlink=True)
         rest = [inst for inst in self.instances if inst.name not in gone]
+        progress.begin("simulation", f"{len(rest)} parts settling after {len(gone)} picked")   # run.json's steps
         self.objects.activate(rest)
         sim = self.simulation.run(rest)
         self.instances = sim.kept

@@ -7,6 +7,10 @@ dataset, and shards (`shard=(i, n)`) produce the same scenes as one process woul
 The loop owns the run (folders, resume, cancel, shards, run.json, annotations, writers); what is
 rendered comes from a world (core/world.py) made by `world(cfg, out)`, by default the Blender one,
 built only when there is something to render. Tests pass a fake world (tests/fake_world.py).
+
+With `scene.picks` a pile's pick steps are the scenes after it (datapipe/draws/picks.py), made in one
+go by `_make_sequence`: shards hold whole sequences, and --resume replays the complete steps of a
+pile (simulation only) before making the rest.
 """
 from __future__ import annotations
 
