@@ -105,10 +105,12 @@ def test_visible_order_needs_the_mask(tmp_path):
 
 
 # -- the run loop ------------------------------------------------------------------------------------
-@pytest.fixture
-def reference(tmp_path):
-    cfg = picks_cfg(tmp_path)
-    out = tmp_path / "ref"
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """One uninterrupted run, shared by the tests below (each writes only into its own tmp_path)."""
+    tmp = tmp_path_factory.mktemp("picks_ref")
+    cfg = picks_cfg(tmp)
+    out = tmp / "ref"
     pipe, events = run(cfg, out)
     assert events[-1].stage == "done"
     return cfg, out, pipe
