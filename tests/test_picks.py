@@ -199,3 +199,20 @@ def test_no_picks_no_record(tmp_path):
     pipe, _ = run(cfg, tmp_path / "out")
     assert pipe.sequence_length == 1 and BoxWorld.instances[-1].picked == []
     assert all("picks" not in s for s in scenes(tmp_path / "out").values())
+
+
+def test_visible_order_removes_the_most_visible_part_of_the_step_before(tmp_path):
+    cfg = picks_cfg(tmp_path, order="visible", num_renders=4)
+    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 2
+    cfg.scene.num_renders = 8
+    run(cfg, tmp_path / "out")
+    recs = list(scenes(tmp_path / "out").values())
+    assert [r["picks"]["step"] for r in recs] == [0, 1, 2, 3]
+    for before, rec in zip(recs, recs[1:]):
+        if not rec["picks"]["removed"]:
+            continue
+        mean = {o["name"]: np.mean([x["visib_fract"] for r in before["renders"] for x in r["objects"]
+                                    if x["name"] == o["name"]]) for o in before["objects"]}
+        best = max(mean.values())
+        assert mean[rec["picks"]["removed"][0]] == best
+        assert rec["picks"]["removed"][0] == min(n for n, v in mean.items() if v == best)   # ties: name
