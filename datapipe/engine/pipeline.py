@@ -265,8 +265,8 @@ class Pipeline:
         steps after it start from the same pile."""
         base = self.cfg.scene.seed
         pk = self.cfg.scene.picks
-        start = None
-        for i in range(first, max(steps) + 1):
+        start, last, finished = None, max(steps), False
+        for i in range(first, last + 1):
             seed_python(base, i)
             if i == first:
                 record = None if pk is None else {"pile": layout.scene_name(first), "step": 0, "parent": None,
@@ -280,7 +280,9 @@ class Pipeline:
                 message = f"picking {len(remove)} part(s), the rest settling"
                 make = functools.partial(world.pick_step, i, base, scene_rng(base, i), self.plan[i], remove)
             if i in steps:
-                done, start = yield from self._make_scene(world, writers, i, done, make, message, record)
+                done, start = yield from self._make_scene(world, writers, i, done, make, message, record,
+                                                          finish=i == last)
+                finished = i == last or self._cancel
             else:
                 yield Progress("scene", done, self.total, scene=i, message=f"{message} (complete: replayed, "
                                                                            "not rendered)")
@@ -289,7 +291,8 @@ class Pipeline:
                     self.stats["seconds"][k] += v
             if self._cancel:
                 break
-        world.finish_scene()
+        if not finished:                   # cancelled while a complete step was replayed
+            world.finish_scene()
         return done
 
     def _pick(self, i: int, start) -> list[str]:
@@ -309,9 +312,10 @@ class Pipeline:
                             visible=visible, rng=picks.pick_rng(self.cfg.scene.seed, i))
 
     def _make_scene(self, world: World, writers: Writers, i: int, done: int, make: Callable, message: str,
-                    record: dict | None):
+                    record: dict | None, finish: bool = True):
         """Drop (or pick and settle: `make`), render and write scene i (a generator of Progress;
-        returns the new `done` and the scene's SceneStart). `record`: scene.json's "picks"."""
+        returns the new `done` and the scene's SceneStart). `record`: scene.json's "picks";
+        `finish`: the world's scene ends here (not before a pick sequence's next step, unless cancelled)."""
         sdir = self.out / layout.scene_name(i)
         # a scene killed mid-way is made again over its files (same names: each write replaces one);
         # nothing else in the folder is touched (a file of yours there stays, beside the run's)
@@ -362,6 +366,8 @@ class Pipeline:
             writers.add_scene(sdir, scene)
         else:
             native.write_scene(sdir, scene)     # the record of a cancelled scene (not complete)
+        if finish or self._cancel:
+            world.finish_scene()
         progress.end()
         self.stats["seconds"]["write"] += time.perf_counter() - t0
         self.manifest.update()
