@@ -31,6 +31,8 @@ class BoxWorld:
         self.setup_notes: list[str] = []
         self.closed = False
         self.objs: list = []
+        self.parts: list = []
+        self.picked: list[list[str]] = []     # the names each pick_step removed, in call order
         BoxWorld.instances.append(self)
 
     @classmethod
@@ -56,7 +58,21 @@ class BoxWorld:
             parts.append(Part(f"{entry.name}_{counts[obj_id]:03d}", entry.filepath, obj_id, k + 1))
         poses = [int(p) for p in rng.permutation(len(self.cfg.camera.poses))[:n_renders]]
         sim = {"parts": len(parts), "frames": int(rng.integers(20, 90)), "settled": True, "removed": []}
-        return SceneStart(parts=parts, simulation=sim, pose_indices=poses, seconds={"placement": 0.0, "simulation": 0.0})
+        self.parts = parts
+        return SceneStart(parts=parts, simulation=sim, pose_indices=poses, seconds={"placement": 0.0, "simulation": 0.0},
+                          poses=[T for _, T in self.objs])
+
+    def pick_step(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int,
+                  remove: list[str]) -> SceneStart:
+        """scene.picks: the named boxes go; the others stay where they lay (no physics here: the
+        run loop's sequencing is what this world tests). Parts keep their mask index, as in Blender."""
+        self.picked.append(list(remove))
+        keep = [k for k, p in enumerate(self.parts) if p.name not in set(remove)]
+        self.objs, self.parts = [self.objs[k] for k in keep], [self.parts[k] for k in keep]
+        poses = [int(p) for p in rng.permutation(len(self.cfg.camera.poses))[:n_renders]]
+        sim = {"parts": len(self.parts), "frames": int(rng.integers(5, 30)), "settled": True, "removed": []}
+        return SceneStart(parts=list(self.parts), simulation=sim, pose_indices=poses,
+                          seconds={"placement": 0.0, "simulation": 0.0}, poses=[T for _, T in self.objs])
 
     def render(self, render_dir: Path, pose_index: int, seed: int, *, scene_id: int, render_id: int,
                base_seed: int) -> View:
@@ -67,6 +83,7 @@ class BoxWorld:
         pos, tgt = fx.DEFAULT_POSES[pose_index % len(fx.DEFAULT_POSES)]
         T_wc = fx.look_at(pos, tgt)
         depth, index, nrm = fx.raycast(self.K, T_wc, self.objs, W, H)
+        index = np.array([0] + [p.mask_index for p in self.parts])[index]     # ray cast: list position + 1
         nc = nrm @ T_wc[:3, :3]
         files = write_render_maps(Path(render_dir), {
             "rgb": np.ascontiguousarray(fx.shade(index, nrm)[..., ::-1]),
@@ -78,7 +95,7 @@ class BoxWorld:
                     mask=index, rgb=fx.shade(index, nrm), seconds={"render": 0.0, "write": 0.0})
 
     def finish_scene(self) -> None:
-        self.objs = []
+        self.objs, self.parts = [], []
 
     def close(self) -> None:
         self.closed = True

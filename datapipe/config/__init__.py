@@ -19,10 +19,10 @@ from .plan import (FRINGE_SUPERSAMPLE, builds_row_code, camera_distances, fringe
 from .limits import (AMBIENT_MODES, COLLISION_SHAPES, ORIGINS, DEVICES, ENGINES, FORMATS, FRINGE_MODES, MAX_FIELD_OF_VIEW_DEG,
                      MAX_FREE_NESTING, MAX_FRINGE_BYTES, MAX_INSTANCES, MAX_PERIODS, MAX_PICKLE_NESTING,
                      MAX_INT32, MAX_RENDERS, MAX_RESOLUTION, MAX_SAMPLES, MAX_SL_SAMPLES, MAX_STEPS, MESH_SUFFIXES,
-                     MIN_FRINGE_CAMERA_PX, MIN_POSITIVE, OTHER_OBJECTS, OUTPUT_KINDS, REFLECTION_FILTERS, SAMPLER_KINDS,
+                     MIN_FRINGE_CAMERA_PX, MIN_POSITIVE, OTHER_OBJECTS, OUTPUT_KINDS, PICK_ORDERS, REFLECTION_FILTERS, SAMPLER_KINDS,
                      SCHEMA_VERSION, SENSOR_FITS, UNWRAP_METHODS)
 from .limits import TEXTURE_KINDS, TEXTURE_TARGETS
-from .schema import (CameraConfig, CameraPose, CameraSamplerConfig,
+from .schema import (CameraConfig, CameraPose, CameraSamplerConfig, PicksConfig,
                      Config, LightingConfig, ObjectEntry, OutputConfig, ProjectorConfig, RenderConfig,
                      SceneConfig, SimulationConfig, StructuredLightConfig, TexturesConfig)
 from .validate import BLEND_MAGICS, VALIDATION_STEPS, validate
@@ -36,9 +36,9 @@ __all__ = [
     "MAX_FREE_NESTING",
     "MAX_FRINGE_BYTES", "MAX_INSTANCES", "MAX_PERIODS", "MAX_PICKLE_NESTING", "MAX_RENDERS", "MAX_RESOLUTION",
     "MAX_SAMPLES", "MAX_SL_SAMPLES", "MAX_STEPS", "MESH_SUFFIXES", "MIN_FRINGE_CAMERA_PX", "OTHER_OBJECTS",
-    "OUTPUT_KINDS", "REFLECTION_FILTERS", "SAMPLER_KINDS", "SCHEMA_VERSION", "SENSOR_FITS",
+    "OUTPUT_KINDS", "PICK_ORDERS", "REFLECTION_FILTERS", "SAMPLER_KINDS", "SCHEMA_VERSION", "SENSOR_FITS",
     "TEXTURE_KINDS", "TEXTURE_TARGETS", "UNWRAP_METHODS",
     "CameraConfig", "CameraPose", "CameraSamplerConfig", "Config", "LightingConfig", "ObjectEntry", "OutputConfig",
-    "ProjectorConfig", "RenderConfig", "SceneConfig", "SimulationConfig", "StructuredLightConfig", "TexturesConfig",
+    "PicksConfig", "ProjectorConfig", "RenderConfig", "SceneConfig", "SimulationConfig", "StructuredLightConfig", "TexturesConfig",
     "BLEND_MAGICS", "VALIDATION_STEPS", "validate",
 ]

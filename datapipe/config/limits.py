@@ -17,6 +17,7 @@ COLLISION_SHAPES = ("AUTO", "DECOMPOSED", "MESH", "CONVEX_HULL", "BOX", "SPHERE"
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 UNWRAP_METHODS = ("auto", "heterodyne", "multi-frequency", "number-theoretic")   # datapipe.sl.unwrap
 SAMPLER_KINDS = ("pool", "bin_view")
+PICK_ORDERS = ("top", "visible", "random")   # scene.picks.order (datapipe/draws/picks.py)
 FRINGE_MODES = ("auto", "fast", "quadrature", "render")   # structured_light.fringe_mode (core/fringe_fast.py,
                                             # sl/fringe_basis.py); auto: quadrature when a configured material
                                             # is shiny (render with a projector gamma), else fast

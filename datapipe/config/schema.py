@@ -40,6 +40,18 @@ class TexturesConfig:
 
 
 @dataclass
+class PicksConfig:
+    """scene.picks: a bin that empties as a robot picks (datapipe/draws/picks.py, docs/DATASETS.md).
+    After a pile's renders, `per_step` parts are removed, chosen by `order` ("top": highest point
+    first, as a robot picks; "visible": largest visible fraction in the step's renders first;
+    "random"), the rest settle again from where they lay, and the pile is rendered again, until
+    `until` parts remain. Each step is a scene of its own."""
+    per_step: int = 1
+    order: str = "top"
+    until: int = 0
+
+
+@dataclass
 class SceneConfig:
     """How many renders, how they group into scenes (one drop each), and where parts are dropped."""
     num_renders: int = 4               # total renders in the run
@@ -65,6 +77,7 @@ class SceneConfig:
                                        # those: one drawn per scene (core/materials.py)
     textures: TexturesConfig = field(default_factory=TexturesConfig)   # textures drawn per scene on bin,
                                        # floor and parts (off: no targets)
+    picks: PicksConfig | None = None   # pick sequences: each pile emptied step by step (PicksConfig); None: off
 
 
 @dataclass

@@ -16,7 +16,7 @@ from ..materials_spec import material_problem
 from ..checks.text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
 from .limits import (ORIGINS, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS,
-                     MAX_SAMPLES, MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, SAMPLER_KINDS, SENSOR_FITS,
+                     MAX_SAMPLES, MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, PICK_ORDERS, SAMPLER_KINDS, SENSOR_FITS,
                      SL_OUTPUT_KINDS)
 from .validate_looks import _check_environment, _check_textures
 from .validate_sl import _check_projector, _check_structured_light
@@ -395,6 +395,38 @@ def _check_variety(ck: _Checks, cfg: Config, check_files: bool) -> None:
         ck.problems += _range_problems("scene.fill", s.fill, lo_bound=0.0, hi_bound=MAX_FILL)
     ck.problems += _sampler_problems(cfg)
     ck.problems += _lighting_problems(cfg.lighting)
+    ck.problems += _picks_problems(cfg)
+
+
+def _picks_problems(cfg: Config) -> list[Problem]:
+    """scene.picks: a known order, steps that remove parts the pile holds (datapipe/draws/picks.py)."""
+    pk = cfg.scene.picks
+    if pk is None:
+        return []
+    from ..draws.picks import fewest_parts, most_parts
+    p = "scene.picks"
+    out = []
+    if pk.order not in PICK_ORDERS:
+        out.append(Problem(f"{p}.order", f"unknown value {pk.order!r}", f"use one of {', '.join(PICK_ORDERS)}"))
+    elif pk.order == "visible" and "mask" not in cfg.render.outputs:
+        out.append(Problem(f"{p}.order", "'visible' ranks parts by their visible fraction, which needs the mask",
+                           "add 'mask' to render.outputs, or use order 'top' or 'random'"))
+    if pk.per_step < 1:
+        out.append(Problem(f"{p}.per_step", f"must be >= 1, got {pk.per_step}", "remove at least one part per step"))
+    if pk.until < 0:
+        out.append(Problem(f"{p}.until", f"must be >= 0, got {pk.until}", "give the parts left at the end (0: all picked)"))
+    if out or not cfg.objects:
+        return out
+    most, fewest = most_parts(cfg), fewest_parts(cfg)
+    if pk.until >= fewest:
+        out.append(Problem(f"{p}.until", f"{pk.until} parts would remain, but a pile holds as few as {fewest} "
+                           "(the objects' min_instances): its sequence would pick nothing",
+                           f"give until below {fewest}, or raise the objects' min_instances"))
+    elif pk.per_step > most - pk.until:
+        out.append(Problem(f"{p}.per_step", f"{pk.per_step} parts per step is more than a pile holds above "
+                           f"until ({most} - {pk.until} = {most - pk.until})",
+                           f"give per_step at most {most - pk.until}, or lower until"))
+    return out
 
 
 def _sampler_problems(cfg: Config) -> list[Problem]:

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..config import Config
 from ..draws.seeds import scene_seed
+from ..engine import progress
 from ..engine.world import Part, SceneStart, View
 
 
@@ -22,7 +23,8 @@ class BlenderWorld:
         self.cfg, self.out = cfg, out
         self.sl = None
         self.blend = None
-        self.instances: list = []
+        self.instances: list = []                    # the annotated parts of the pile (_keep)
+        self.pile: list = []
         self.setup_notes: list[str] = []
 
     @property
@@ -77,18 +79,51 @@ class BlenderWorld:
         part_textures = self.variety.apply_parts(sim.kept, base_seed, scene_id, labels)   # None: no part textures
         if part_textures is not None:
             drawn.setdefault("textures", {})["parts"] = part_textures
-        # distractors (objects[i].annotate: false) fall, occlude and render, but are no part of the
-        # annotations: neither here nor in any T_world_obj of the renders
-        annotated = [(inst, lab) for inst, lab in zip(sim.kept, labels) if inst.annotated]
-        self.instances = [inst for inst, _ in annotated]
-        summary = sim.summary()
-        if any(not e.annotate for e in self.cfg.objects):
-            summary["distractors"] = len(sim.kept) - len(annotated)
-        return SceneStart(parts=[_part(inst, lab, self.cfg.obj_id(inst.entry_index)) for inst, lab in annotated],
-                          simulation=summary,
+        self.labels = {inst.name: lab for inst, lab in zip(sim.kept, labels)}
+        self.drawn = drawn
+        self._keep(sim.kept)
+        return SceneStart(parts=self._parts(), simulation=self._summary(sim),
                           pose_indices=list(pose_indices), drawn=drawn,
                           seconds={"placement": t1 - t0 + sim.placement_seconds,
-                                   "simulation": t2 - t1 - sim.placement_seconds})
+                                   "simulation": t2 - t1 - sim.placement_seconds},
+                          poses=[sim.poses[inst.name] for inst in self.instances])
+
+    def pick_step(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int,
+                  remove: list[str]) -> SceneStart:
+        """scene.picks: delete the parts named `remove`, give the others their rigid bodies again and
+        let them settle from where they lay (a simulation from rest, checked like a drop), then draw
+        the step's camera poses. The bin, lights and materials stay the pile's."""
+        import bpy
+        t0 = time.perf_counter()
+        gone = set(remove)
+        for inst in self.pile:                # settled parts are plain objects (no rigid body, no pieces)
+            if inst.name in gone:
+                bpy.data.objects.remove(inst.obj, do_unlink=True)
+        rest = [inst for inst in self.pile if inst.name not in gone]     # distractors stay: never picked
+        progress.begin("simulation", f"{len(rest)} parts settling after {len(gone)} picked")   # run.json's steps
+        self.objects.activate(rest)
+        sim = self.simulation.run(rest)
+        self._keep(sim.kept)
+        pose_indices = self.variety.pose_plan(rng, n_renders)
+        return SceneStart(parts=self._parts(), simulation=self._summary(sim), pose_indices=list(pose_indices),
+                          drawn=self.drawn, seconds={"simulation": time.perf_counter() - t0},
+                          poses=[sim.poses[inst.name] for inst in self.instances])
+
+    def _keep(self, kept: list) -> None:
+        """The pile after a drop or a pick step: every part in the bin (`pile`), and the annotated ones
+        (`instances`): distractors (objects[i].annotate: false) fall, occlude and render, but are no
+        part of the annotations, neither in the scene's parts nor in any T_world_obj of the renders."""
+        self.pile = list(kept)
+        self.instances = [inst for inst in kept if inst.annotated]
+
+    def _summary(self, sim) -> dict:
+        summary = sim.summary()
+        if any(not e.annotate for e in self.cfg.objects):
+            summary["distractors"] = len(self.pile) - len(self.instances)
+        return summary
+
+    def _parts(self) -> list[Part]:
+        return [_part(inst, self.labels[inst.name], self.cfg.obj_id(inst.entry_index)) for inst in self.instances]
 
     def render(self, render_dir: Path, pose_index: int | None, seed: int, *, scene_id: int, render_id: int,
                base_seed: int) -> View:

@@ -110,9 +110,12 @@ def parse_shard(text: str) -> tuple[int, int]:
     return i, n
 
 
-def shard_scenes(num_scenes: int, shard: tuple[int, int]) -> range:
-    """Contiguous scene range of shard (i, n); shards partition range(num_scenes)."""
+def shard_scenes(num_scenes: int, shard: tuple[int, int], group: int = 1) -> range:
+    """Contiguous scene range of shard (i, n); shards partition range(num_scenes). `group`: scenes
+    go to shards in whole groups of this many (a pick sequence, datapipe/draws/picks.py: its steps
+    need the pile of the step before); 1 is one scene at a time."""
     i, n = shard
-    lo = num_scenes * i // n
-    hi = num_scenes * (i + 1) // n
+    groups = -(-num_scenes // group)
+    lo = groups * i // n * group
+    hi = min(groups * (i + 1) // n * group, num_scenes)
     return range(lo, hi)

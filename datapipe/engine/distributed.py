@@ -45,6 +45,7 @@ from ..io.files import copy_atomic, make_dirs, open_append, read_json, write_jso
 from ..io.manifest import Manifest
 from ..io.layout import config_identity, scene_name
 from ..io.writers import open_writers
+from ..draws.picks import sequence_length
 from ..draws.seeds import plan_scenes, shard_scenes
 from . import stats
 
@@ -337,7 +338,8 @@ def _rerun_hint(i: int, n_scenes: int, runs: list[dict], shard_dirs: list[Path])
         return ""
     given = {tuple(r.get("shard") or (0, 1)): d for r, d in zip(runs, shard_dirs)}
     n = next(iter(counts))
-    j = next(j for j in range(n) if i in shard_scenes(n_scenes, (j, n)))
+    group = _sequence_length(runs[0].get("config")) if runs else 1
+    j = next(j for j in range(n) if i in shard_scenes(n_scenes, (j, n), group))
     if (j, n) in given:
         return f" (shard {j}/{n} in {given[(j, n)]}: re-run it with --resume)"
     return f" (shard {j}/{n}, not among the folders given: run it with --shard {j}/{n} --resume)"
@@ -463,7 +465,8 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
                 "runner": list(runner) if runner else None, "env": dict(env or {}), "out": str(out)}
         dirs, reports = _run_shards_on_ray(spec, plan, shards_root, address=address, num_shards=num_shards,
                                            retries=retries, cpus_per_shard=cpus_per_shard,
-                                           gpus_per_shard=gpus_per_shard, say=say)
+                                           gpus_per_shard=gpus_per_shard, say=say,
+                                           group=sequence_length(cfg))
         for d in dirs:
             if not d.is_dir():
                 raise DataPipeError(f"{d} is not visible on this machine: the output folder must be on a filesystem "
@@ -511,10 +514,19 @@ def _write_shard_preset(cfg, shards_root: Path) -> Path:
     return preset
 
 
+def _sequence_length(config: dict | None) -> int:
+    """Scenes per pile of a run's recorded config: shards hold whole pick sequences (draws/picks.py)."""
+    from ..config import Config
+    try:
+        return sequence_length(Config.from_dict(config or {}))
+    except (DataPipeError, TypeError, ValueError, ZeroDivisionError):
+        return 1
+
+
 def _run_shards_on_ray(spec: dict, plan: list[int], shards_root: Path, *, address, num_shards, retries,
-                       cpus_per_shard, gpus_per_shard, say) -> tuple[list[Path], list[dict]]:
+                       cpus_per_shard, gpus_per_shard, say, group: int = 1) -> tuple[list[Path], list[dict]]:
     """Start (or join) Ray, run one task per shard, wait for all; returns (shard folders, reports).
-    Raises DataPipeError naming the failed shards' logs when any failed after its retries."""
+    `group`: scenes per pile (a pick sequence stays in one shard). Raises DataPipeError naming the failed shards' logs when any failed after its retries."""
     ray = _ray()
     started = False
     if not ray.is_initialized():
@@ -526,7 +538,7 @@ def _run_shards_on_ray(spec: dict, plan: list[int], shards_root: Path, *, addres
     try:
         slots = max(1, int(ray.cluster_resources().get("CPU", 1) // max(cpus_per_shard, 1e-6)))
         n = num_shards or min(len(plan), 4 * slots)
-        n = max(1, min(int(n), len(plan)))
+        n = max(1, min(int(n), -(-len(plan) // group)))
         # an earlier interrupted run with another shard count cannot be resumed shard by shard
         old = [p for p in shards_root.glob("shard_*") if p.is_dir() and not p.name.endswith(f"_of_{n:04d}")]
         if old:
@@ -538,7 +550,7 @@ def _run_shards_on_ray(spec: dict, plan: list[int], shards_root: Path, *, addres
                                              num_cpus=cpus_per_shard, num_gpus=gpus_per_shard)
         dirs = [shards_root / shard_dir_name(i, n) for i in range(n)]
         refs = {task.remote({**spec, "shard_dir": str(d), "shard": (i, n),
-                             "scenes": [scene_name(k) for k in shard_scenes(len(plan), (i, n))]}): i
+                             "scenes": [scene_name(k) for k in shard_scenes(len(plan), (i, n), group)]}): i
                 for i, d in enumerate(dirs)}
         reports, failures = _wait_for_shards(ray, refs, n, retries, say)
         if failures:

@@ -7,6 +7,10 @@ dataset, and shards (`shard=(i, n)`) produce the same scenes as one process woul
 The loop owns the run (folders, resume, cancel, shards, run.json, annotations, writers); what is
 rendered comes from a world (core/world.py) made by `world(cfg, out)`, by default the Blender one,
 built only when there is something to render. Tests pass a fake world (tests/fake_world.py).
+
+With `scene.picks` a pile's pick steps are the scenes after it (datapipe/draws/picks.py), made in one
+go by `_make_sequence`: shards hold whole sequences, and --resume replays the complete steps of a
+pile (simulation only) before making the rest.
 """
 from __future__ import annotations
 
@@ -34,6 +38,7 @@ from ..io.legacy import LegacyPickleWriter
 from ..io.bop_sensor import sensor_for_config
 from ..io.writers import Writers, open_writers
 from ..visibility import visible_fractions
+from ..draws import picks
 from ..draws.seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from ..core.world import BlenderWorld
 from .world import World
@@ -88,8 +93,13 @@ class Pipeline:
         return plan_scenes(s.num_renders, s.min_renders_per_scene, s.max_renders_per_scene, s.seed)
 
     @functools.cached_property
+    def sequence_length(self) -> int:
+        """Scenes per pile: 1, or a pick sequence's drop and steps (datapipe/draws/picks.py)."""
+        return picks.sequence_length(self.cfg)
+
+    @functools.cached_property
     def scene_ids(self) -> list[int]:
-        return shard_scenes(len(self.plan), self.shard)
+        return shard_scenes(len(self.plan), self.shard, group=self.sequence_length)
 
     @functools.cached_property
     def first_image_id(self) -> np.ndarray:
@@ -205,13 +215,13 @@ class Pipeline:
         try:
             for note in world.setup_notes:
                 yield Progress("setup", done, self.total, message=note)
-            for i in todo:
+            for first, steps in self._sequences(todo):
                 if self._cancel:
-                    yield from self._cancelled(done, i)
+                    yield from self._cancelled(done, steps[0])
                     return
-                done = yield from self._make_scene(world, writers, i, done)
+                done = yield from self._make_sequence(world, writers, first, steps, done)
                 if self._cancel:
-                    yield from self._cancelled(done, i)
+                    yield from self._cancelled(done, steps[-1])
                     return
         finally:
             progress.activate(None)
@@ -240,20 +250,86 @@ class Pipeline:
         self._t_loop = time.perf_counter()
         return world
 
-    def _make_scene(self, world: World, writers: Writers, i: int, done: int):
-        """Drop, settle, render and write scene i (a generator of Progress; returns the new `done`)."""
+    def _sequences(self, todo: list[int]) -> list[tuple[int, list[int]]]:
+        """(first scene of the pile, its scenes to make) in run order: one scene per pile without
+        scene.picks; with it, the steps of a pick sequence to make together (datapipe/draws/picks.py)."""
+        out: dict[int, list[int]] = {}
+        for i in todo:
+            out.setdefault(picks.pile_of(i, self.sequence_length)[0], []).append(i)
+        return list(out.items())
+
+    def _make_sequence(self, world: World, writers: Writers, first: int, steps: list[int], done: int):
+        """Make the scenes `steps` of the pile that starts at scene `first` (a generator of Progress;
+        returns the new `done`). Without scene.picks that is the one scene, dropped. With it, the pile
+        is dropped, then each step removes parts (draws/picks.py) and lets the rest settle; a step
+        --resume finds complete is replayed (drop and settles, each deterministic, no render), so the
+        steps after it start from the same pile."""
+        base = self.cfg.scene.seed
+        pk = self.cfg.scene.picks
+        start, last, finished = None, max(steps), False
+        for i in range(first, last + 1):
+            seed_python(base, i)
+            if i == first:
+                record = None if pk is None else {"pile": layout.scene_name(first), "step": 0, "parent": None,
+                                                  "order": pk.order, "removed": []}
+                message = "dropping parts"
+                make = functools.partial(world.start_scene, i, base, scene_rng(base, i), self.plan[i])
+            else:
+                remove = self._pick(i, start)
+                record = {"pile": layout.scene_name(first), "step": i - first, "parent": layout.scene_name(i - 1),
+                          "order": pk.order, "removed": remove}
+                message = f"picking {len(remove)} part(s), the rest settling"
+                make = functools.partial(world.pick_step, i, base, scene_rng(base, i), self.plan[i], remove)
+            if i in steps:
+                done, start = yield from self._make_scene(world, writers, i, done, make, message, record,
+                                                          finish=i == last)
+                finished = i == last or self._cancel
+            else:
+                yield Progress("scene", done, self.total, scene=i, message=f"{message} (complete: replayed, "
+                                                                           "not rendered)")
+                start = make()
+                for k, v in start.seconds.items():
+                    self.stats["seconds"][k] += v
+            if self._cancel:
+                break
+        if not finished:                   # cancelled while a complete step was replayed
+            world.finish_scene()
+        return done
+
+    def _pick(self, i: int, start) -> list[str]:
+        """The parts step scene `i` removes from the pile of the step before (`start`: its SceneStart)."""
+        pk = self.cfg.scene.picks
+        names = [p.name for p in start.parts]
+        heights = visible = None
+        if pk.order == "top":
+            heights = picks.top_heights(start.poses, [self._models[p.obj_id][0] / 1000.0 for p in start.parts])
+        elif pk.order == "visible":        # the mean over the previous step's renders (its scene record)
+            seen: dict[str, list[float]] = {}
+            for rd in self._scenes[layout.scene_name(i - 1)]["renders"]:
+                for o in rd["objects"]:
+                    seen.setdefault(o["name"], []).append(float(o.get("visib_fract") or 0.0))
+            visible = np.array([np.mean(seen.get(n, [0.0])) for n in names])
+        return picks.choose(pk.order, names, picks.step_count(len(names), self.cfg), heights=heights,
+                            visible=visible, rng=picks.pick_rng(self.cfg.scene.seed, i))
+
+    def _make_scene(self, world: World, writers: Writers, i: int, done: int, make: Callable, message: str,
+                    record: dict | None, finish: bool = True):
+        """Drop (or pick and settle: `make`), render and write scene i (a generator of Progress;
+        returns the new `done` and the scene's SceneStart). `record`: scene.json's "picks";
+        `finish`: the world's scene ends here (not before a pick sequence's next step, unless cancelled)."""
         sdir = self.out / layout.scene_name(i)
         # a scene killed mid-way is made again over its files (same names: each write replaces one);
         # nothing else in the folder is touched (a file of yours there stays, beside the run's)
         make_dirs(sdir)
-        yield Progress("scene", done, self.total, scene=i, message="dropping parts")
+        yield Progress("scene", done, self.total, scene=i, message=message)
         base = self.cfg.scene.seed
-        seed_python(base, i)
         self._track(done, i, None)
-        start = world.start_scene(i, base, scene_rng(base, i), self.plan[i])
+        start = make()
         for k, v in start.seconds.items():
             self.stats["seconds"][k] += v
         scene = native.scene_record(i, scene_seed(base, i), start)
+        if record is not None:
+            scene["picks"] = record
         self._scenes[scene["name"]] = scene            # filled below; a scene made again replaces its record
         for r, pose_index in enumerate(start.pose_indices):
             seed = render_seed(base, i, r)
@@ -291,7 +367,8 @@ class Pipeline:
             writers.add_scene(sdir, scene)
         else:
             native.write_scene(sdir, scene)     # the record of a cancelled scene (not complete)
-        world.finish_scene()
+        if finish or self._cancel:
+            world.finish_scene()
         progress.end()
         self.stats["seconds"]["write"] += time.perf_counter() - t0
         self.manifest.update()
@@ -299,7 +376,7 @@ class Pipeline:
             self._mark_scene_done(i)
             yield Progress("scene_done", done, self.total, scene=i, elapsed=time.perf_counter() - self._t_start,
                            message=physics_line({"parts": len(scene["objects"]), **scene["simulation"]}))
-        return done
+        return done, start
 
     def _track(self, done: int, scene: int, render: int | None) -> None:
         """Tell the step tracker where the run is (the render `done` + 1 is in progress)."""

@@ -5,7 +5,10 @@ The pipeline owns the run: plan, seeds, folders, resume, cancel, shards, run.jso
 annotations. A world only makes things: once `setup()`, then per scene `start_scene(scene_id, base_seed,
 rng, n)` (draw the bin and lights, drop parts, settle, pick camera poses) and per render
 `render(render_dir, pose_index, seed, scene_id=, render_id=, base_seed=)` (place the camera,
-files + what the annotations need), then `finish_scene()`; `close()` at the end. Tests pass a fake world
+files + what the annotations need), then `finish_scene()`; `close()` at the end. With `scene.picks`
+a pile's later steps come from `pick_step(scene_id, base_seed, rng, n, remove)` (delete the named
+parts, settle the rest from where they lay, pick camera poses) instead of `start_scene`, and
+`finish_scene()` follows the sequence's last step. Tests pass a fake world
 (tests/fake_world.py: analytic boxes, numpy ray casting) to check the run loop without Blender.
 """
 from __future__ import annotations
@@ -36,6 +39,7 @@ class SceneStart:
     pose_indices: list              # pool index per render, or None where the camera pose is drawn per render
     drawn: dict = field(default_factory=dict)        # scene.json's per-scene draws: {"bin": ..., "lighting": ...}
     seconds: dict = field(default_factory=dict)      # {"placement": s, "simulation": s}
+    poses: list = field(default_factory=list)        # per part, its settled 4x4 world pose (scene.picks' "top")
 
 
 @dataclass
@@ -68,6 +72,9 @@ class World(Protocol):
 
     def render(self, render_dir: Path, pose_index: int | None, seed: int, *, scene_id: int, render_id: int,
                base_seed: int) -> View: ...
+
+    def pick_step(self, scene_id: int, base_seed: int, rng: np.random.Generator, n_renders: int,
+                  remove: list[str]) -> SceneStart: ...
 
     def finish_scene(self) -> None: ...
 

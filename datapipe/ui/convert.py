@@ -2,7 +2,7 @@
 
 Fields map by name, section by section; the few that differ in shape are listed in `_SPECIAL`
 (periods and HDR factors as text, exposure as an auto switch + a number, output/format sets, the
-optional blend file, the projector's Euler/quaternion rotation); `camera.sampler` is a sub-group
+optional blend file, scene.picks as a switch + flat fields, the projector's Euler/quaternion rotation); `camera.sampler` is a sub-group
 (`_NESTED`); the optional `lighting` section is the group `lighting` with its `enabled` switch
 (off = no section); the top-level `device` and `binning` are the root's `device` (NONE = no device)
 and `binning`, and choosing a device fills the camera, projector and structured-light groups
@@ -104,6 +104,7 @@ _SPECIAL = {
     ("scene", "fill"): (lambda grp, name: [f32(v) for v in grp.fill] if grp.use_fill else None,
                         lambda value: [("use_fill", False)] if value is None
                         else [("use_fill", True), ("fill", tuple(value))]),
+    ("scene", "picks"): (lambda grp, name: _picks_get(grp), lambda value: _picks_set(value)),
     ("projector", "rotation"): (lambda grp, name: _rot_get(grp), _rot_set),
     # a calibration's fields (docs/CALIBRATION.md): null <-> the use_ switch off
     ("camera", "intrinsics"): (lambda grp, name: _optional_get(grp, name),
@@ -147,6 +148,20 @@ _SPECIAL = {
     ("output", "path"): (lambda grp, name: _abspath(grp.path), lambda value: [("path", value)]),
     ("output", "bop_sensor"): (lambda grp, name: grp.bop_sensor or None, lambda value: [("bop_sensor", value or "")]),
 }
+
+
+def _picks_get(grp):
+    """scene.picks <-> the use_picks switch and the picks_* fields (off: None)."""
+    if not grp.use_picks:
+        return None
+    return C.PicksConfig(per_step=int(grp.picks_per_step), order=grp.picks_order, until=int(grp.picks_until))
+
+
+def _picks_set(value):
+    if value is None:
+        return [("use_picks", False)]
+    return [("use_picks", True), ("picks_per_step", value.per_step), ("picks_order", value.order),
+            ("picks_until", value.until)]
 
 
 def _optional_get(grp, name):

@@ -125,6 +125,13 @@ class DATAPIPE_PT_scene(_DataPipePanel, Panel):
         sub = col.column()
         sub.active = s.use_fill
         _draw_ranges(sub, s, (("fill", "Fill"),))
+        col = layout.column()
+        col.prop(s, "use_picks")
+        sub = col.column(align=True)
+        sub.active = s.use_picks
+        sub.prop(s, "picks_per_step")
+        sub.prop(s, "picks_order")
+        sub.prop(s, "picks_until")
         layout.prop(s, "blend_file")
         layout.prop(s, "other_objects")
 

@@ -79,6 +79,20 @@ class DATAPIPE_PG_scene(PropertyGroup):
         name="Fill", description="Share of the bin's inner volume the parts' convex hulls fill, drawn per "
         "scene (min, max; at most 0.5: more heaps over the walls)", size=2, min=0.0, max=0.5,
         default=(0.1, 0.2), precision=3, update=keep_range("fill"))
+    use_picks: BoolProperty(
+        name="Pick Sequences", description="After a pile's renders, remove parts as a robot picks, let the "
+        "rest settle and render again, step by step: each step is a scene of its own (scene.picks)",
+        default=False)
+    picks_per_step: IntProperty(
+        name="Parts per Step", description="Parts removed at each step of a pick sequence",
+        default=C.PicksConfig().per_step, min=1, soft_max=50)
+    picks_order: EnumProperty(
+        name="Pick Order", description="Which parts a step removes: top (highest point first, as a robot "
+        "picks), visible (largest visible fraction in the step's renders first), random",
+        items=enum_choices(C.PICK_ORDERS), default=C.PicksConfig().order)
+    picks_until: IntProperty(
+        name="Until", description="The sequence stops when this many parts remain",
+        default=C.PicksConfig().until, min=0, soft_max=500)
     blend_file: StringProperty(
         name="Blend File", description="Open this .blend as the base scene (empty: a fresh scene); its "
         "object 'drop_zone', when present, overrides the drop zone above",
