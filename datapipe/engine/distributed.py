@@ -15,8 +15,8 @@ merged scenes (datapipe.io.writers: output_dict.pickle rebuilt from the scenes' 
 the preset asks for it), run.json says the whole run is complete; then the overview sheet is drawn
 if the preset asks for it. Every write into DIR goes through its opened handle, never a link
 (datapipe/io/guard.py), and the merge records DIR's manifest as a one-process run does, so --force
-and --resume treat the merged run alike (docs/OUTPUT_SAFETY.md). Re-running the same command after a failure resumes: finished shards are
-kept.
+and --resume treat the merged run alike (docs/OUTPUT_SAFETY.md). Re-running the same command after
+a failure resumes: finished shards are kept. A pick sequence (scene.picks) stays in one shard.
 
 Shards run with output.formats = ["native"] (BOP is exported once, after the merge) and no overview.
 On a cluster DIR must be on a filesystem every node mounts at the same path, and datapipe (with bpy)
@@ -36,11 +36,10 @@ from pathlib import Path
 from typing import Callable, ContextManager, Iterable, Sequence
 
 from .. import config as config_mod
-from ..io import guard, outdir
+from ..io import guard, layout, outdir
 from ..io.bop_sensor import sensor_for_config
 from ..checks import gate
 from ..errors import DataPipeError
-from ..io import layout
 from ..io.files import copy_atomic, make_dirs, open_append, read_json, write_json_atomic, write_text_atomic
 from ..io.manifest import Manifest
 from ..io.layout import config_identity, scene_name
@@ -58,10 +57,7 @@ def shard_dir_name(i: int, n: int) -> str:
     return f"shard_{i:04d}_of_{n:04d}"
 
 
-# ------------------------------------------------------------------------------------------------
-# one shard, inside a Ray worker
-
-def _load_prctl():
+def _load_prctl():                               # one shard, inside a Ray worker: its runner process
     try:
         import ctypes
         return ctypes.CDLL("libc.so.6", use_errno=True).prctl
@@ -405,14 +401,11 @@ def _place_scene(g: guard.OutGuard | None, src: Path, dst: Path, *, move: bool) 
 def _same_fs(a: Path, b: Path) -> bool:
     try:
         return os.stat(a).st_dev == os.stat(b).st_dev
-    except OSError:
+    except OSError:                             # a vanished path: copy, never rename across devices
         return False
 
 
-# ------------------------------------------------------------------------------------------------
-# the driver
-
-def _ray():
+def _ray():                                      # the driver's: Ray only when --ray is asked for
     try:
         import ray
     except ImportError:
@@ -516,17 +509,16 @@ def _write_shard_preset(cfg, shards_root: Path) -> Path:
 
 def _sequence_length(config: dict | None) -> int:
     """Scenes per pile of a run's recorded config: shards hold whole pick sequences (draws/picks.py)."""
-    from ..config import Config
     try:
-        return sequence_length(Config.from_dict(config or {}))
+        return sequence_length(config_mod.Config.from_dict(config or {}))
     except (DataPipeError, TypeError, ValueError, ZeroDivisionError):
         return 1
 
 
 def _run_shards_on_ray(spec: dict, plan: list[int], shards_root: Path, *, address, num_shards, retries,
                        cpus_per_shard, gpus_per_shard, say, group: int = 1) -> tuple[list[Path], list[dict]]:
-    """Start (or join) Ray, run one task per shard, wait for all; returns (shard folders, reports).
-    `group`: scenes per pile (a pick sequence stays in one shard). Raises DataPipeError naming the failed shards' logs when any failed after its retries."""
+    """Start (or join) Ray, run one task per shard (a pick sequence's `group` of scenes in one), wait
+    for all; returns (shard folders, reports). DataPipeError naming the failed shards' logs."""
     ray = _ray()
     started = False
     if not ray.is_initialized():
