@@ -52,13 +52,16 @@ def vendor_name(vendor: str) -> str:
 
 def sensor_for_config(cfg: dict | None) -> str:
     """The sensor name of a run from its config dict (run.json's "config"): output.bop_sensor, else
-    the device's vendor, else "sl"."""
+    the device's vendor, else "sl" (no device, or a calibration file of your own rig)."""
     cfg = cfg if isinstance(cfg, dict) else {}
     given = (cfg.get("output") or {}).get("bop_sensor") if isinstance(cfg.get("output"), dict) else None
     if given is not None:
         return check_sensor_name(given)
     dev = cfg.get("device")
     if isinstance(dev, str):
+        from ..calibration import is_calibration_path
+        if is_calibration_path(dev):            # a calibration file of the user's own rig: a custom rig
+            return CUSTOM_RIG
         from ..devices import device
         return vendor_name(device(dev)["vendor"])
     return CUSTOM_RIG

@@ -9,7 +9,7 @@ import pickle
 import cv2
 import numpy as np
 
-from datapipe.io.exr import read_exr
+from datapipe.io.exr import read_object_coords
 
 from test_origin_bbox_center import SIZE_MM, _write_box
 from test_pipeline import run, tiny_config
@@ -34,8 +34,8 @@ def test_xyz_crop_against_object_coords_and_the_mesh(tmp_path):
     run(cfg, out)
     chunk = out / "bop" / "train_pbr" / "000000"
     gt = json.loads((chunk / "scene_gt.json").read_text())["0"]
-    ch = read_exr(chunk / "object_coords" / "000000.exr")
-    coords = np.stack([ch[c] for c in "XYZ"], -1).astype(np.float64)          # mm, NaN off parts
+    # mm, NaN off parts (BOP's object_coords names its channels R, G, B: read_object_coords reads either)
+    coords = read_object_coords(chunk / "object_coords" / "000000.exr").astype(np.float64)
     visible_n = hidden_n = disagree = 0
     worst_visible = worst_outline = worst_surface = 0.0
     for k in range(len(gt)):
