@@ -186,3 +186,33 @@ def test_the_lock_is_never_held_twice(tmp_path):
     assert r.returncode == 0, r.stderr
     line = r.stdout.strip().splitlines()[-1]
     assert line.startswith("acquisitions 3") and line.endswith("double holders 0"), line
+
+
+def test_a_folder_made_by_a_run_killed_at_once_is_still_the_runs(tmp_path):
+    """A kill between making a folder and recording it would leave a folder of the run's that no
+    record names: the resumed run finds it there, never records it, so its manifest differs from an
+    uninterrupted run's and --force leaves the folder behind (seen once in the killed-run test under
+    load). The guard records a folder before it makes it, as it records a file before its rename."""
+    from datapipe.io.guard import OutGuard
+
+    class Kill(BaseException):
+        pass
+
+    class Ledger:
+        def __init__(self, die):
+            self.dirs, self.die = [], die
+
+        def record_dir(self, rel):
+            if self.die:
+                raise Kill          # the process dies before this record reaches the journal
+            self.dirs.append(rel)
+
+    out = tmp_path / "out"
+    out.mkdir()
+    first = Ledger(die=True)
+    with pytest.raises(Kill):
+        OutGuard(out, first).make_dirs(out / "scene.0001")
+    resumed = Ledger(die=False)
+    OutGuard(out, resumed).make_dirs(out / "scene.0001" / "render.0001")
+    assert resumed.dirs == ["scene.0001", "scene.0001/render.0001"]   # both made, and recorded, by the resumed call
+    assert (out / "scene.0001" / "render.0001").is_dir()

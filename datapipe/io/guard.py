@@ -130,12 +130,12 @@ class OutGuard:
             except FileNotFoundError:
                 if not create:
                     raise
+                if self.ledger is not None:    # before the mkdir, as a file before its rename: a run
+                    self.ledger.record_dir(rel)  # killed between the two still owns the folder it made
                 try:
                     os.mkdir(name, 0o777, dir_fd=fd)
                 except FileExistsError:
                     continue                   # made meanwhile (or a link put there): look again
-                if self.ledger is not None:
-                    self.ledger.record_dir(rel)
             except OSError as e:
                 if e.errno in (errno.ELOOP, errno.ENOTDIR):
                     self._refuse_non_dir(fd, name, rel)
