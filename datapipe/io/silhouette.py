@@ -60,34 +60,8 @@ def rasterize_silhouette(verts_mm: np.ndarray, faces: np.ndarray, K, R, t_mm, wi
     cx0, cy0 = int(x0.min()), int(y0.min())
     canvas = np.zeros((int(y1.max()) - cy0 + 1, int(x1.max()) - cx0 + 1), dtype=bool)
     bw, bh = x1 - x0 + 1, y1 - y0 + 1
-    n = bw * bh
-    sign = np.sign(area)
-    # orient every triangle counter-clockwise in the image so one inequality tests "inside"
-    a_u, a_v = tu[:, 0], tv[:, 0]
-    b_u = np.where(sign > 0, tu[:, 1], tu[:, 2]); b_v = np.where(sign > 0, tv[:, 1], tv[:, 2])
-    c_u = np.where(sign > 0, tu[:, 2], tu[:, 1]); c_v = np.where(sign > 0, tv[:, 2], tv[:, 1])
-    eps = 1e-9
-    order = np.argsort(n)
-    starts = np.concatenate([[0], np.cumsum(n[order])])
-    budget = 2_000_000
-    i = 0
-    while i < len(order):
-        j = int(np.searchsorted(starts, starts[i] + budget, side="right")) - 1
-        j = max(j, i + 1)
-        sel = order[i:j]
-        cnt = n[sel]
-        tri = np.repeat(np.arange(len(sel)), cnt)
-        local = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        w = bw[sel][tri]
-        px = x0[sel][tri] + local % w
-        py = y0[sel][tri] + local // w
-        s = sel[tri]
-        e0 = (b_u[s] - a_u[s]) * (py - a_v[s]) - (b_v[s] - a_v[s]) * (px - a_u[s])
-        e1 = (c_u[s] - b_u[s]) * (py - b_v[s]) - (c_v[s] - b_v[s]) * (px - b_u[s])
-        e2 = (a_u[s] - c_u[s]) * (py - c_v[s]) - (a_v[s] - c_v[s]) * (px - c_u[s])
-        inside = (e0 >= -eps) & (e1 >= -eps) & (e2 >= -eps)
-        canvas[py[inside] - cy0, px[inside] - cx0] = True
-        i = j
+    for px, py, _ in covered_pixels(tu, tv, x0, y0, bw, bh, area):
+        canvas[py - cy0, px - cx0] = True
     count = int(canvas.sum())
     if count == 0:
         return empty
@@ -111,3 +85,35 @@ def mask_bbox(mask: np.ndarray) -> list[int]:
     return [int(cols[0]), int(rows[0]), int(cols[-1] - cols[0]), int(rows[-1] - rows[0])]
 
 
+def covered_pixels(tu, tv, x0, y0, bw, bh, area, budget: int = 2_000_000):
+    """Yield (px, py, triangle index) of every integer pixel centre inside each projected triangle
+    (corners `tu`, `tv` (F, 3), pixel box x0, y0 and its size bw, bh, signed doubled `area`), in
+    chunks of about `budget` candidate pixels (smallest boxes first). Edges count as inside (1e-9
+    px), so a shared edge's pixels belong to both triangles: a silhouette has no cracks.
+    The rasteriser of the silhouettes here and of io/xyz_crop.py's object coordinates."""
+    sign = np.sign(area)
+    # orient every triangle counter-clockwise in the image so one inequality tests "inside"
+    a_u, a_v = tu[:, 0], tv[:, 0]
+    b_u = np.where(sign > 0, tu[:, 1], tu[:, 2]); b_v = np.where(sign > 0, tv[:, 1], tv[:, 2])
+    c_u = np.where(sign > 0, tu[:, 2], tu[:, 1]); c_v = np.where(sign > 0, tv[:, 2], tv[:, 1])
+    eps = 1e-9
+    n = bw * bh
+    order = np.argsort(n)
+    starts = np.concatenate([[0], np.cumsum(n[order])])
+    i = 0
+    while i < len(order):
+        j = max(int(np.searchsorted(starts, starts[i] + budget, side="right")) - 1, i + 1)
+        sel = order[i:j]
+        cnt = n[sel]
+        tri = np.repeat(np.arange(len(sel)), cnt)
+        local = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        w = bw[sel][tri]
+        px = x0[sel][tri] + local % w
+        py = y0[sel][tri] + local // w
+        s = sel[tri]
+        e0 = (b_u[s] - a_u[s]) * (py - a_v[s]) - (b_v[s] - a_v[s]) * (px - a_u[s])
+        e1 = (c_u[s] - b_u[s]) * (py - b_v[s]) - (c_v[s] - b_v[s]) * (px - b_u[s])
+        e2 = (a_u[s] - c_u[s]) * (py - c_v[s]) - (a_v[s] - c_v[s]) * (px - c_u[s])
+        inside = (e0 >= -eps) & (e1 >= -eps) & (e2 >= -eps)
+        yield px[inside], py[inside], s[inside]
+        i = j

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..lens import coefficients, distort, turning_radius, undistort
 from .files import make_dirs, write_bytes_atomic
-from .silhouette import NEAR_MM
+from .silhouette import NEAR_MM, covered_pixels
 
 XYZ_CROP_DIR = "xyz_crop"      # beside the chunks in train_pbr/, as GDRNPP's xyz_root
 PICKLE_PROTOCOL = 2            # readable by every Python 3 pickle / mmcv.load
@@ -92,39 +92,15 @@ def rasterize_xyz(verts_mm, faces, K, R, t_mm, width: int, height: int, *, dist=
         rx, ry, _ = undistort(rx, ry, d)
     rx, ry = rx.ravel(), ry.ravel()
     zbuf = np.full(width * height, np.inf)
-    sign = np.sign(area)
-    a_u, a_v = tu[:, 0], tv[:, 0]
-    b_u = np.where(sign > 0, tu[:, 1], tu[:, 2]); b_v = np.where(sign > 0, tv[:, 1], tv[:, 2])
-    c_u = np.where(sign > 0, tu[:, 2], tu[:, 1]); c_v = np.where(sign > 0, tv[:, 2], tv[:, 1])
-    eps = 1e-9
     bw, bh = x1 - x0 + 1, y1 - y0 + 1
-    cnt_all = bw * bh
-    order = np.argsort(cnt_all)
-    starts = np.concatenate([[0], np.cumsum(cnt_all[order])])
-    budget = 2_000_000
-    i = 0
-    while i < len(order):
-        j = max(int(np.searchsorted(starts, starts[i] + budget, side="right")) - 1, i + 1)
-        sel = order[i:j]
-        cnt = cnt_all[sel]
-        tri = np.repeat(np.arange(len(sel)), cnt)
-        local = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        w = bw[sel][tri]
-        px = x0[sel][tri] + local % w
-        py = y0[sel][tri] + local // w
-        s = sel[tri]
-        e0 = (b_u[s] - a_u[s]) * (py - a_v[s]) - (b_v[s] - a_v[s]) * (px - a_u[s])
-        e1 = (c_u[s] - b_u[s]) * (py - b_v[s]) - (c_v[s] - b_v[s]) * (px - b_u[s])
-        e2 = (a_u[s] - c_u[s]) * (py - c_v[s]) - (a_v[s] - c_v[s]) * (px - c_u[s])
-        inside = (e0 >= -eps) & (e1 >= -eps) & (e2 >= -eps)
-        pix, s = py[inside] * width + px[inside], s[inside]
+    for px, py, s in covered_pixels(tu, tv, x0, y0, bw, bh, area):
+        pix = py * width + px
         denom = n[s, 0] * rx[pix] + n[s, 1] * ry[pix] + n[s, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = c[s] / denom
         ok = np.isfinite(depth) & (depth > 0)
         pix, depth = pix[ok], depth[ok]
         np.minimum.at(zbuf, pix, depth)
-        i = j
     hit_flat = np.isfinite(zbuf)
     pix = np.flatnonzero(hit_flat)
     p_cam = np.stack([rx[pix] * zbuf[pix], ry[pix] * zbuf[pix], zbuf[pix]], axis=1)
