@@ -28,13 +28,28 @@ def build(spec):
     mat = bpy.data.materials.get(name)
     if mat is not None:
         return mat
+    mat, nt, bsdf = principled(name, v)
+    color = list(v["base_color"])[:3] + [1.0]
+    bsdf.inputs["Base Color"].default_value = color
+    mat.diffuse_color = color                     # the viewport colour
+    mat.roughness = float(v["roughness"])
+    mat.metallic = float(v["metallic"])
+    if v["variation"] > 0:
+        _add_variation(nt, bsdf, float(v["variation"]), color, float(v["roughness"]))
+    return mat
+
+
+def principled(name: str, v: dict):
+    """A new bpy material `name` whose Principled BSDF has `v`'s metallic, roughness, anisotropy and
+    (when given) IOR and specular; its base colour is the caller's (a value, or a texture). Returns
+    (material, node tree, BSDF). Also used by core/textures.py."""
+    import bpy
+
     mat = bpy.data.materials.new(name)
     if mat.node_tree is None:            # bpy 4.x
         mat.use_nodes = True
     nt = mat.node_tree
     bsdf = next(n for n in nt.nodes if n.type == "BSDF_PRINCIPLED")
-    color = list(v["base_color"])[:3] + [1.0]
-    bsdf.inputs["Base Color"].default_value = color
     bsdf.inputs["Metallic"].default_value = float(v["metallic"])
     bsdf.inputs["Roughness"].default_value = float(v["roughness"])
     bsdf.inputs["Anisotropic"].default_value = float(v["anisotropic"])
@@ -43,12 +58,7 @@ def build(spec):
     if "specular" in v:
         bsdf.inputs["Specular IOR Level"].default_value = float(v["specular"])
     mat["datapipe_roughness"] = float(v["roughness"])   # read by structured_light.has_shiny_surface
-    mat.diffuse_color = color                     # the viewport colour
-    mat.roughness = float(v["roughness"])
-    mat.metallic = float(v["metallic"])
-    if v["variation"] > 0:
-        _add_variation(nt, bsdf, float(v["variation"]), color, float(v["roughness"]))
-    return mat
+    return mat, nt, bsdf
 
 
 def _add_variation(nt, bsdf, amount: float, color, roughness: float) -> None:

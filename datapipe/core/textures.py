@@ -34,19 +34,7 @@ def build(spec, draw: dict, *, world_space: bool, default: dict, tag: str):
     mat = bpy.data.materials.get(name)
     if mat is not None:
         return mat
-    mat = bpy.data.materials.new(name)
-    if mat.node_tree is None:             # bpy 4.x
-        mat.use_nodes = True
-    nt = mat.node_tree
-    bsdf = next(n for n in nt.nodes if n.type == "BSDF_PRINCIPLED")
-    bsdf.inputs["Metallic"].default_value = float(v["metallic"])
-    bsdf.inputs["Roughness"].default_value = float(v["roughness"])
-    bsdf.inputs["Anisotropic"].default_value = float(v["anisotropic"])
-    if "ior" in v:
-        bsdf.inputs["IOR"].default_value = float(v["ior"])
-    if "specular" in v:
-        bsdf.inputs["Specular IOR Level"].default_value = float(v["specular"])
-    mat["datapipe_roughness"] = float(v["roughness"])     # read by structured_light.has_shiny_surface
+    mat, nt, bsdf = materials.principled(name, v)
     bright = list(draw["colors"][0])[:3] + [1.0]
     mat.diffuse_color = bright
     vec = _coordinates(nt, world_space, float(draw["feature_size"]))
