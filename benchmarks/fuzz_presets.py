@@ -18,7 +18,7 @@ than their byteLength, or good (a data URI, a file beside it), or whose own JSON
 levels deep, and OBJ files whose .mtl or a texture it names is a FIFO (issue 33: these hung
 `validate`, exhausted its memory or ended in a traceback). Then, in process and in this order:
 `config.load` (the CLI's loader), `Config.validate()` (files checked), and for the given share of
-the presets validate accepts, the gate `checks.run_checks` without an output folder (as `validate`:
+the presets validate accepts, the gate `engine.gate.run_checks` without an output folder (as `validate`:
 mesh imports, the .blend read by Blender, the bin volume) on the bpy module. `--cli N` then runs N of them (a quarter accepted, the rest
 refused, evenly by the stage that refused them) through `python -m datapipe validate` and
 `run --out` in subprocesses: exit codes, a fix in the message, nothing written, no traceback.
@@ -321,7 +321,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import bpy  # noqa: F401  (the preflight's Blender; imported once)
-    from datapipe.checks import run_checks
+    from datapipe.engine.gate import run_checks
 
     def watchdog(signum, frame):
         raise Hang()

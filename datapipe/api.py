@@ -27,7 +27,7 @@ from .config import (CameraConfig, CameraPose, CameraSamplerConfig, Config, Ligh
                      OutputConfig, ProjectorConfig, RenderConfig, SceneConfig, SimulationConfig,
                      StructuredLightConfig, load, presets_dir)
 from .errors import ConfigError, DataPipeError, OutputStateError, Problem
-from .io.reader import Render, Run, Scene, read_run
+from .reader import Render, Run, Scene, read_run
 from .engine.progress import Progress
 from .sl import DecodeResult, Reason, Scan
 
@@ -102,7 +102,7 @@ def preset_warnings(cfg: Config) -> list[str]:
     """What `python -m datapipe validate` warns about a valid config without refusing it: a part
     that does not fit the drop zone, a bin outside a device's working distance or view, fringe work
     larger than this machine's memory (the gate's warnings, without Blender)."""
-    from .checks import gate
+    from .engine import gate
     return gate.run_checks(cfg, blender=False).warnings
 
 

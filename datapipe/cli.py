@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _command(args) -> int:
     if args.command == "validate":
-        from .checks.gate import memory_summary
+        from .engine.gate import memory_summary
         cfg = config_mod.load(args.preset)
         report = check_config(cfg, verbose=args.verbose)
         print_warnings(report.warnings)

@@ -42,6 +42,7 @@ import copy
 import functools
 import json
 import math
+import os
 import re
 from pathlib import Path
 
@@ -56,6 +57,7 @@ METRICS = {   # the vendors' own precision definitions (how tests/sl/test_sl_dev
     "z_repeatability": "1 sigma of a single pixel's Z over repeated captures of a ceramic plate (Mech-Mind)",
 }
 SOURCE_REF = re.compile(r"^(https://\S+|[\w.-]+/[\w.-]+@[0-9a-f]{40}:\S+)$")   # a URL or repo@commit:path
+CALIBRATION_SUFFIXES = (".yml", ".yaml", ".json", ".xml")   # a `device` ending so names a calibration file
 AUTO_SHARE = 0.8     # radiance 1.0 -> 80% of the full well (as the 'industrial' sensor): electrons_per_unit
 
 
@@ -89,6 +91,13 @@ def device(name: str) -> dict:
         return copy.deepcopy(_all()[name])
     except (KeyError, TypeError):
         raise ConfigError(_unknown(name)) from None
+
+
+def is_calibration_path(device) -> bool:
+    """A `device` value that names a file (a path separator or a calibration file suffix) rather than
+    a preset of this module: the user's own rig, read by datapipe/config/calibration.py."""
+    return isinstance(device, str) and (any(s in device for s in ("/", os.sep))
+                                        or device.lower().endswith(CALIBRATION_SUFFIXES))
 
 
 def _unknown(name) -> Problem:

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from .checks.text_rules import name_problem, short
+from .text_rules import name_problem, short
 
 FILE = "file"
 PRESETS: dict[str, dict] = {

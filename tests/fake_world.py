@@ -1,4 +1,4 @@
-"""A World (datapipe.core.world) without Blender, for testing the run loop: analytic boxes on a floor,
+"""A World (datapipe/world.py; the real one is datapipe.core.world) without Blender, for testing the run loop: analytic boxes on a floor,
 rendered by numpy ray casting (tests/fixtures_native.py), files written with the pipeline's own
 writers. Deterministic from the rng the pipeline hands it, like the Blender world.
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 import fixtures_native as fx
-from datapipe.engine.world import Part, SceneStart, View
+from datapipe.world import SILENT, Part, SceneStart, View
 from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_sensor
 from datapipe.io.native import write_render_maps
 
@@ -33,11 +33,15 @@ class BoxWorld:
         self.objs: list = []
         self.parts: list = []
         self.picked: list[list[str]] = []     # the names each pick_step removed, in call order
+        self.progress = SILENT                # the run's reporter, handed over by report_to
         BoxWorld.instances.append(self)
 
     @classmethod
     def factory(cls, **kw):
         return lambda cfg, out: cls(cfg, out, **kw)
+
+    def report_to(self, progress) -> None:
+        self.progress = progress
 
     def setup(self) -> None:
         self.import_count = len(self.cfg.objects)

@@ -1,4 +1,4 @@
-"""A calibration file as the device (datapipe/calibration.py): the file cv2.FileStorage writes after a
+"""A calibration file as the device (datapipe/config/calibration.py): the file cv2.FileStorage writes after a
 real cv2.stereoCalibrate, and DataPipe's plain JSON, give the camera and projector of that rig; the
 refusals (missing, unreadable, another layout, focal length <= 0, a folding lens, a projector that
 cannot see the camera's view, projector distortion) come before any work, naming the field and the fix.

@@ -1,4 +1,4 @@
-"""Issue 22: one gate of checks (datapipe/checks/gate.py). Its steps run in one order and stop at the
+"""Issue 22: one gate of checks (datapipe/engine/gate.py). Its steps run in one order and stop at the
 first that refuses; every entry that checks or starts a run goes through it, seen by behaviour: the
 gate replaced by a recorder that refuses, each entry must stop with the gate's message and write
 nothing. No bpy: the meshes step is recorded, not run (the real one: tests/blender/test_ui_gate.py).
@@ -10,7 +10,7 @@ import pytest
 import fixtures_native as fx
 from fake_world import BoxWorld
 from datapipe import cli, config as C
-from datapipe.checks import gate
+from datapipe.engine import gate
 from datapipe.engine.pipeline import Pipeline
 from datapipe.core.world import BlenderWorld
 from datapipe.engine.distributed import run_distributed

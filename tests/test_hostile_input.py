@@ -15,7 +15,7 @@ import pytest
 
 from datapipe import config as C
 from datapipe.errors import ConfigError
-from datapipe.checks.text_rules import MAX_ID_NAME_BYTES, name_problem, path_problem
+from datapipe.text_rules import MAX_ID_NAME_BYTES, name_problem, path_problem
 
 
 def _base(assets_dir) -> dict:
@@ -248,7 +248,7 @@ def test_a_deep_tuple_key_in_a_pickle_is_refused_not_a_segfault(tmp_path):
 
 
 def test_pickle_depth_counts_what_the_unpickler_builds():
-    from datapipe.checks.pickle_depth import pickle_depth
+    from datapipe.config.pickle_depth import pickle_depth
     legacy = C.to_legacy_dict(C.default_config())
     assert {pickle_depth(pickle.dumps(legacy, protocol=p), 32) for p in range(6)} == {5}
     cyclic = []

@@ -53,7 +53,7 @@ BPY_FREE = _bpy_free_modules()
 # Modules outside BPY_SIDE that may import core/: the run loop (it builds the BlenderWorld) drives
 # it; the gate of checks runs the Blender mesh preflight (core/preflight.py), imported inside the
 # step that needs it. (The command line reaches Blender only through engine/session.py's run.)
-CORE_IMPORTERS = {"datapipe.engine.pipeline", "datapipe.checks.gate"}
+CORE_IMPORTERS = {"datapipe.engine.pipeline", "datapipe.engine.gate"}
 
 _BLOCKER = """
 import importlib.abc, json, sys

@@ -18,7 +18,7 @@ from datapipe.engine.distributed import merge_shards
 from datapipe.engine.pipeline import Pipeline
 from datapipe.errors import ConfigError
 from datapipe.io import layout
-from datapipe.io.reader import read_run
+from datapipe.reader import read_run
 from test_run_loop import annotations
 
 

@@ -9,10 +9,10 @@ import pytest
 
 import fixtures_native as fx
 from fake_world import BoxWorld
-from datapipe.engine import progress
 from datapipe.engine.pipeline import Pipeline
 from datapipe.engine.progress import STEP, Tracker, estimate_eta
 from datapipe.visibility import VisibStats
+from datapipe.world import SILENT
 
 
 def test_eta_adds_current_step_later_steps_and_later_renders():
@@ -97,24 +97,25 @@ def test_cycles_eta_from_its_remaining_estimate_not_from_a_stale_sample_count():
 
 
 class SteppingWorld(BoxWorld):
-    """The fake world reporting its steps as core/simulation.py, renderer.py and structured_light.py do."""
+    """The fake world reporting its steps as core/simulation.py, renderer.py and structured_light.py do:
+    through the reporter the run hands it (report_to)."""
 
     def start_scene(self, *a, **kw):
-        progress.begin("placement")
-        progress.begin("simulation", "3 parts")
+        self.progress.begin("placement")
+        self.progress.begin("simulation", "3 parts")
         for k in range(1, 4):
-            progress.advance(k, 200)
+            self.progress.advance(k, 200)
         return super().start_scene(*a, **kw)
 
     def render(self, *a, **kw):
-        progress.begin("render", "rgb, depth")
+        self.progress.begin("render", "rgb, depth")
         c0 = time.process_time()
         while time.process_time() - c0 < BUSY_S:          # a Cycles call: CPU-bound
             pass
-        progress.advance(16, 16, "sample")
-        progress.begin("write", "native files")
+        self.progress.advance(16, 16, "sample")
+        self.progress.begin("write", "native files")
         view = super().render(*a, **kw)
-        progress.begin("decode", "12 images")
+        self.progress.begin("decode", "12 images")
         time.sleep(IDLE_S)                                  # waiting: wall time
         return view
 
@@ -154,7 +155,7 @@ def test_step_events_of_a_run_on_the_fake_world(tmp_path):
     last_write = scene_writes[-1]
     assert last_write.done == last_write.total == 3 and "[3/3]" in last_write.line()
     assert last_write.eta is not None and last_write.eta < 1.0       # write history only: no decode/render time
-    assert progress._active is None                     # the run's tracker is gone with the run
+    assert BoxWorld.instances[-1].progress is SILENT    # the run's tracker is gone with the run
     rec = json.loads((tmp_path / "out" / "run.json").read_text())
     vf = rec["stats"]["visib_fract"]
     parts = sum(len(r["objects"]) for sj in sorted((tmp_path / "out").glob("scene.*/scene.json"))

@@ -1,16 +1,10 @@
-"""Checks of a run's inputs and results. `run_checks` is the one gate every entry calls before a run
-(config rules -> output folder -> mesh preflight -> part fit -> device -> memory; see gate.py); the
-other modules are the checks it calls (part_fit, device_checks), the rules the config's own
-validation uses (text_rules, pickle_depth) and the checks of a run's results (physics_check, quality).
+"""Checks a run's gate calls and checks of a run's results. No bpy.
 
-`run_checks` and `CheckReport` are imported on first use: the config package imports text_rules and
-pickle_depth from here, and the gate imports the config package."""
-
-__all__ = ["CheckReport", "run_checks"]
-
-
-def __getattr__(name):
-    if name in __all__:
-        from . import gate
-        return getattr(gate, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+The gate itself, `run_checks`, is run by the run engine (datapipe/engine/gate.py): it drives the
+Blender preflight (core/), so it sits above core/; the checks here sit below it and import neither:
+- of a preset: part_fit (the parts against the bin and its drop zone), device_checks (a device's
+  field of view and precision), origins (a mesh's origin far from its box's centre);
+- of a run's results: physics_check (a frozen scene: interpenetration, under the floor, floating;
+  core/simulation.py calls it), quality (each render's quality gates).
+The rules of a config's own fields live with the Config (datapipe/config/, datapipe/text_rules.py).
+"""

@@ -6,7 +6,7 @@ import math
 import re
 
 from ..errors import Problem
-from ..checks.text_rules import path_problem, short as _short
+from ..text_rules import path_problem, short as _short
 from .limits import MAX_FIELD_OF_VIEW_DEG, MAX_RESOLUTION, MIN_POSITIVE
 
 

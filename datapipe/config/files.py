@@ -11,7 +11,7 @@ from pathlib import Path
 from ..errors import ConfigError, DataPipeError, Problem
 from ..io.input_files import MAX_JSON_BYTES, read_regular
 from ..io.files import write_text_atomic
-from ..checks.pickle_depth import pickle_depth
+from .pickle_depth import pickle_depth
 from .legacy import from_legacy_dict
 from .limits import MAX_PICKLE_NESTING
 from .schema import Config

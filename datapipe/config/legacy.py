@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from ..errors import ConfigError, Problem
-from ..checks.text_rules import short as _short
+from ..text_rules import short as _short
 from .checks import _join
 from .limits import COLLISION_SHAPES
 from .schema import CameraPose, Config, ObjectEntry

@@ -54,6 +54,6 @@ MAX_INSTANCES = 500                # instances of one object per scene
 MAX_FRINGE_BYTES = 16 * 2**30      # one render's fringe patterns + stack (see fringe_memory_bytes)
 MAX_FREE_NESTING = 8              # lists/dicts inside a free-form field (a material list of dicts of lists: 3)
 MAX_PICKLE_NESTING = 1000          # containers in an input pickle (the original's: 5); hashing a key nested
-                                   # ~120,000 deep overflowed CPython's 8 MB C stack (datapipe/checks/pickle_depth.py)
+                                   # ~120,000 deep overflowed CPython's 8 MB C stack (datapipe/config/pickle_depth.py)
 MAX_FIELD_OF_VIEW_DEG = 150.0      # camera/projector full angle across the sensor width
 MIN_FRINGE_CAMERA_PX = 3.0         # finest fringe period on the camera sensor (sampling limit, > 2)

@@ -9,7 +9,7 @@ import typing
 from typing import Any
 
 from ..errors import ConfigError, Problem
-from ..checks.text_rules import short as _short
+from ..text_rules import short as _short
 from .checks import _join
 from .limits import MAX_FREE_NESTING, SCHEMA_VERSION
 
@@ -25,9 +25,9 @@ def from_dict(cls, data: dict, *, base_dir: str | os.PathLike | None = None):
     if version != SCHEMA_VERSION:
         problems.append(Problem("schema_version", f"unsupported schema version {_short(version)}",
                                 f"use schema_version {SCHEMA_VERSION} (re-save the preset)"))
-    from ..calibration import apply_calibration, is_calibration_path
-    from ..devices import apply_device
-    if is_calibration_path(data.get("device")):   # your own rig: a calibration file (datapipe/calibration.py)
+    from .calibration import apply_calibration
+    from ..devices import apply_device, is_calibration_path
+    if is_calibration_path(data.get("device")):   # your own rig: a calibration file (config/calibration.py)
         data = apply_calibration(data, problems, base_dir)
     else:
         data = apply_device(data, problems)      # a device fills the sections the preset leaves out

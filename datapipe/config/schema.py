@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, Problem
-from ..checks.text_rules import path_problem
+from ..text_rules import path_problem
 from .limits import OUTPUT_KINDS, SCHEMA_VERSION
 
 def _vec(*values: float):

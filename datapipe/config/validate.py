@@ -13,7 +13,7 @@ from ..errors import DataPipeError, Problem
 from ..io.mesh_refs import mesh_ref_problems
 from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
-from ..checks.text_rules import name_problem, output_folder_problem, short as _short
+from ..text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
 from .limits import (ORIGINS, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS,
                      MAX_SAMPLES, MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, PICK_ORDERS, SAMPLER_KINDS, SENSOR_FITS,
@@ -497,8 +497,7 @@ def _check_materials(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
 
 def _check_device(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
     """device (a known scanner) and binning (one it offers)."""
-    from ..calibration import is_calibration_path
-    from ..devices import device_problem
+    from ..devices import device_problem, is_calibration_path
     if is_calibration_path(cfg.device):     # a calibration file: read (and checked) when the preset was parsed
         return
     problem = device_problem(cfg.device, cfg.binning)
@@ -508,7 +507,7 @@ def _check_device(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
 
 def _check_lens(ck: "_Checks", cfg: "Config", check_files: bool) -> None:
     """camera.intrinsics / camera.distortion / projector.intrinsics (a calibration's fields)."""
-    from ..calibration import config_problems, working_distance_problems
+    from .calibration import config_problems, working_distance_problems
     ck.problems.extend(config_problems(cfg))
     if not ck.has("camera") and not ck.has("projector"):
         ck.problems.extend(working_distance_problems(cfg))

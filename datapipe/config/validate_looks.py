@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING
 
-from ..checks.text_rules import path_problem
+from ..text_rules import path_problem
 from ..errors import Problem
 from .checks import _range_problems
 from .limits import TEXTURE_KINDS, TEXTURE_TARGETS

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from ..checks.text_rules import short as _short
+from ..text_rules import short as _short
 from .checks import _Checks, _check_field_of_view, _split_fix
 from .limits import (AMBIENT_MODES, FRINGE_MODES, MAX_FRINGE_BYTES, MAX_PERIODS, MAX_RESOLUTION, MAX_SL_SAMPLES,
                      MAX_STEPS, MIN_FRINGE_CAMERA_PX, REFLECTION_FILTERS, UNWRAP_METHODS)

@@ -14,18 +14,18 @@ import numpy as np
 
 from ..io.files import make_dirs
 from ..sl.fringe_synth import INDIRECT_BLUR_PX, indirect_gain  # noqa: F401  (the bounce model both modes render)
+from ..world import SILENT, Reporter
 from .projector import AMBIENT_LAYER
 
 
 def isolated_render(sc, tree, file_output, layer_names, render_dir, basename, *, seed: int,
-                    supersample: int, filter_width: float, what: str = "") -> float:
+                    supersample: int, filter_width: float, what: str = "", progress: Reporter = SILENT) -> float:
     """Render only the view layers `layer_names` of scene `sc` in their own Cycles call, written by
     `file_output` (muted otherwise) to `render_dir`/`basename`, at `supersample` x the resolution
     with pixel filter `filter_width` and Cycles seed `seed`; every other layer and File Output
     node is switched off for the call and everything is restored afterwards. `what`: the progress
-    line's words for what it renders. Returns wall seconds."""
+    line's words for what it renders, reported to `progress` (the renderer's). Returns wall seconds."""
     import bpy
-    from ..engine import progress
     from . import compat
 
     render_dir = Path(render_dir)

@@ -157,7 +157,7 @@ class FlatLitRender:
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, self.layer_names[:1] + extra,
                                   render_dir, FLAT_BASENAME, seed=seed, supersample=supersample,
                                   filter_width=filter_width, what="fast mode: flat-lit layer"
-                                  + (" + the projector-off layer" if extra else ""))
+                                  + (" + the projector-off layer" if extra else ""), progress=self.renderer.progress)
         ch = compat.take_written_exr(render_dir, FLAT_BASENAME, "flat-lit fringe", expect=[
             f"{k}.V" for k, (_, _, t) in PASSES.items() if t == "FLOAT"] + [f"position.{c}" for c in "XYZ"]
             + [f"{n}.V" for n in extra])
@@ -171,7 +171,8 @@ class FlatLitRender:
             seconds += isolated_render(self.scene, self.renderer.tree, self.bounce_output, self.layer_names[1:],
                                        render_dir, BOUNCE_BASENAME, seed=seed, supersample=1,
                                        filter_width=filter_width,
-                                       what=f"fast mode: {len(self.layer_names) - 1} bounce layers")
+                                       what=f"fast mode: {len(self.layer_names) - 1} bounce layers",
+                                       progress=self.renderer.progress)
             ch = compat.take_written_exr(render_dir, BOUNCE_BASENAME, "bounce fringe",
                                          expect=[f"{n}.V" for n in self.layer_names[1:]])
             b = [ch[f"{n}.V"].astype(np.float32) for n in self.layer_names[1:]]

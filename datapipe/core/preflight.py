@@ -1,7 +1,7 @@
 """Checks that need Blender, run before the output folder is touched.
 
 `measure_meshes(cfg)` imports every distinct mesh file once, measures it and removes everything the
-import added, so every entry through the gate (datapipe/checks/gate.py: `datapipe validate` and
+import added, so every entry through the gate (datapipe/engine/gate.py: `datapipe validate` and
 `run`, the add-on, the Ray driver) refuses the same broken part files (no faces, NaN vertices, a
 part bigger than the bin or too small to see) before anything is written; the hull volumes it
 measures feed the gate's part-fit step (part_fit.fill_problems); `check_meshes` is both at once.

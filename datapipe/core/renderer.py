@@ -37,7 +37,7 @@ import bpy
 from . import compat, object_coords
 from ..config import Config
 from ..errors import DataPipeError
-from ..engine import progress
+from ..world import SILENT, Reporter
 from ..io.files import make_dirs
 from ..io.native import write_render_maps
 from .objects import OBJECTS_COLLECTION
@@ -87,8 +87,9 @@ def linear_to_srgb8(linear_rgb: np.ndarray) -> np.ndarray:
 class Renderer:
     """Cycles + passes + compositor, configured once per run; `render()` once per camera pose."""
 
-    def __init__(self, cfg: Config, scene, camera):
+    def __init__(self, cfg: Config, scene, camera, progress: Reporter = SILENT):
         self.cfg = cfg
+        self.progress = progress       # where its Cycles calls and writes are reported (the run's tracker)
         self.scene = scene
         self.camera = camera
         self.outputs: list[str] = [k for k in _OUTPUTS if k in cfg.render.outputs]
@@ -229,11 +230,11 @@ class Renderer:
 
         t0 = time.perf_counter()
         res = self.scene.render
-        with progress.cycles("render", f"{', '.join(self.cfg.render.outputs)} at {res.resolution_x} x "
+        with self.progress.cycles("render", f"{', '.join(self.cfg.render.outputs)} at {res.resolution_x} x "
                                        f"{res.resolution_y}, {self.scene.cycles.samples} samples"):
             bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0
-        progress.begin("write", "native files")
+        self.progress.begin("write", "native files")
 
         channels = compat.take_written_exr(render_dir, TEMP_BASENAME, "pass", expect=[
             f"{item}.{c}" for item, (_, _, socket_type) in self._items.items() for c in _CHANNELS[socket_type]])

@@ -44,7 +44,7 @@ from mathutils import Matrix
 
 from ..config import Config
 from ..checks.physics_check import Part, SceneCheck, check_scene, physics_line
-from ..engine import progress
+from ..world import SILENT, Reporter
 from .objects import COM_PROP, SIM_MESH_PROP, STAGE_LAYERS, Instance, ObjectManager
 from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_bodies
 
@@ -129,11 +129,11 @@ def drop_scene(objects: ObjectManager, simulation: "Simulation", rng: np.random.
     attempt, placing = 0, 0.0
     while True:
         t0 = time.perf_counter()
-        progress.begin("placement", "" if attempt == 0 else f"(redraw {attempt})")
+        simulation.progress.begin("placement", "" if attempt == 0 else f"(redraw {attempt})")
         insts = objects.populate(rng, staged=True)
         placing += time.perf_counter() - t0
-        progress.begin("simulation", f"{len(insts)} parts" + (f" (scene.fill {objects.last_fill['share']:.2f} of "
-                                                             "the bin)" if objects.last_fill else ""))
+        simulation.progress.begin("simulation", f"{len(insts)} parts" + (
+            f" (scene.fill {objects.last_fill['share']:.2f} of the bin)" if objects.last_fill else ""))
         res = drop_in_stages(objects, simulation, insts)
         res.attempts, res.placement_seconds, res.fill = attempt + 1, placing, objects.last_fill
         lost = len(res.removed) / max(1, len(insts))
@@ -175,8 +175,8 @@ def drop_in_stages(objects: ObjectManager, simulation: "Simulation", instances: 
             plan = res.plan
         active = res.kept
         state = "settled" if res.settled else f"{len(res.unsettled)} still moving after {res.frames} frames"
-        progress.note(f"drop stage {waves.index(w) + 1}/{len(waves)}: {state}, {len(res.kept)} parts in the bin, "
-                      f"{len(removed)} lost")
+        simulation.progress.note(f"drop stage {waves.index(w) + 1}/{len(waves)}: {state}, "
+                                 f"{len(res.kept)} parts in the bin, {len(removed)} lost")
     res.kept.sort(key=lambda inst: inst.mask_index)
     res.frames, res.seconds, res.removed, res.plan, res.stages = frames, seconds, removed, plan, len(waves)
     return res
@@ -255,8 +255,9 @@ def plan_substeps(cfg: Config, bs: BlendScene, instances: list[Instance], frame_
 
 
 class Simulation:
-    def __init__(self, cfg: Config, blend_scene: BlendScene):
+    def __init__(self, cfg: Config, blend_scene: BlendScene, progress: Reporter = SILENT):
         self.cfg = cfg
+        self.progress = progress       # where the drop's steps and frames are reported (the run's tracker)
         self.blend_scene = blend_scene
         self.margin = INSIDE_MARGIN
         self._meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}   # mesh name -> (verts, tris)
@@ -375,7 +376,7 @@ class Simulation:
         for k in range(1, int(sim.max_frames) + 1):
             scene.frame_set(FRAME_START + k)
             frames = k
-            progress.advance(k, int(sim.max_frames))
+            self.progress.advance(k, int(sim.max_frames))
             prev, (mats, pts) = mats, state()
             lin = np.linalg.norm(mats[:, :3, 3] - prev[:, :3, 3], axis=1) / dt
             cos = (np.einsum("nij,nij->n", prev[:, :3, :3], mats[:, :3, :3]) - 1) / 2   # trace(R_prev^T R)

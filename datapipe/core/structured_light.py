@@ -93,7 +93,6 @@ from pathlib import Path
 import numpy as np
 
 from .. import sl
-from ..engine import progress
 from ..config.plan import FRINGE_SUPERSAMPLE, builds_row_code   # FRINGE_SUPERSAMPLE: the memory check counts it
 from ..config.plan import SHINY_ROUGHNESS, grey_materials, resolve_fringe_mode  # noqa: F401 (the camera's rules)
 from ..geometry import T_cam_proj, projector_intrinsics, projector_matrix
@@ -347,9 +346,9 @@ class StructuredLightCamera:
 
         extra = [AMBIENT_LAYER] if ambient else []
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names + extra,
-                                  render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
-                                  filter_width=self.filter_width, what=what + (" + the projector-off layer"
-                                                                               if ambient else ""))
+                                  render_dir, FRINGE_BASENAME, seed=seed, supersample=ss, filter_width=self.filter_width,
+                                  what=what + (" + the projector-off layer" if ambient else ""),
+                                  progress=self.renderer.progress)
         ch = compat.take_written_exr(render_dir, FRINGE_BASENAME, "fringe",
                                      expect=[f"{n}.V" for n in names + extra])
         if ambient:
@@ -400,9 +399,9 @@ class StructuredLightCamera:
 
         extra = [AMBIENT_LAYER] if ambient else []
         seconds = isolated_render(self.scene, self.renderer.tree, self.file_output, names + extra,
-                                  render_dir, FRINGE_BASENAME, seed=seed, supersample=ss,
-                                  filter_width=self.filter_width, what=what + (" + the projector-off layer"
-                                                                               if ambient else ""))
+                                  render_dir, FRINGE_BASENAME, seed=seed, supersample=ss, filter_width=self.filter_width,
+                                  what=what + (" + the projector-off layer" if ambient else ""),
+                                  progress=self.renderer.progress)
         t0 = time.perf_counter()
         grey_name = names[0] + GREY_SUFFIX
         expect = [f"{n}.{c}" for n in names for c in "RGB"] + [f"{grey_name}.V"] + [f"{n}.V" for n in extra]
@@ -428,10 +427,10 @@ class StructuredLightCamera:
         grid = getattr(self.camera, "lens", None)
         if grid is not None:            # render grid -> the camera's image, radiance by spline (datapipe/lens.py)
             radiance = grid.remap(radiance, linear=True)
-        progress.begin("decode", f"{radiance.shape[0]} images, exposure {s.exposure}, HDR {s.hdr or 'off'}")
+        self.renderer.progress.begin("decode", f"{radiance.shape[0]} images, exposure {s.exposure}, HDR {s.hdr or 'off'}")
         scan = self.scanner.scan(radiance, seed, self.camera.K, T_world_cam, ambient=self.ambient_image)
         self.last_seconds = {"render": render_s, "decode": scan.seconds}
-        progress.begin("maps")
+        self.renderer.progress.begin("maps")
         files = write_render_maps(rdir, scan.maps(debug=s.debug))
         files.update(self._write_scanner_outputs(rdir, scan))
         summary = scan.summary()

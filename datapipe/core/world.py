@@ -1,4 +1,4 @@
-"""The real world of a run: `BlenderWorld`, the bpy side of the protocol in engine/world.py (bpy is
+"""The real world of a run: `BlenderWorld`, the bpy side of the protocol in datapipe/world.py (bpy is
 imported inside its methods, so the run loop imports this module without Blender).
 """
 from __future__ import annotations
@@ -10,8 +10,7 @@ import numpy as np
 
 from ..config import Config
 from ..draws.seeds import scene_seed
-from ..engine import progress
-from ..engine.world import Part, SceneStart, View
+from ..world import SILENT, Part, Reporter, SceneStart, View
 
 
 class BlenderWorld:
@@ -26,6 +25,8 @@ class BlenderWorld:
         self.instances: list = []                    # the annotated parts of the pile (_keep)
         self.pile: list = []
         self.setup_notes: list[str] = []
+        self.progress: Reporter = SILENT             # the run's reporter (report_to), handed on to the parts
+        self.simulation = self.renderer = None
 
     @property
     def import_count(self) -> int:
@@ -59,6 +60,14 @@ class BlenderWorld:
             from .structured_light import StructuredLightCamera
             self.sl = StructuredLightCamera(self.cfg, bscene, self.camera, self.renderer)
             self.sl.setup()
+
+    def report_to(self, progress: Reporter) -> None:
+        """Report this world's steps to `progress` (the run's tracker; SILENT after the run): the drop's
+        through the Simulation, the renders' (native and structured light) through the Renderer."""
+        self.progress = progress
+        for part in (self.simulation, self.renderer):
+            if part is not None:
+                part.progress = progress
 
     def model_meshes(self) -> dict:
         """{obj_id: (verts m, faces, normals)} of every annotated object entry (scale baked), for OUT/models
@@ -100,7 +109,7 @@ class BlenderWorld:
             if inst.name in gone:
                 bpy.data.objects.remove(inst.obj, do_unlink=True)
         rest = [inst for inst in self.pile if inst.name not in gone]     # distractors stay: never picked
-        progress.begin("simulation", f"{len(rest)} parts settling after {len(gone)} picked")   # run.json's steps
+        self.progress.begin("simulation", f"{len(rest)} parts settling after {len(gone)} picked")   # run.json's steps
         self.objects.activate(rest)
         sim = self.simulation.run(rest)
         self._keep(sim.kept)

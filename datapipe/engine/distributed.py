@@ -38,7 +38,7 @@ from typing import Callable, ContextManager, Iterable, Sequence
 from .. import config as config_mod
 from ..io import guard, layout, outdir
 from ..io.bop_sensor import sensor_for_config
-from ..checks import gate
+from . import gate
 from ..errors import DataPipeError
 from ..io.files import copy_atomic, make_dirs, open_append, read_json, write_json_atomic, write_text_atomic
 from ..io.manifest import Manifest
@@ -430,7 +430,7 @@ def run_distributed(preset_path: str | os.PathLike, out_dir: str | os.PathLike, 
     of its machine unless render.threads is set). runner: the command that takes
     `PRESET --out DIR --shard i/n --seed S --resume` (default `<worker python> -m datapipe run`).
     env: extra environment variables for the runner processes.
-    Before anything is written the preset goes through the gate (datapipe/checks/gate.py), as
+    Before anything is written the preset goes through the gate (datapipe/engine/gate.py), as
     `datapipe run` does: blender_checks=False leaves out its Blender mesh preflight (a driver without
     bpy; each shard's `datapipe run` then refuses a broken mesh), blender_session is the context
     that preflight runs in, warn receives the gate's warnings (default: printed as the CLI does)."""

@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import __version__
 from ..io import outdir
-from ..checks import gate
+from . import gate
 from ..config import Config
 from ..errors import DataPipeError
 from . import progress, stats
@@ -41,7 +41,7 @@ from ..visibility import visible_fractions
 from ..draws import picks
 from ..draws.seeds import plan_scenes, render_seed, scene_rng, scene_seed, seed_python, shard_scenes
 from ..core.world import BlenderWorld
-from .world import World
+from ..world import SILENT, Reporter, World
 
 class QualityError(DataPipeError):
     """--strict: a render failed a quality gate (datapipe.checks.quality)."""
@@ -112,7 +112,7 @@ class Pipeline:
 
     # -- checks before any Blender work ----------------------------------------------------------
     def check(self, blender_session: Callable[[], ContextManager] | None = None) -> gate.CheckReport:
-        """The gate (datapipe/checks/gate.py): config rules, this run's output folder, the mesh
+        """The gate (datapipe/engine/gate.py): config rules, this run's output folder, the mesh
         preflight (with the Blender world), part fit, device, memory. Raises ConfigError /
         DataPipeError; writes nothing. The first pass checks everything; later ones (under the
         run's lock, at run()) only the rules and the folder, which may have changed meanwhile.
@@ -211,7 +211,7 @@ class Pipeline:
         self.tracker = Tracker(self.on_step or _no_lines, self.heartbeat_s)
         if self.on_step is not None:
             self.tracker.start()
-        progress.activate(self.tracker)
+        world.report_to(self.tracker)
         try:
             for note in world.setup_notes:
                 yield Progress("setup", done, self.total, message=note)
@@ -224,13 +224,18 @@ class Pipeline:
                     yield from self._cancelled(done, steps[-1])
                     return
         finally:
-            progress.activate(None)
+            world.report_to(SILENT)
             if self.tracker is not None:
                 self.tracker.stop()
             world.close()
         yield from self._finished(writers, done, f"finished {self._made} render(s) in "
                                                  f"{_fmt_s(time.perf_counter() - self._t_start)}; "
                                                  f"{totals_line(self.run_stats()['physics'])}")
+
+    @property
+    def _progress(self) -> Reporter:
+        """Where the run loop's own steps (annotate, the scene's files) are reported: the run's tracker."""
+        return self.tracker if self.tracker is not None else SILENT
 
     def _build_world(self) -> World:
         t0, c0 = time.perf_counter(), time.process_time()
@@ -337,7 +342,7 @@ class Pipeline:
             make_dirs(rdir)
             self._track(done, i, r)
             view = world.render(rdir, pose_index, seed, scene_id=i, render_id=r, base_seed=base)
-            progress.begin("annotate", f"{len(start.parts)} parts")
+            self._progress.begin("annotate", f"{len(start.parts)} parts")
             scene["renders"].append(native.render_record(r, int(self.first_image_id[i] + r), pose_index, seed,
                                                          view, start.parts, sdir))
             visible_fractions(scene["renders"][-1]["objects"], view.mask, view.K, self._models, *view.resolution,
@@ -361,7 +366,7 @@ class Pipeline:
             self.tracker.at(done=done, total=self.total, scene=i, render=None,
                             per_render=(time.perf_counter() - self._t_loop) / self._made if self._made else None,
                             renders_after=self.total - done)
-        progress.begin("write", "scene files")
+        self._progress.begin("write", "scene files")
         scene["complete"] = complete = len(scene["renders"]) == self.plan[i]
         if complete:
             writers.add_scene(sdir, scene)
@@ -369,7 +374,7 @@ class Pipeline:
             native.write_scene(sdir, scene)     # the record of a cancelled scene (not complete)
         if finish or self._cancel:
             world.finish_scene()
-        progress.end()
+        self._progress.end()
         self.stats["seconds"]["write"] += time.perf_counter() - t0
         self.manifest.update()
         if complete:

@@ -3,8 +3,9 @@ far it is, and the ETA. No bpy at import.
 
 The run loop (engine/pipeline.py) yields `Progress` events between its steps (a render done, a scene
 done). Inside a scene the world's work blocks for minutes (a drop, a Cycles call), so the loop
-starts a `Tracker` for the run and the world reports into it through this module's functions
-(`begin`, `advance`, `note`, `cycles`; no-ops when no tracker runs). The tracker hands
+starts a `Tracker` for the run and hands it to the world (`World.report_to`, datapipe/world.py: the
+world reports through the `Reporter` it is handed, `begin`, `advance`, `note`, `cycles`, and never
+imports this module; outside a run it holds `SILENT`). The tracker hands
 `Progress(stage="step")` events to the sink the pipeline was given (`on_step`: the CLI prints the
 line, the add-on shows it), each at a step's start and then at least every `heartbeat_s` seconds
 while the step lasts: from the caller when it advances (simulation frames) and from a heartbeat
@@ -261,6 +262,26 @@ class Tracker:
             return
         self.emit_fn(self.progress(message))
 
+    @contextmanager
+    def cycles(self, step: str, what: str):
+        """Around one Cycles call: a step line saying what it renders, then its samples/tiles through
+        bpy.app.handlers.render_stats while it runs."""
+        self.begin(step, what)
+        import bpy
+
+        def on_stats(*args):
+            text = next((a for a in args if isinstance(a, str)), None)
+            if text:
+                self.cycles_stats(text)
+        bpy.app.handlers.render_stats.append(on_stats)
+        try:
+            yield
+        finally:
+            try:
+                bpy.app.handlers.render_stats.remove(on_stats)
+            except ValueError:
+                pass
+
     # -- the heartbeat -------------------------------------------------------------------------------
     def start(self) -> "Tracker":
         self._stop.clear()
@@ -311,56 +332,3 @@ _REMAINING = re.compile(r"Remaining:\s*(?:(\d+):)?(\d+):(\d+(?:\.\d+)?)")   # Cy
 def _seconds(m) -> float:
     return int(m.group(1) or 0) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
 _TILES = re.compile(r"Rendered (\d+)/(\d+) Tiles")
-
-_active: Tracker | None = None
-
-
-def activate(tracker: Tracker | None) -> None:
-    """The tracker the module functions report to (None: they do nothing)."""
-    global _active
-    _active = tracker
-
-
-def begin(step: str, what: str = "") -> None:
-    if _active is not None:
-        _active.begin(step, what)
-
-
-def advance(n: int, of: int | None, unit: str = "frame") -> None:
-    if _active is not None:
-        _active.advance(n, of, unit)
-
-
-def end() -> None:
-    if _active is not None:
-        _active.end()
-
-
-def note(message: str) -> None:
-    if _active is not None:
-        _active.note(message)
-
-
-@contextmanager
-def cycles(step: str, what: str):
-    """Around one Cycles call: a step line saying what it renders, then its samples/tiles through
-    bpy.app.handlers.render_stats while it runs."""
-    tracker = _active
-    if tracker is None:
-        yield
-        return
-    tracker.begin(step, what)
-    import bpy
-
-    def on_stats(*args):
-        text = next((a for a in args if isinstance(a, str)), None)
-        if text:
-            tracker.cycles_stats(text)
-    bpy.app.handlers.render_stats.append(on_stats)
-    try:
-        yield
-    finally:
-        try:
-            bpy.app.handlers.render_stats.remove(on_stats)
-        except ValueError:
-            pass

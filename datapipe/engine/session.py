@@ -12,7 +12,7 @@ import sys
 import threading
 from contextlib import contextmanager
 
-from ..checks.text_rules import output_folder_problem
+from ..text_rules import output_folder_problem
 from ..errors import DataPipeError
 from ..io.layout import BLENDER_LOG
 from ..io.outdir import OutLock
@@ -21,11 +21,11 @@ from .blender_log import BlenderLog
 
 def check_config(cfg, verbose: bool = False):
     """What `validate` checks (also datapipe.api.validate(blender=True)): the gate of checks
-    (datapipe/checks/gate.py) without an output folder: every field, before Blender is even imported,
+    (datapipe/engine/gate.py) without an output folder: every field, before Blender is even imported,
     then the Blender preflight (mesh files imported and measured, scene.blend_file read), the part
     fit, the device's range and the memory. Raises ConfigError with every problem; writes nothing.
     Returns the gate's report (its `warnings`)."""
-    from ..checks import gate
+    from . import gate
     return gate.run_checks(cfg, blender_session=lambda: blender_session(BlenderLog(verbose=verbose)))
 
 
@@ -52,7 +52,7 @@ def run_pipeline(cfg, out, *, resume: bool = False, force: bool = False, shard: 
                  seed: int | None = None, strict: bool = False, verbose: bool = False,
                  on_event=None, on_step=None, on_warnings=print_warnings):
     """Run a config (after `check_run_input`) in one process, as `run` does (also datapipe.api.run):
-    the gate of checks (datapipe/checks/gate.py: fields, Blender preflight, part fit, device, memory,
+    the gate of checks (datapipe/engine/gate.py: fields, Blender preflight, part fit, device, memory,
     output folder; its warnings to `on_warnings`), then the pipeline under the
     folder's lock, Ctrl-C stopping after the render in progress, Blender's output in OUT/blender.log,
     and the overview sheet after a finished run. `on_event(Progress)` gets the loop's events (render,

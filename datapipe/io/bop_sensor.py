@@ -59,10 +59,9 @@ def sensor_for_config(cfg: dict | None) -> str:
         return check_sensor_name(given)
     dev = cfg.get("device")
     if isinstance(dev, str):
-        from ..calibration import is_calibration_path
+        from ..devices import device, is_calibration_path
         if is_calibration_path(dev):            # a calibration file of the user's own rig: a custom rig
             return CUSTOM_RIG
-        from ..devices import device
         return vendor_name(device(dev)["vendor"])
     return CUSTOM_RIG
 

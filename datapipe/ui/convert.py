@@ -346,7 +346,7 @@ def config_to_props(cfg: C.Config, props) -> None:
                                 problems)
     plans.append((props.lighting, lighting))
     known = {item.identifier for item in props.bl_rna.properties["device"].enum_items}
-    from ..calibration import is_calibration_path
+    from ..devices import is_calibration_path
     if is_calibration_path(cfg.device):       # the file's rig is spelled out in the camera/projector fields
         cfg = dataclasses.replace(cfg, device=None)
     if cfg.device is not None and cfg.device not in known:

@@ -422,7 +422,7 @@ def _output_dir(cfg: C.Config) -> Path:
 
 
 def _gate(op, context, pipeline) -> None:
-    """The pipeline's check (datapipe/checks/gate.py, what `datapipe run` goes through), its outcome
+    """The pipeline's check (datapipe/engine/gate.py, what `datapipe run` goes through), its outcome
     shown in the panel with the CLI's text: the refusal as the status, each warning as a line and
     as a WARNING report."""
     props = _props(context)

@@ -85,7 +85,7 @@ def test_file_and_bbox_center_frames(tmp_path):
 
 
 def test_validate_warns_on_the_corner_origin_with_bop(tmp_path):
-    from datapipe.checks.gate import run_checks
+    from datapipe.engine.gate import run_checks
     cfg = tiny_config(num_renders=1, res=(64, 48), samples=1)
     cfg.objects = [cfg.objects[0]]
     cfg.objects[0].filepath, cfg.objects[0].scale = str(_write_box(tmp_path / "box.obj")), 0.001

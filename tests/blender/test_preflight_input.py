@@ -15,7 +15,7 @@ import pytest
 from datapipe import cli, config as C
 from datapipe.core.preflight import check_blend, check_meshes
 from datapipe.checks.part_fit import RANDOM_PACKING_MAX, bin_volume
-from datapipe.checks.text_rules import MAX_ID_NAME_BYTES
+from datapipe.text_rules import MAX_ID_NAME_BYTES
 
 
 def main(capsys, *argv):

@@ -21,11 +21,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import DataPipeError, OutputStateError
-from .exr import read_depth, read_exr, read_mask, read_normals, read_object_coords
-from . import layout
-from .files import read_json
-from .input_files import MAX_JSON_BYTES, read_regular
+from .config import Config
+from .errors import DataPipeError, OutputStateError
+from .io.exr import read_depth, read_exr, read_mask, read_normals, read_object_coords
+from .io import layout
+from .io.files import read_json
+from .io.input_files import MAX_JSON_BYTES, read_regular
 
 # scene.json keys that hold matrices: given as numpy arrays
 _MATRICES = ("K", "T_world_cam", "T_world_blcam")
@@ -148,7 +149,6 @@ class Run:
     @property
     def config(self):
         """The Config the run was made with (run.json's `config`, parsed again)."""
-        from ..config import Config
         return Config.from_dict(self.record["config"])
 
     @property
@@ -164,7 +164,7 @@ class Run:
 
     def model_file(self, obj_id: int) -> Path:
         """The part's mesh as the run wrote it: models/obj_XXXXXX.ply, in mm (BOP)."""
-        from .models import model_filename
+        from .io.models import model_filename
         return self.path / layout.MODELS_DIR / model_filename(obj_id)
 
 
@@ -187,7 +187,7 @@ def read_run(path: str | os.PathLike, *, skip_damaged: bool = False) -> Run:
     if not run_file.is_file():
         raise DataPipeError(f"run: {out} has no {layout.RUN_FILE}: not a DataPipe run folder (fix: give the "
                             "output folder of a DataPipe run)")
-    from .outdir import read_record
+    from .io.outdir import read_record
     record = read_record(run_file, "run record")
     scenes, skipped = [], []
     for sdir in layout.scene_dirs(out):

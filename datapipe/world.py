@@ -1,5 +1,8 @@
-"""The world a run renders, as the run loop (engine/pipeline.py) sees it: a small protocol and the
-records it returns. No bpy; the real world is `BlenderWorld` (core/world.py).
+"""The world a run renders, as the run loop (engine/pipeline.py) sees it: a small protocol, the
+records it returns, and the `Reporter` it reports its steps through. No bpy; the real world is
+`BlenderWorld` (core/world.py). This module sits below core/ and engine/ so that both build on it
+and neither imports the other's side: core/ reports through the reporter it is handed, the engine
+hands it one (its `Tracker`, engine/progress.py).
 
 The pipeline owns the run: plan, seeds, folders, resume, cancel, shards, run.json, the writers, the
 annotations. A world only makes things: once `setup()`, then per scene `start_scene(scene_id, base_seed,
@@ -8,14 +11,16 @@ rng, n)` (draw the bin and lights, drop parts, settle, pick camera poses) and pe
 files + what the annotations need), then `finish_scene()`; `close()` at the end. With `scene.picks`
 a pile's later steps come from `pick_step(scene_id, base_seed, rng, n, remove)` (delete the named
 parts, settle the rest from where they lay, pick camera poses) instead of `start_scene`, and
-`finish_scene()` follows the sequence's last step. Tests pass a fake world
-(tests/fake_world.py: analytic boxes, numpy ray casting) to check the run loop without Blender.
+`finish_scene()` follows the sequence's last step. Between `setup()` and `close()` the run hands the
+world its reporter (`report_to(tracker)`), and `SILENT` back when the run ends. Tests pass a fake
+world (tests/fake_world.py: analytic boxes, numpy ray casting) to check the run loop without Blender.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from contextlib import nullcontext
+from typing import ContextManager, Protocol
 
 import numpy as np
 
@@ -60,11 +65,50 @@ class View:
     distortion: list | None = None      # the lens's OpenCV k1 k2 p1 p2 k3 (docs/CALIBRATION.md), None: none
 
 
+class Reporter(Protocol):
+    """What a world reports its steps into: the run's step lines and run.json's step times. `step`
+    is one of engine/progress.py's STEPS; `cycles` wraps one Cycles call (its samples and tiles)."""
+
+    def begin(self, step: str, what: str = "") -> None: ...
+
+    def advance(self, n: int, of: int | None, unit: str = "frame") -> None: ...
+
+    def note(self, message: str) -> None: ...
+
+    def end(self) -> None: ...
+
+    def cycles(self, step: str, what: str) -> ContextManager: ...
+
+
+class Silent:
+    """The reporter of a world outside a run (the add-on's preview, a test): it reports nothing."""
+
+    def begin(self, step: str, what: str = "") -> None:
+        pass
+
+    def advance(self, n: int, of: int | None, unit: str = "frame") -> None:
+        pass
+
+    def note(self, message: str) -> None:
+        pass
+
+    def end(self) -> None:
+        pass
+
+    def cycles(self, step: str, what: str) -> ContextManager:
+        return nullcontext()
+
+
+SILENT = Silent()
+
+
 class World(Protocol):
     import_count: int                   # mesh files read this run
     setup_notes: list[str]              # what setup() did that the user should hear about
 
     def setup(self) -> None: ...
+
+    def report_to(self, progress: Reporter) -> None: ...
 
     def model_meshes(self) -> dict: ...
 

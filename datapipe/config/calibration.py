@@ -21,15 +21,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
-from . import geometry, lens
-from .errors import ConfigError, Problem
+from .. import geometry, lens
+from ..devices import is_calibration_path
+from ..errors import ConfigError, Problem
+from .plan import camera_distances
 
-SUFFIXES = (".yml", ".yaml", ".json", ".xml")
 UNITS = {"m": 1.0, "mm": 1e-3, "cm": 1e-2}
 OPENCV_KEYS = {          # DataPipe's name -> the FileStorage names accepted, first = the documented one
     "K_cam": ("K1", "cameraMatrix1", "M1"), "D_cam": ("D1", "distCoeffs1"),
@@ -41,12 +41,6 @@ FOCUS_SEARCH = (0.05, 10.0)    # m: the camera's central ray is sought in the pr
 MAX_FILE_BYTES = 1 << 20       # a calibration is a few kB: anything above 1 MiB is another file
 ROTATION_TOL = 1e-3            # |R^T R - I| accepted (rounded files), then made exact
 SENSOR_WIDTH_MM = 11.3         # the camera's nominal sensor width (only focal_length's mm depend on it)
-
-
-def is_calibration_path(device) -> bool:
-    """A `device` value that names a file (a path separator or a calibration file suffix), not a preset."""
-    return isinstance(device, str) and (any(s in device for s in ("/", os.sep))
-                                        or device.lower().endswith(SUFFIXES))
 
 
 def apply_calibration(data: dict, problems: list[Problem], base_dir=None) -> dict:
@@ -376,7 +370,6 @@ def working_distance_problems(cfg) -> list[Problem]:
     there. Only for `device` = a calibration file with structured light on."""
     if not (is_calibration_path(cfg.device) and cfg.structured_light.enabled):
         return []
-    from .config.plan import camera_distances
     try:
         Kc, Kp, T = geometry.camera_intrinsics(cfg.camera), geometry.projector_intrinsics(cfg), geometry.T_cam_proj(cfg)
         dists = camera_distances(cfg)

@@ -30,12 +30,12 @@ from pathlib import Path
 from typing import Callable, ContextManager
 
 from ..config import Config, fringe_memory_bytes
-from .device_checks import device_warnings
+from ..checks.device_checks import device_warnings
 from ..io.bop_sensor import sensor_warnings
-from .origins import origin_warnings
+from ..checks.origins import origin_warnings
 from ..errors import ConfigError
 from ..io.bop_models import expand_bop_objects
-from .part_fit import fill_problems, part_fit_warnings
+from ..checks.part_fit import fill_problems, part_fit_warnings
 
 STEPS = ("config", "folder", "meshes", "part_fit", "device", "memory")
 
