@@ -11,7 +11,10 @@
 - no function is longer than MAX_FUNCTION_LINES, except the ones listed (owned and being split
   elsewhere);
 - no module of the package is longer than MAX_MODULE_LINES (issue #22: small modules named for what
-  they hold).
+  they hold);
+- the top-level parts (folders and top-level modules) stand on FLOORS: no import circle among them,
+  each imports only parts on floors below its own, lazy imports included (issue #32; at most MAX_UP
+  listed exceptions); the modules of config/ likewise on CONFIG_FLOORS.
 """
 import ast
 import json
@@ -283,3 +286,195 @@ def test_no_module_over_the_limit():
     lengths = _module_lengths()
     assert {k: v for k, v in lengths.items() if v > MAX_MODULE_LINES} == {}
     assert len(lengths) > 50 and max(lengths.values()) > MAX_MODULE_LINES // 2   # the walk sees the package
+
+
+# -- floors (issue #32): the top-level parts of the package, each on one floor --------------------
+# A part is a folder of datapipe/ or a top-level module. Top to bottom; a part imports only parts on
+# floors below its own (lazy imports inside functions count: they run), never one beside it. The
+# package root (datapipe/__init__.py: the version, the API's names on first use) is no part: Python
+# runs it before any module of the package.
+FLOORS = [
+    ("the entry point", {"__main__"}),
+    ("the front doors: the command line, the add-on, the Python API", {"cli", "ui", "api"}),
+    ("the run: the gate of checks, the run loop, sessions, step progress, Ray shards", {"engine"}),
+    ("Blender's side: the world a run renders", {"core"}),
+    ("checks of a preset and of results, the run read back, its contact sheets", {"checks", "reader", "show"}),
+    ("the Config and its rules; measures of a part's mesh and of a render", {"config", "collision", "visibility"}),
+    ("the draws, every file a run reads or writes, the structured-light decoder", {"draws", "io", "sl"}),
+    ("data and math: devices, frames and intrinsics, lens distortion, materials", {"devices", "geometry", "lens",
+                                                                                  "materials_spec"}),
+    ("leaves: errors, the procedural shapes, text rules, the world protocol", {"errors", "shapes", "text_rules",
+                                                                              "world"}),
+]
+# (importer part, imported part) -> why it may run up; at most MAX_UP, each one a known debt
+ALLOWED_UP: dict[tuple[str, str], str] = {}
+MAX_UP = 2
+# config/ inside: the same rule for its modules (the package's __init__ re-exports them all). The
+# Config class's from_dict / problems / validate call down into parse.py and validate.py, which are
+# handed the class (from_dict(cls, ...)) or the Config they check and never import schema.py at run
+# time (their `if TYPE_CHECKING:` imports are annotations: they never run).
+CONFIG_FLOORS = [
+    ("the package's names", {"__init__"}),
+    ("files: JSON presets and the original pickle", {"files"}),
+    ("the original add-on's dict", {"legacy"}),
+    ("the dataclasses", {"schema"}),
+    ("dict -> Config", {"parse"}),
+    ("the field rules", {"validate"}),
+    ("the rules of a section", {"validate_sl", "validate_looks"}),
+    ("a calibration file of the user's rig", {"calibration"}),
+    ("what a config does at run time; the rules' helpers; a pickle's depth", {"plan", "checks", "pickle_depth"}),
+    ("choices and limits", {"limits"}),
+]
+
+
+def _module_paths() -> dict[str, Path]:
+    out = {}
+    for p in _sources():
+        parts = p.relative_to(ROOT).with_suffix("").parts
+        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+    return out
+
+
+def _imports_at(path: Path) -> list[tuple[str, int]]:
+    """(absolute name, line) of every import of a file, relative ones resolved, lazy ones included,
+    `if TYPE_CHECKING:` ones left out; `from pkg import a` gives pkg and pkg.a."""
+    tree = ast.parse(path.read_text())
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    pkg = parts[:-1]
+    typing_only = {id(n) for i in ast.walk(tree) if isinstance(i, ast.If) and isinstance(i.test, ast.Name)
+                   and i.test.id == "TYPE_CHECKING" for b in i.body for n in ast.walk(b)}
+    out = []
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(pkg[:len(pkg) - node.level + 1] + ((node.module,) if node.module else ()))
+            out.append((base, node.lineno))
+            out += [(f"{base}.{a.name}", node.lineno) for a in node.names]
+    return out
+
+
+def _node_graph(node_of) -> dict[str, dict[str, set[str]]]:
+    """{node: {imported node: {"file:line", ...}}} over the package's modules; `node_of(module)` maps a
+    module of datapipe to its node (None: not in this graph). A name is the longest module it starts with."""
+    paths = _module_paths()
+    graph: dict[str, dict[str, set[str]]] = {}
+    for name, p in paths.items():
+        src = node_of(name)
+        if src is None:
+            continue
+        graph.setdefault(src, {})
+        for m, line in _imports_at(p):
+            if m != "datapipe" and not m.startswith("datapipe."):
+                continue
+            while m not in paths:                       # pkg.mod.attr -> pkg.mod
+                m = m.rpartition(".")[0]
+            dst = node_of(m)
+            if dst is not None and dst != src:
+                graph[src].setdefault(dst, set()).add(f"{p.relative_to(ROOT)}:{line}")
+    return graph
+
+
+def _part_of(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None          # datapipe itself: the package root, no part
+
+
+def _config_module_of(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[:2] != ["datapipe", "config"]:
+        return None
+    return parts[2] if len(parts) > 2 else "__init__"
+
+
+def _circles(graph: dict[str, dict]) -> list[list[str]]:
+    """The strongly connected components of more than one node (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, {}):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in list(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _runs_up(graph: dict[str, dict[str, set[str]]], floors) -> dict[tuple[str, str], list[str]]:
+    """Every import from a node to one on its own floor or above: {(importer, imported): where}."""
+    floor = {n: k for k, (_, names) in enumerate(floors) for n in names}
+    return {(a, b): sorted(where) for a, deps in graph.items() for b, where in deps.items()
+            if floor[b] <= floor[a]}
+
+
+def _check_floors(graph, floors, allowed=None) -> dict:
+    """What breaks the floors: nodes missing from them or listed but absent, circles, imports that run
+    up and are not allowed (empty dict: none)."""
+    allowed = allowed or {}
+    listed = [n for _, names in floors for n in names]
+    bad = {}
+    if sorted(listed) != sorted(set(graph)):
+        bad["not on a floor"] = sorted(set(graph) - set(listed))
+        bad["on a floor, not in the package"] = sorted(set(listed) - set(graph))
+        return bad
+    if _circles(graph):
+        bad["circles"] = _circles(graph)
+    up = {k: v for k, v in _runs_up(graph, floors).items() if k not in allowed}
+    if up:
+        bad["runs up"] = up
+    return bad
+
+
+def test_parts_stand_on_their_floors():
+    """The import graph of the top-level parts has no circle, and every import runs down the floors
+    (FLOORS), except at most MAX_UP listed in ALLOWED_UP."""
+    graph = _node_graph(_part_of)
+    assert _check_floors(graph, FLOORS, ALLOWED_UP) == {}
+    assert len(ALLOWED_UP) <= MAX_UP
+    assert set(ALLOWED_UP) <= set(_runs_up(graph, FLOORS))     # an allowance no longer needed leaves the list
+    # the walk is real: known arrows are there, a lazy one (inside a function) among them
+    assert "core" in graph["engine"] and "config" in graph["core"] and "world" in graph["core"]
+    assert any(w.startswith("datapipe/engine/gate.py") for w in graph["engine"]["core"])   # gate: lazy preflight
+
+
+def test_config_modules_stand_on_their_floors():
+    """No circle inside config/ (Config -> parse -> validate -> ... never back to schema at run time)."""
+    graph = _node_graph(_config_module_of)
+    assert _check_floors(graph, CONFIG_FLOORS) == {}
+    assert {"parse", "validate"} <= set(graph["schema"])        # the Config's methods call down, lazily
+
+
+def test_the_floor_check_can_fail():
+    """A planted import that runs up (io -> engine, as if a writer reported into the run loop), one
+    beside its floor (draws -> io) and a part on no floor are each reported."""
+    graph = _node_graph(_part_of)
+    up = {k: {m: set(w) for m, w in v.items()} for k, v in graph.items()}
+    up["io"]["engine"] = {"planted"}
+    bad = _check_floors(up, FLOORS)
+    assert ("io", "engine") in bad["runs up"] and bad["circles"]
+    beside = {k: dict(v) for k, v in graph.items()}
+    beside["draws"] = {**beside["draws"], "io": {"planted"}}
+    assert list(_check_floors(beside, FLOORS)["runs up"]) == [("draws", "io")]
+    assert _check_floors({**graph, "newpart": {}}, FLOORS)["not on a floor"] == ["newpart"]

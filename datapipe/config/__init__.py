@@ -6,8 +6,13 @@
 - validate.py    validate(): every problem at once (field path + fix) before any Blender work;
                  validate_sl.py the projector / structured-light rules, checks.py their helpers
 - plan.py        what a config will do at run time (camera distances, fringe memory, row code)
-- files.py       JSON presets, the original DataPipe pickle (a safe unpickler), package presets
+- calibration.py `"device": <calibration file>`: the file's camera and projector sections, their rules
+- files.py       JSON presets, the original DataPipe pickle (a safe unpickler; pickle_depth.py reads
+                 its nesting first), package presets
 - legacy.py      the original add-on's input dict <-> Config
+
+Each module imports only the ones listed below it in tests/test_layering.py's CONFIG_FLOORS: schema's
+Config calls down into parse and validate, which never import it at run time.
 
 The names below are the package's public ones: `from datapipe.config import Config, load, validate`.
 """

@@ -281,7 +281,7 @@ class Config:
         """Build from a dict (e.g. parsed JSON). Unknown keys and wrong types are ConfigErrors.
 
         Relative object/blend paths are resolved against `base_dir` (the preset's folder)."""
-        from .parse import from_dict      # the parser builds on this schema: imported when used
+        from .parse import from_dict      # below this module: handed the class it builds (tests/test_layering.py)
         return from_dict(cls, data, base_dir=base_dir)
 
     def resolve_paths(self, base_dir: str | os.PathLike) -> None:
@@ -309,7 +309,7 @@ class Config:
 
     # -- validation -------------------------------------------------------------------------------
     def problems(self, *, check_files: bool = True) -> list[Problem]:
-        from .validate import validate    # the rules build on this schema: imported when used
+        from .validate import validate    # below this module: it reads the Config it is handed
         return validate(self, check_files=check_files)
 
     def validate(self, *, check_files: bool = True) -> "Config":
