@@ -165,7 +165,7 @@ class StructuredLightCamera:
         self.cfg, self.scene, self.camera, self.renderer = cfg, bpy_scene, camera, renderer
         self.plan = FringePlan.from_config(cfg) if plan is None else plan
         self.proj_size = tuple(int(v) for v in cfg.projector.resolution)
-        self.scanner = sl.Scanner.from_config(cfg)   # refuses an ambiguous period set before any render
+        self.scanner = sl.Scanner.from_config(cfg, unwrap=self.plan.unwrap)   # the plan's: decoded per render
         # render settings (benchmarks vary them between renders without rebuilding)
         self.filter_width = FRINGE_FILTER_WIDTH
         self.supersample = self.plan.supersample    # quadrature's calls keep the plan's grids

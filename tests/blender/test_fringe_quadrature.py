@@ -7,8 +7,8 @@ call with one seed, the white, cos and sin layers follow the same paths as the r
 pattern layers, so the mixed frames equal the path-traced ones path for path: the tolerances are
 float rounding (1e-4 of the peak), not Monte-Carlo noise (two seeds differ by ~30% of the peak on
 the plate at these 4 paths per pixel). The only designed difference: the coarse fringes' bounce
-light that left the projector through its faded outer half texel (StructuredLightCamera
-._light_gains), measured at most 1% of the peak on 6 of the 4800 pixels."""
+light that left the projector through its faded outer half texel (QuadratureFringes
+.light_gains), measured at most 1% of the peak on 6 of the 4800 pixels."""
 import numpy as np
 import pytest
 
