@@ -60,7 +60,7 @@ BOUNCE_SMOOTH_PX = 2.0     # camera px: Gaussian smoothing of the bounce fringe'
 BOUNCE_BASENAME = "_sl_bounce"
 
 FLAT_BASENAME = "_sl_flat"               # the flat-lit call's multilayer EXR in the render folder (deleted)
-FLAT_NODE = "datapipe_sl_file_output_flat"    # starts with structured_light.OUTPUT_NODE: removed as a leftover
+FLAT_NODE = "datapipe_sl_file_output_flat"    # starts with fringe_render.OUTPUT_NODE: removed as a leftover
 BOUNCE_NODE = "datapipe_sl_file_output_bounce"
 # EXR item -> (Render Layers socket, view-layer pass flag, socket type)
 PASSES = {

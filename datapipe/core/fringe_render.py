@@ -87,6 +87,7 @@ class PatternLights:
             self.cam.scene.view_layers[AMBIENT_LAYER].samples = layer_samples
 
     def set_indirect_blur(self, blur_px: float) -> None:
+        """Set every light's bounce blur to `blur_px` (the camera's indirect_blur_px, `gain`)."""
         for ob, (gain, offset) in zip(self.projector.lights, self.light_gains()):
             _set_gain(ob.data.node_tree.nodes[INDIRECT_NODE], gain, offset)
 

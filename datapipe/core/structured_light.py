@@ -99,7 +99,7 @@ import numpy as np
 
 from .. import sl
 from ..engine import progress
-from ..config.plan import FRINGE_SUPERSAMPLE, FringePlan, layer_samples   # FRINGE_SUPERSAMPLE: the memory check counts it
+from ..config.plan import FRINGE_SUPERSAMPLE, FringePlan, layer_samples  # noqa: F401 (FRINGE_SUPERSAMPLE: benchmarks)
 from ..config.plan import SHINY_ROUGHNESS, grey_materials, resolve_fringe_mode  # noqa: F401 (the camera's rules)
 from ..geometry import T_cam_proj, projector_intrinsics
 from ..io import layout
