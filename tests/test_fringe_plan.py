@@ -3,12 +3,17 @@ Config (no Blender). Expected counts are worked out by hand from the pattern set
 steps fringe images; the row code is N images of ROW_PERIODS (one period set); quadrature renders
 a white image + (cos, sin) per period (+ one pair for the row code), one per layer or three per
 layer with the white image alone in the first."""
+import ast
 import dataclasses
+import tempfile
+from pathlib import Path
 
 import pytest
 
 from datapipe import config as C
 from datapipe.config.plan import FringePlan, QuadCall, fringe_memory_bytes, layer_samples, quad_call_layers
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cfg(mode="auto", material=None):
@@ -104,3 +109,41 @@ def test_the_unwrap_plan_is_made_once_and_handed_on(monkeypatch):
         U.as_plan((1, 8, 32), plan.unwrap)
     U.as_plan((1, 8, 64), "auto")                    # a method name is planned, as before
     assert len(calls) == 1
+
+
+FRINGE_MODULES = {"datapipe.core.structured_light", "datapipe.core.fringe_render", "datapipe.core.fringe_quadrature",
+                  "datapipe.core.fringe_fast", "datapipe.core.fringe_call", "datapipe.config.plan"}
+
+
+def _fringe_module_assignments(path: Path) -> list[str]:
+    """`alias.NAME = ...` in a file, where alias is one of FRINGE_MODULES as imported there (a module
+    attribute set from outside; not `alias.Class.method = ...`, a wrapper a benchmark puts around a
+    method to keep what it computes)."""
+    tree = ast.parse(path.read_text())
+    aliases = set()
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Import):
+            aliases |= {a.asname for a in n.names if a.name in FRINGE_MODULES and a.asname}
+        elif isinstance(n, ast.ImportFrom) and n.module:
+            aliases |= {a.asname or a.name for a in n.names if f"{n.module}.{a.name}" in FRINGE_MODULES}
+    out = []
+    for n in ast.walk(tree):
+        targets = n.targets if isinstance(n, ast.Assign) else [n.target] if isinstance(n, ast.AugAssign) else []
+        flat = [t for tg in targets for t in (tg.elts if isinstance(tg, ast.Tuple) else [tg])]
+        out += [f"{path.name}:{n.lineno} {t.value.id}.{t.attr}" for t in flat
+                if isinstance(t, ast.Attribute) and isinstance(t.value, ast.Name) and t.value.id in aliases]
+    return out
+
+
+def test_tests_and_benchmarks_choose_the_strategy_by_argument():
+    """No module-level switch of the fringe modules is flipped from outside (the quadrature tests
+    once set QUAD_PACK_CHANNELS and QUAD_COARSE_SUPERSAMPLE on the module): a variant is a
+    FringePlan.from_config argument."""
+    files = sorted((ROOT / "tests").rglob("*.py")) + sorted((ROOT / "benchmarks").rglob("*.py"))
+    assert len(files) > 50
+    assert [a for p in files for a in _fringe_module_assignments(p)] == []
+    planted = ROOT / "tests" / "blender" / "test_fringe_quadrature.py"      # the check sees a planted switch
+    probe = planted.read_text() + "\nSLM.QUAD_PACK_CHANNELS = False\n"
+    tmp = Path(tempfile.mkdtemp()) / planted.name
+    tmp.write_text(probe)
+    assert _fringe_module_assignments(tmp) == [f"{planted.name}:{probe.count(chr(10))} SLM.QUAD_PACK_CHANNELS"]
