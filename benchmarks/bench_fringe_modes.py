@@ -35,6 +35,7 @@ from bench_sl_render import RES, SEED, build_world, cache_native_render, metrics
 from report_util import log_x_frame, write_rows_csv, write_with_notes  # noqa: E402
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
+from datapipe.config.plan import FringePlan  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
 
 MODES = ("render", "fast")
@@ -81,8 +82,8 @@ def render_all(cases, cache: Path, log):
             cfg2 = cfg.copy()
             cfg2.structured_light.enabled = True
             cfg2.structured_light.fringe_mode = mode
-            slc = SLM.StructuredLightCamera(cfg2, bscene, camera, renderer)
-            slc.bounce_min_gain = min_gain
+            slc = SLM.StructuredLightCamera(cfg2, bscene, camera, renderer,
+                                            FringePlan.from_config(cfg2, bounce_min_gain=min_gain))
             slc.setup()
             for c in mcs:
                 slc.set_samples(c[3])

@@ -13,7 +13,7 @@ mode's fringes (Cycles seed SEED and SEED + 1: the second is the yardstick of wh
 alone changes), the quadrature mode with three images per layer (`quadrature_packed`: what ships
 for grey materials; forced on copper, which ships unpacked), with one image per layer
 (`quadrature_unpacked`: what ships for coloured materials) and its cheaper split
-(`quadrature_split`: coarse_supersample 1, the 1- and 8-period images at one path per camera
+(`quadrature_split`: FringePlan coarse_supersample 1, the 1- and 8-period images at one path per camera
 pixel in a second call), all with the row code the product renders on shiny scenes
 (reflection_filter "auto" -> global). Each is decoded by the product's scanner (auto exposure,
 global reflection filter).
@@ -92,6 +92,7 @@ def cpu(fn):
 def render_group(size, material, heights, variants, cache: Path, meta: dict, meta_path: Path, log):
     import bpy
 
+    from datapipe.config.plan import FringePlan
     from datapipe.core import structured_light as SLM
     from datapipe.core.world import BlenderWorld
     from datapipe.draws.seeds import scene_rng
@@ -133,11 +134,9 @@ def render_group(size, material, heights, variants, cache: Path, meta: dict, met
                 continue
             cfg2 = cfg.copy()
             cfg2.structured_light.fringe_mode = mode
-            slc = SLM.StructuredLightCamera(cfg2, scene, world.camera, world.renderer)
-            if css is not None:
-                slc.coarse_supersample = css
-            if pack is not None:
-                slc.pack_channels = pack          # forced: copper would not pack as shipped (grey_materials)
+            # the variant by argument; packing forced: copper would not pack as shipped (grey_materials)
+            plan = FringePlan.from_config(cfg2, packed=pack, coarse_supersample=css)
+            slc = SLM.StructuredLightCamera(cfg2, scene, world.camera, world.renderer, plan)
             slc.setup()
             for k, h in enumerate(heights):
                 T, _, nat_c, nat_w = natives[h]

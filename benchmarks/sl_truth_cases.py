@@ -40,8 +40,9 @@ def _keep(store: list):
 
     def render_fringes(self, render_dir, seed, T_world_cam=None, rows=None):
         t0 = time.perf_counter()
-        if self.flat is not None:        # fast mode: keep the flat-lit passes too
-            orig_flat = self.flat.render
+        flat = getattr(self.strategy, "flat", None)
+        if flat is not None:             # fast mode: keep the flat-lit passes too
+            orig_flat = flat.render
 
             def flat_render(*a, **k):
                 lit, s = orig_flat(*a, **k)
@@ -50,12 +51,12 @@ def _keep(store: list):
                 self._kept_flat = {f"flat_{n}": getattr(lit, n).reshape(h // ss, ss, w // ss, ss).mean(axis=(1, 3))
                                    for n in ("direct", "indirect")}
                 return lit, s
-            self.flat.render = flat_render
+            flat.render = flat_render
         try:
             rad, s = orig_render(self, render_dir, seed, T_world_cam, rows)
         finally:
-            if self.flat is not None:
-                del self.flat.render
+            if flat is not None:
+                del flat.render
         self._kept_rad, self._kept_fringe_s = rad, time.perf_counter() - t0
         return rad, s
 

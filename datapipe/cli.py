@@ -141,13 +141,15 @@ def main(argv: list[str] | None = None) -> int:
 def _command(args) -> int:
     if args.command == "validate":
         from .engine.gate import memory_summary
+        from .config.plan import FringePlan
         cfg = config_mod.load(args.preset)
         report = check_config(cfg, verbose=args.verbose)
         print_warnings(report.warnings)
         cams = (f"{len(cfg.camera.poses)} camera poses" if cfg.camera.sampler.kind == "pool"
                 else f"camera poses drawn by the {cfg.camera.sampler.kind} sampler")
         sl = cfg.structured_light
-        sl_text = (f"on ({'; '.join(_sl_plan(cfg) + [memory_summary(report.cfg)])})" if sl.enabled else "off")
+        sl_text = (f"on ({'; '.join(FringePlan.from_config(report.cfg).describe() + [memory_summary(report.cfg)])})"
+                   if sl.enabled else "off")
         print(f"{_printable(args.preset)}: OK ({cfg.scene.num_renders} renders, {len(cfg.objects)} object entries, "
               f"{cams}, structured light {sl_text})")
         return 0
@@ -184,38 +186,6 @@ def _refuse_links_in_run_dir(args, folder: str) -> None:
     if args.out is None:
         from .io.outdir import refuse_links_under
         refuse_links_under(Path(args.run_dir), folder)
-
-
-def _sl_plan(cfg) -> list[str]:
-    """What the structured-light camera will do, as `validate` tells it: the fringe mode "auto"
-    resolves to, the images per render, exposure and the reflection filter."""
-    from .config.plan import grey_materials, resolve_fringe_mode
-    from .sl.fringe_basis import packed_layout as sl_layout
-    from .sl.scanner import ROW_PERIODS
-    s = cfg.structured_light
-    mode = resolve_fringe_mode(cfg)
-    n = len(s.periods) * s.steps
-    rows = config_mod.builds_row_code(s, mode)
-    images = f"{n} fringe images" + (f" (+{s.steps} row code{' on shiny renders' if s.reflection_filter == 'auto' else ''})"
-                                      if rows else "")
-    if mode == "quadrature":
-        images += (f", mixed from {1 + 2 * len(s.periods)} rendered images (white + cos, sin per period"
-                   f"{'; +2 for the row code' if rows else ''})")
-        packed = len(sl_layout(len(s.periods), len(ROW_PERIODS) if rows else 0))
-        images += (f", three per Cycles layer: {packed} layers (every material is grey)" if grey_materials(cfg)
-                   else ", one per Cycles layer (a material has a colour or comes from its mesh file: three per layer "
-                         "would mix its colours)")
-    why = ""
-    if s.fringe_mode == "auto":
-        shiny = "a configured material is shiny" if s.reflection_filter != "global" else \
-            "reflection_filter global needs a path-traced row code"
-        why = {"quadrature": f" (auto: {shiny}; quadrature path-traces every light path at 1 + 2F images, "
-                             "as render does at F x N)",
-               "render": f" (auto: {shiny}, and projector_gamma {s.projector_gamma:g} rules out quadrature)",
-               "fast": " (auto: every configured material is diffuse)"}[mode]
-    hdr = f", HDR {s.hdr}" if s.hdr else ""
-    return [f"fringe mode {mode}{why}", images, f"exposure {s.exposure}{hdr}",
-            f"reflection filter {s.reflection_filter}"]
 
 
 def _run(cfg, args, preset_path) -> int:

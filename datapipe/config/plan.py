@@ -1,15 +1,19 @@
 """What a config will do at run time, derived from its fields: the camera distances, the fringe
 images and their memory, the finest fringe on the camera sensor, the fringe mode `auto` picks and
-whether quadrature mode packs three images per layer. Read by the validation rules and
-by the run (core/structured_light.py, core/preflight.py, cli). No bpy here."""
+whether quadrature mode packs three images per layer, and `FringePlan`, all of the structured-light
+camera's decisions made once per run (the camera builds its fringe strategy from it, `validate`
+prints it). Read by the validation rules and by the run (core/structured_light.py,
+core/preflight.py, cli). No bpy here."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from ..materials_spec import FILE, values as material_values
 
 if TYPE_CHECKING:                 # annotations only: Config's methods call the rules, not the other way
+    from ..sl.unwrap import UnwrapPlan
     from .schema import Config, StructuredLightConfig
 
 FRINGE_SUPERSAMPLE = 2             # fringe render at this factor x the camera resolution, block-averaged
@@ -135,3 +139,143 @@ def grey_materials(cfg) -> bool:
         if max(rgb) > 0 and (max(rgb) - min(rgb)) / max(rgb) > GREY_CHROMA:
             return False
     return True
+
+
+def layer_samples(samples: int, supersample: int) -> int:
+    """Cycles paths per point sample of a fringe layer: `samples` counts paths per camera pixel,
+    which holds supersample x supersample point samples (at least one path each)."""
+    return max(1, int(math.ceil(int(samples) / int(supersample) ** 2)))
+
+
+@dataclass(frozen=True)
+class QuadCall:
+    """One Cycles call of quadrature mode: white + a (cos, sin) pair per period across the width
+    (`periods`) and per row period over the height (`rows`), at `supersample` x the camera grid."""
+    periods: tuple
+    rows: tuple
+    supersample: int
+
+
+def quad_call_layers(call: QuadCall, packed: bool, rows: bool = True) -> int:
+    """View layers of a quadrature call: its basis images one per layer, or `packed` three to a
+    layer (sl.packed_layout); its row-code layers, which come last, only with `rows`."""
+    from ..sl.fringe_basis import basis_size, packed_layout
+    n_rows = len(call.rows) if rows else 0
+    if packed:
+        return len(packed_layout(len(call.periods), n_rows))
+    return basis_size(len(call.periods), rows=bool(n_rows))
+
+
+@dataclass(frozen=True)
+class FringePlan:
+    """What the structured-light camera does in a run, decided once from the Config (`from_config`):
+    the fringe mode (`auto` resolved), the strategy's variant (quadrature packing, its coarse grid;
+    fast mode's bounce layers), the images per set (F x N, the row code), the Cycles calls and their
+    layers, the unwrap plan, the samples and the memory. core/structured_light.py builds its fringe
+    strategy from it; `validate` prints `describe()`. Tests and benchmarks choose a variant by
+    `from_config`'s arguments."""
+    mode: str                     # "render" | "quadrature" | "fast": structured_light.fringe_mode, "auto" resolved
+    requested: str                # structured_light.fringe_mode as written
+    periods: tuple                # fringe frequencies K, in stack order
+    steps: int                    # phase steps N per frequency
+    samples: int                  # paths per camera pixel of the fringe layers
+    supersample: int              # point-sample grid: supersample x the camera resolution (FRINGE_SUPERSAMPLE)
+    packed: bool                  # quadrature: three basis images per layer, one per colour channel
+    grey: bool                    # every configured material is grey (grey_materials: what packing needs)
+    coarse_supersample: int       # quadrature: the coarse periods' grid (= supersample: one call, the shipped one)
+    bounce_min_gain: float | None  # fast: periods whose bounce keeps this modulation get bounce layers (None: default)
+    row_periods: tuple            # the global reflection filter's row code (empty: none built)
+    reflection_filter: str
+    ambient: bool                 # structured_light.ambient "scene": the projector-off layer
+    projector_gamma: float
+    exposure: object              # structured_light.exposure and .hdr, as `validate` prints them
+    hdr: object
+    unwrap: "UnwrapPlan"          # sl.plan_unwrap of the periods: how the decoder unwraps them
+    memory_bytes: int             # fringe_memory_bytes: one render's fringe work at most
+
+    @classmethod
+    def from_config(cls, cfg: Config, *, packed: bool | None = None, coarse_supersample: int | None = None,
+                    bounce_min_gain: float | None = None) -> "FringePlan":
+        """The plan of `cfg`. Variants `auto` never picks, for tests and benchmarks: `packed`
+        (quadrature: force three images per layer, or one, whatever the materials),
+        `coarse_supersample` (quadrature: 1 renders the coarse periods in a second call at the
+        camera grid, benchmarks/results/sl_glossy_modes.md), `bounce_min_gain` (fast mode's bounce
+        layers, core/fringe_fast.py). ValueError for periods the decoder cannot unwrap."""
+        from ..sl.scanner import ROW_PERIODS
+        from ..sl.unwrap import plan_unwrap
+        s = cfg.structured_light
+        mode = resolve_fringe_mode(cfg)
+        grey = grey_materials(cfg)
+        return cls(
+            mode=mode, requested=s.fringe_mode, periods=tuple(s.periods), steps=int(s.steps), samples=int(s.samples),
+            supersample=FRINGE_SUPERSAMPLE, grey=grey,
+            packed=mode == "quadrature" and (grey if packed is None else bool(packed)),
+            coarse_supersample=FRINGE_SUPERSAMPLE if coarse_supersample is None else int(coarse_supersample),
+            bounce_min_gain=bounce_min_gain,
+            row_periods=tuple(ROW_PERIODS) if builds_row_code(s, mode) else (),
+            reflection_filter=s.reflection_filter, ambient=s.ambient == "scene",
+            projector_gamma=float(s.projector_gamma), exposure=s.exposure,
+            hdr=s.hdr if isinstance(s.hdr, str) else tuple(s.hdr),
+            unwrap=plan_unwrap(s.periods, s.unwrap), memory_bytes=fringe_memory_bytes(cfg))
+
+    @property
+    def n_fringe(self) -> int:
+        """Images of the column-coded fringes per set: F x N."""
+        return len(self.periods) * self.steps
+
+    @property
+    def row_code(self) -> bool:
+        """Whether the row code is built (rendered on the renders that need it)."""
+        return bool(self.row_periods)
+
+    @property
+    def row_images(self) -> int:
+        """Images of the row code after the fringe images (0 without one)."""
+        return len(self.row_periods) * self.steps
+
+    @property
+    def layer_samples(self) -> int:
+        return layer_samples(self.samples, self.supersample)
+
+    def quad_calls(self) -> list[QuadCall]:
+        """Quadrature mode's Cycles calls. All in one call on the render mode's point grid when
+        `coarse_supersample` equals `supersample` (the shipped plan: the same paths as render mode,
+        so the same frames, float rounding aside); else the finest period (the depth) and the row
+        code (the reflection filter) there, and the coarse periods (fringe orders only) in a second
+        call at `coarse_supersample`."""
+        if self.coarse_supersample == self.supersample or len(self.periods) == 1:
+            return [QuadCall(self.periods, self.row_periods, self.supersample)]
+        fine = max(self.periods)
+        return [QuadCall((fine,), self.row_periods, self.supersample),
+                QuadCall(tuple(K for K in self.periods if K != fine), (), self.coarse_supersample)]
+
+    def describe(self) -> list[str]:
+        """What the structured-light camera will do, as `validate` tells it: the fringe mode (with
+        why, for "auto"), the images per render, the exposure and the reflection filter."""
+        images = f"{self.n_fringe} fringe images"
+        if self.row_code:
+            images += f" (+{self.row_images} row code{' on shiny renders' if self.reflection_filter == 'auto' else ''})"
+        if self.mode == "quadrature":
+            basis = sum(1 + 2 * len(c.periods) for c in self.quad_calls())
+            images += (f", mixed from {basis} rendered images (white + cos, sin per period"
+                       f"{'; +2 for the row code' if self.row_code else ''})")
+            if self.packed:
+                layers = sum(quad_call_layers(c, True) for c in self.quad_calls())
+                images += f", three per Cycles layer: {layers} layers" + (" (every material is grey)" if self.grey else "")
+            else:
+                images += (", one per Cycles layer (a material has a colour or comes from its mesh file: three "
+                           "per layer would mix its colours)" if not self.grey else ", one per Cycles layer")
+        hdr = f", HDR {self.hdr if isinstance(self.hdr, str) else list(self.hdr)}" if self.hdr else ""
+        return [f"fringe mode {self.mode}{self._why()}", images, f"exposure {self.exposure}{hdr}",
+                f"reflection filter {self.reflection_filter}"]
+
+    def _why(self) -> str:
+        """Why "auto" chose the mode ("" when fringe_mode names it)."""
+        if self.requested != "auto":
+            return ""
+        shiny = ("a configured material is shiny" if self.reflection_filter != "global"
+                 else "reflection_filter global needs a path-traced row code")
+        return {"quadrature": f" (auto: {shiny}; quadrature path-traces every light path at 1 + 2F images, "
+                              "as render does at F x N)",
+                "render": f" (auto: {shiny}, and projector_gamma {self.projector_gamma:g} rules out quadrature)",
+                "fast": " (auto: every configured material is diffuse)"}[self.mode]

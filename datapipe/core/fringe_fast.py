@@ -43,15 +43,16 @@ white + cos + sin per period).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import sl
-from ..geometry import projector_resolution
+from ..geometry import projector_matrix, projector_resolution
 from .projector import AMBIENT_LAYER, LIGHTS_COLLECTION, Projector
-from .fringe_call import INDIRECT_BLUR_PX, indirect_gain, isolated_render, link_ambient_layer
+from .fringe_call import INDIRECT_BLUR_PX, block_mean, indirect_gain, isolated_render, link_ambient_layer
 
 BOUNCE_MIN_GAIN = 0.05     # periods whose bounce keeps at least this modulation get bounce layers
 BOUNCE_SAMPLES = 1         # paths per camera pixel of the bounce layers (camera resolution)
@@ -59,7 +60,7 @@ BOUNCE_SMOOTH_PX = 2.0     # camera px: Gaussian smoothing of the bounce fringe'
 BOUNCE_BASENAME = "_sl_bounce"
 
 FLAT_BASENAME = "_sl_flat"               # the flat-lit call's multilayer EXR in the render folder (deleted)
-FLAT_NODE = "datapipe_sl_file_output_flat"    # starts with structured_light.OUTPUT_NODE: removed as a leftover
+FLAT_NODE = "datapipe_sl_file_output_flat"    # starts with fringe_render.OUTPUT_NODE: removed as a leftover
 BOUNCE_NODE = "datapipe_sl_file_output_bounce"
 # EXR item -> (Render Layers socket, view-layer pass flag, socket type)
 PASSES = {
@@ -72,6 +73,71 @@ PASSES = {
     "trans_col": ("Transmission Color", "use_pass_transmission_color", "FLOAT"),
     "position": ("Position", "use_pass_position", "VECTOR"),
 }
+
+
+class FastFringes:
+    """The fringe strategy of fringe_mode "fast" (the StructuredLightCamera `cam` holds it): the
+    flat-lit call (`FlatLitRender`) and every pattern synthesised from it on the same point grid.
+    `bounce_min_gain`: periods whose bounce keeps this modulation get bounce layers (None:
+    BOUNCE_MIN_GAIN; the run's FringePlan carries it, benchmarks vary it)."""
+
+    def __init__(self, cam, *, bounce_min_gain: float | None = None):
+        self.cam = cam
+        self.bounce_min_gain = BOUNCE_MIN_GAIN if bounce_min_gain is None else float(bounce_min_gain)
+        self.flat = None
+        self._profiles = sl.pattern_profiles(cam.proj_size[0], cam.plan.periods, cam.plan.steps)
+
+    @property
+    def file_output(self):
+        """The File Output node the flat-lit call writes through."""
+        return None if self.flat is None else self.flat.file_output
+
+    @property
+    def layer_names(self) -> list[str]:
+        return [] if self.flat is None else self.flat.layer_names
+
+    def setup(self) -> None:
+        c = self.cam
+        self.flat = FlatLitRender(c.cfg, c.scene, c.camera, c.renderer, min_gain=self.bounce_min_gain)
+        self.flat.setup()
+
+    # the flat-lit call gets its samples per render; bounced light is offset only for the fine
+    # fringe (and, sharp or not, for glossy bounces): nothing to set on the lights
+    def set_samples(self, layer_samples: int) -> None:
+        pass
+
+    def set_indirect_blur(self, blur_px: float) -> None:
+        pass
+
+    def set_sharp_glossy(self, sharp: bool) -> None:
+        pass
+
+    def glossy_fringes(self, sharp: bool) -> str:
+        return "offset"
+
+    def render(self, render_dir, seed: int, T_world_cam, rows: bool):
+        """The flat-lit call -> ((F*N, H, W) float32 synthesised fringes, wall seconds of the call and
+        the synthesis, the projector-off image or None). No row code in fast mode: `rows` is unused.
+        `T_world_cam` (the pose P_proj is made from) defaults to the camera's current pose."""
+        c = self.cam
+        ss = int(c.supersample)
+        if T_world_cam is None:
+            T_world_cam = c.camera.T_world_cam()
+        lit, seconds = self.flat.render(render_dir, seed, supersample=ss, filter_width=c.filter_width,
+                                        samples=c.layer_samples)
+        t0 = time.perf_counter()
+        ambient = block_mean(lit.ambient[None], ss)[0] if lit.ambient is not None else None
+        stack = sl.synthesize_fringes(lit.direct, lit.indirect, lit.points, projector_matrix(c.cfg, T_world_cam),
+                                      self._profiles, block=ss)
+        bounce = lit.bounce(c.plan.periods, c.plan.steps, ss)
+        if bounce is not None:
+            stack += bounce
+        return stack, seconds + time.perf_counter() - t0, ambient
+
+    def teardown(self) -> None:
+        if self.flat is not None:
+            self.flat.teardown()
+            self.flat = None
 
 
 class FlatLitRender:

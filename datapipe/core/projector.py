@@ -214,14 +214,16 @@ class Projector:
         for coll in self.collections:
             _set_exclude(view_layer, coll.name, True)
 
-    def make_view_layers(self, exclude: Iterable = (LIGHTS_COLLECTION,), *, strict: bool = True) -> list:
-        """One view layer per pattern (see `make_fringe_view_layers`); remembered for teardown.
+    def make_view_layers(self, exclude: Iterable = (LIGHTS_COLLECTION,), *, samples: int | None = None,
+                         strict: bool = True) -> list:
+        """One view layer per pattern (see `make_fringe_view_layers`) with `samples` Cycles paths per
+        pixel (default structured_light.samples); remembered for teardown.
 
         Call it after every other view layer exists (it excludes the projectors from those)."""
         if not self.collections:
             raise DataPipeError("Projector.make_view_layers() before build() (fix: build the patterns first)")
-        layers = make_fringe_view_layers(self.scene, self.collections, exclude=exclude,
-                                         samples=self.cfg.structured_light.samples, strict=False)
+        layers = make_fringe_view_layers(self.scene, self.collections, exclude=exclude, strict=False,
+                                         samples=self.cfg.structured_light.samples if samples is None else samples)
         self.layer_names = [vl.name for vl in layers]
         if strict:
             _raise_on_leaks(self.scene, layers, self.collections)

@@ -52,6 +52,7 @@ from .decode_setup import DecodeSetup, modulation_floor_factor, prepare_decode
 from .decode_slab import DecodeMaps, decode_slab
 from .noise import estimate_noise_sigma
 from .triangulate import Triangulator
+from .unwrap import UnwrapPlan
 
 # the public names stay importable from here (`from datapipe.sl.decode import Reason`), as before the split
 __all__ = ["Reason", "VALID_REASONS", "NEIGHBOUR_RISK", "DecodeResult", "decode", "estimate_noise_sigma",
@@ -90,7 +91,7 @@ def _assemble(st: DecodeSetup, out: DecodeMaps) -> DecodeResult:
                         triangulator=st.tri)
 
 
-def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "auto",
+def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | UnwrapPlan = "auto",
            noise_sigma: float | np.ndarray | Callable | None = None, saturation: float | None = None,
            min_modulation: float | None = None, min_contrast: float = 0.05,
            false_valid_rate: float = 1e-3, max_order_error: float | None = None,
@@ -110,7 +111,8 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str = "a
         the uniform ``2*pi*n/N``.
     P_cam, P_proj: 3x4 world -> pixel matrices (``K @ inv(T_world_cam)[:3]``); depth and points
         are in the camera frame of P_cam. proj_size: projector (width, height) in pixels.
-    unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`).
+    unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`),
+        or the UnwrapPlan of these periods made beforehand (``plan_unwrap``: once per run, not per image).
     noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = fitted per
         pixel from the stack (:func:`datapipe.sl.noise.fit_noise_model`).
     saturation: samples >= this are excluded (default: integer type max; none for floats).

@@ -17,7 +17,7 @@ from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
 from .response import linearise
 from .triangulate import Triangulator
-from .unwrap import plan_unwrap
+from .unwrap import as_plan
 
 __all__ = ["DecodeSetup", "prepare_decode", "modulation_floor_factor"]
 
@@ -219,7 +219,7 @@ def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noi
     """Check :func:`datapipe.sl.decode.decode`'s arguments (an error names the field, before any work)
     and decide everything its steps need."""
     steps = _check_steps(steps)
-    plan = plan_unwrap(periods, unwrap)
+    plan = as_plan(periods, unwrap)       # a method name, or the plan made once per run
     frames = _frames(images, len(plan.periods) * steps, plan.periods, steps)
     H, W = frames[0].shape
     if shifts is not None:

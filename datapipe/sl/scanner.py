@@ -80,7 +80,7 @@ from .patterns import fringe_patterns, phase_shifts
 from .phase import phase_shift
 from .sensor import SensorModel
 from .triangulate import Triangulator
-from .unwrap import plan_unwrap
+from .unwrap import UnwrapPlan, as_plan
 
 MIN_CONTRAST = 0.05              # decode(min_contrast=): a sanity floor; global light is the multipath filter's
 BORDER_PX = 1.0                  # camera px kept free at the projector image's left/right border
@@ -181,10 +181,11 @@ class Scanner:
     or "auto"; `hdr`: relative exposure factors fused per pixel (empty: one exposure), or "auto"
     (shorter exposures added per render while highlights clip: sl.exposure.auto_hdr);
     `multipath_filter`: the local reflection filter; `row_check`: the global one, applied when
-    the radiance carries the row-coded images (`row_images`)."""
+    the radiance carries the row-coded images (`row_images`); `unwrap`: a method name or the
+    periods' UnwrapPlan made beforehand (a run's FringePlan), planned once here for every scan."""
 
     def __init__(self, periods: Sequence[float], steps: int, proj_size: tuple[int, int], K_proj, T_cam_proj_, *,
-                 unwrap: str = "auto", sensor: SensorModel | str = "industrial", exposure: float | str = "auto",
+                 unwrap: str | UnwrapPlan = "auto", sensor: SensorModel | str = "industrial", exposure: float | str = "auto",
                  hdr: Sequence[float] | str = (), min_contrast: float = MIN_CONTRAST, border_px: float = BORDER_PX,
                  edge_filter: bool = True, multipath_filter: bool = True, row_check: bool = True,
                  projector_gamma: float = 1.0, camera_pixels=None):
@@ -192,7 +193,8 @@ class Scanner:
         self.proj_size = tuple(int(v) for v in proj_size)
         self.K_proj = np.asarray(K_proj, dtype=np.float64)
         self.T_cam_proj = np.asarray(T_cam_proj_, dtype=np.float64)
-        self.unwrap = unwrap
+        self.unwrap_plan = as_plan(self.periods, unwrap)   # refuses an ambiguous period set before any render
+        self.unwrap = unwrap if isinstance(unwrap, str) else unwrap.method    # the method as configured
         self.sensor = SensorModel.preset(sensor) if isinstance(sensor, str) else sensor
         self.exposure = check_exposure(exposure)
         self.hdr = check_hdr(hdr if isinstance(hdr, str) else list(hdr)) or []
@@ -205,7 +207,6 @@ class Scanner:
         # a distorting camera lens: each pixel's ideal (undistorted) coordinates, (H, W, 2); the decoder
         # triangulates their rays (datapipe.lens.RenderGrid.ideal_pixels); None: a pinhole camera
         self.camera_pixels = camera_pixels
-        plan_unwrap(self.periods, unwrap)          # refuse an ambiguous period set before any render
 
     @classmethod
     def from_config(cls, cfg, **overrides) -> "Scanner":
@@ -274,7 +275,7 @@ class Scanner:
             h, w = radiance.shape[1:]
             tri = Triangulator.cached(P_cam, P_proj, (w, h), self.proj_size, pixels=self.camera_pixels)
         res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
-                     proj_size=self.proj_size, unwrap=self.unwrap, noise_sigma=cap.noise_sigma,
+                     proj_size=self.proj_size, unwrap=self.unwrap_plan, noise_sigma=cap.noise_sigma,
                      saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma,
                      triangulator=tri)
         res.extras["noise_model"] = {          # never a global estimate: the sensor's own per-pixel noise

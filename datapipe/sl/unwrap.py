@@ -49,7 +49,7 @@ from ._errors import bad_value
 from .lattice import lattice_code
 from .patterns import _check_periods
 
-__all__ = ["UnwrapResult", "UnwrapPlan", "unwrap_phase", "unwrap_cycles", "plan_unwrap"]
+__all__ = ["UnwrapResult", "UnwrapPlan", "unwrap_phase", "unwrap_cycles", "plan_unwrap", "as_plan"]
 
 TWO_PI = 2.0 * np.pi
 _TOL = 1e-9
@@ -215,6 +215,18 @@ def plan_unwrap(periods, method: str = "auto") -> UnwrapPlan:
             why += f"; number-theoretic unwrapping does not apply either: {lat}"
         raise bad_value("periods", f"{per} cannot be unwrapped unambiguously: {why}", _suggest(per))
     return UnwrapPlan("heterodyne", per, desc, tuple(tuple(l) for l in levels), integer)
+
+
+def as_plan(periods, unwrap) -> UnwrapPlan:
+    """``unwrap`` as the plan of ``periods``: a method name is planned (:func:`plan_unwrap`); a plan
+    made once beforehand (the Scanner's, a run's FringePlan's) is taken as it is, after checking it
+    is of these periods, so a decode per render does not plan again. ValueError otherwise."""
+    if not isinstance(unwrap, UnwrapPlan):
+        return plan_unwrap(periods, unwrap)
+    if [float(k) for k in np.ravel(periods)] != [float(k) for k in unwrap.periods]:
+        raise bad_value("unwrap", f"is the plan of periods {unwrap.periods}, not of {list(np.ravel(periods))}",
+                        "pass plan_unwrap(periods) of the periods decoded, or a method name")
+    return unwrap
 
 
 def unwrap_phase(wrapped_list, periods, method: str = "auto", *, proj_width=None,

@@ -11,6 +11,7 @@ bpy = pytest.importorskip("bpy")
 
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
+from datapipe.config.plan import FringePlan  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
 from datapipe.core.camera import BlendCamera  # noqa: E402
 from datapipe.core.projector import AMBIENT_LAYER  # noqa: E402
@@ -36,16 +37,14 @@ def _build(cfg, pack=None):
     blend = BlendScene(cfg).setup()
     cam = BlendCamera(cfg, blend.scene).setup()
     ren = Renderer(cfg, blend.scene, cam).setup()
-    slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
-    if pack is not None:
-        slc.pack_channels = pack
+    slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren, FringePlan.from_config(cfg, packed=pack))
     slc.setup()
     return blend, cam, slc, cam.set_pose(0)
 
 
 def _items(slc):
     from datapipe.core import compat
-    return compat.file_output_input_names(slc.flat.file_output if slc.flat is not None else slc.file_output)
+    return compat.file_output_input_names(slc.strategy.file_output)
 
 
 MODES = [("fast", None), ("render", None), ("quadrature", True), ("quadrature", False)]   # (mode, packed)

@@ -58,7 +58,7 @@ def test_fast_mode_builds_its_lights_and_cleans_up(tmp_path):
     by teardown or by a later run's setup."""
     cfg = plane_config(res=(32, 24))
     stack, slc, blend = fringes(tmp_path, cfg, "fast", box=False)
-    assert sorted(slc.flat.gains) == [1, 8]
+    assert sorted(slc.strategy.flat.gains) == [1, 8]
     n = 1 + 1 + 2 * 2
     assert len([ld for ld in bpy.data.lights if ld.type == "SPOT"]) == n
     fringe_layers = [vl for vl in blend.scene.view_layers if vl.name.startswith("sl_")]

@@ -7,8 +7,8 @@ call with one seed, the white, cos and sin layers follow the same paths as the r
 pattern layers, so the mixed frames equal the path-traced ones path for path: the tolerances are
 float rounding (1e-4 of the peak), not Monte-Carlo noise (two seeds differ by ~30% of the peak on
 the plate at these 4 paths per pixel). The only designed difference: the coarse fringes' bounce
-light that left the projector through its faded outer half texel (StructuredLightCamera
-._light_gains), measured at most 1% of the peak on 6 of the 4800 pixels."""
+light that left the projector through its faded outer half texel (QuadratureFringes
+.light_gains), measured at most 1% of the peak on 6 of the 4800 pixels."""
 import numpy as np
 import pytest
 
@@ -43,14 +43,7 @@ def mirror_scene(mode, coarse_supersample=None, kind="across", pack=True, plate_
                                  "roughness": 0.05}))
         _add_box(scene, (WALL_X, y0, 0.0), (WALL_X + 0.02, y1, WALL_TOP))
 
-    orig = SLM.QUAD_COARSE_SUPERSAMPLE, SLM.QUAD_PACK_CHANNELS
-    if coarse_supersample is not None:
-        SLM.QUAD_COARSE_SUPERSAMPLE = coarse_supersample      # read by the camera's constructor
-    SLM.QUAD_PACK_CHANNELS = pack
-    try:
-        blend, cam, _, slc, T = build(None, cfg, add=add)
-    finally:
-        SLM.QUAD_COARSE_SUPERSAMPLE, SLM.QUAD_PACK_CHANNELS = orig
+    blend, cam, _, slc, T = build(None, cfg, add=add, packed=pack, coarse_supersample=coarse_supersample)
     slc.set_sharp_glossy(SLM.has_shiny_surface(blend.scene))     # what process() does: True here
     hits = _mirror_geometry(cfg, cam.K, T, RES[::-1], kind)[1]   # plate pixels that mirror the lit wall
     return cfg, slc, hits
@@ -69,7 +62,7 @@ def test_quadrature_frames_equal_the_path_traced_ones_on_a_mirror(tmp_path, pack
     slc.teardown()
     cfg, slc, _ = mirror_scene("quadrature", coarse_supersample=2, pack=pack)
     # 1 + 2 x 3 + 2 images (vs 3 x 4 + 4 in render): one layer each, or white + 2 + 1 packed layers
-    assert len(slc.quad_groups()) == 1 and len(slc.layer_names) == (1 + 2 + 1 if pack else 1 + 2 * 3 + 2)
+    assert len(slc.plan.quad_calls()) == 1 and len(slc.strategy.layer_names) == (1 + 2 + 1 if pack else 1 + 2 * 3 + 2)
     quad = frames(tmp_path, slc, "quad")
     N = cfg.structured_light.steps
     assert quad.shape == ref.shape == (3 * N + N, *RES[::-1])
@@ -107,8 +100,8 @@ def test_split_quadrature_keeps_the_fine_fringe_exact(tmp_path):
     ref = frames(tmp_path, slc, "render")
     slc.teardown()
     cfg, slc, _ = mirror_scene("quadrature", coarse_supersample=1)
-    assert [g[2] for g in slc.quad_groups()] == [2, 1]
-    assert len(slc.layer_names) == (1 + 1 + 1) + (1 + 2)      # packed: white, 2 fringe + 2 row images; white, 4
+    assert [c.supersample for c in slc.plan.quad_calls()] == [2, 1]
+    assert len(slc.strategy.layer_names) == (1 + 1 + 1) + (1 + 2)      # packed: white, 2 fringe + 2 row images; white, 4
     quad = frames(tmp_path, slc, "quad")
     N = cfg.structured_light.steps
     fine = slice(2 * N, 4 * N)                            # the 16-period fringe and the row code
@@ -130,7 +123,7 @@ def test_packed_layers_on_a_tinted_mirror_stay_within_float_noise_of_one_image_p
     out = {}
     for pack in (False, True):
         cfg, slc, hits = mirror_scene("quadrature", coarse_supersample=2, pack=pack, plate_color=(0.53, 0.51, 0.49))
-        assert slc.pack_channels is pack
+        assert slc.plan.packed is pack
         out[pack] = frames(tmp_path, slc, f"pack{pack}")
         slc.teardown()
     scale = float(out[False].max())

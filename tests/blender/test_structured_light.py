@@ -17,6 +17,7 @@ bpy = pytest.importorskip("bpy")
 
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
+from datapipe.config.plan import FringePlan  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
 from datapipe.core.camera import BlendCamera  # noqa: E402
 from datapipe.engine.pipeline import Pipeline  # noqa: E402
@@ -42,9 +43,11 @@ def plane_config(res=RES):
     return cfg
 
 
-def build(tmp_path, cfg, box=False, add=None, bounce_min_gain=None):
+def build(tmp_path, cfg, box=False, add=None, **variant):
     """Scene (+ the test box, + whatever `add(bpy_scene)` builds), camera, renderer and the
-    structured-light camera, set up, at pose 0: (blend, cam, ren, slc, T_world_cam)."""
+    structured-light camera, set up, at pose 0: (blend, cam, ren, slc, T_world_cam). `variant`:
+    FringePlan.from_config's arguments (a variant `auto` never picks: packed, coarse_supersample,
+    bounce_min_gain)."""
     blend = BlendScene(cfg).setup()
     if box:
         _add_box(blend.scene, BOX_LO, BOX_HI)
@@ -52,8 +55,7 @@ def build(tmp_path, cfg, box=False, add=None, bounce_min_gain=None):
         add(blend.scene)
     cam = BlendCamera(cfg, blend.scene).setup()
     ren = Renderer(cfg, blend.scene, cam).setup()
-    slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren)
-    slc.bounce_min_gain = bounce_min_gain
+    slc = SLM.StructuredLightCamera(cfg, blend.scene, cam, ren, FringePlan.from_config(cfg, **variant))
     slc.setup()
     T = cam.set_pose(0)
     return blend, cam, ren, slc, T
@@ -139,7 +141,7 @@ def test_plane_depth_matches_zbuffer_and_noise_limit(tmp_path, mode):
     cfg = plane_config()
     set_mode(cfg, mode)
     blend, cam, ren, slc, T = build(tmp_path, cfg)
-    assert slc.pack_channels is mode.endswith("_packed")
+    assert slc.plan.packed is mode.endswith("_packed")
     out, info, sld = render(tmp_path, ren, slc, T)
     z = out.depth
     # analytic geometry: the z-buffer is the plane at 0.8 m
@@ -181,7 +183,7 @@ def test_box_shadow_invalid_and_few_outliers(tmp_path, mode):
     cfg = plane_config()
     set_mode(cfg, mode)
     blend, cam, ren, slc, T = build(tmp_path, cfg, box=True)
-    assert slc.pack_channels is mode.endswith("_packed")
+    assert slc.plan.packed is mode.endswith("_packed")
     out, info, sld = render(tmp_path, ren, slc, T)
     z = out.depth
     Xw = pixel_points(cam.K, T, z)

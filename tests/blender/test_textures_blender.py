@@ -64,7 +64,7 @@ def test_environment_lights_the_rgb_and_the_ambient_layer_never_the_fringes(tmp_
     stack0, _ = slc.render_fringes(tmp_path / "f0", SEED, T)
     assert float(np.max(slc.ambient_image)) < 1e-6            # nothing but the projector lights it yet
     blend.apply_lighting(_no_light({"map": str(tmp_path / "sky.hdr"), "rotation_deg": 30.0, "strength": 1.0}))
-    proj = slc.flat.projector                                 # the fast mode's flat-lit projector
+    proj = slc.strategy.flat.projector                                 # the fast mode's flat-lit projector
     layers = [blend.scene.view_layers[n] for n in proj.layer_names]
     assert layers and fringe_layer_leaks(blend.scene, layers, proj.collections) == {}
     lit_rgb = ren.render(tmp_path / "r1", SEED).rgb.astype(np.float64)
