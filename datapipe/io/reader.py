@@ -27,8 +27,7 @@ from . import layout
 from .files import read_json
 from .input_files import MAX_JSON_BYTES, read_regular
 
-# scene.json keys that hold matrices: given as numpy arrays
-_MATRICES = ("K", "T_world_cam", "T_world_blcam")
+# an object record's matrices in scene.json: given as numpy arrays
 _OBJECT_MATRICES = ("T_cam_obj", "cam2obj_pose")
 
 

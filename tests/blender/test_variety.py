@@ -6,6 +6,8 @@ measured in the written RGB images and compared with the drawn key power and col
 """
 import json
 import math
+import sys
+from pathlib import Path
 
 import bpy
 import cv2
@@ -13,8 +15,10 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.draws.camera_sampler import pose_parameters
 from datapipe.engine.pipeline import Pipeline
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from pose_checks import pose_parameters  # noqa: E402
 
 
 def variety_config():
