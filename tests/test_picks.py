@@ -15,11 +15,10 @@ from datapipe.config import PicksConfig
 from datapipe.draws import picks
 from datapipe.draws.seeds import shard_scenes
 from datapipe.engine.distributed import merge_shards
-from datapipe.engine.pipeline import Pipeline
 from datapipe.errors import ConfigError
 from datapipe.io import layout
 from datapipe.io.reader import read_run
-from test_run_loop import annotations
+from test_run_loop import annotations, finished_run, run
 
 
 def picks_cfg(tmp_path, order="top", per_step=1, until=0, num_renders=9):
@@ -30,11 +29,6 @@ def picks_cfg(tmp_path, order="top", per_step=1, until=0, num_renders=9):
     cfg.output.overview = False
     cfg.scene.picks = PicksConfig(per_step=per_step, order=order, until=until)
     return cfg
-
-
-def run(cfg, out, world=None, **kw):
-    pipe = Pipeline(cfg, out, world=world or BoxWorld.factory(), **kw)
-    return pipe, list(pipe.run())
 
 
 def scenes(out):
@@ -109,11 +103,7 @@ def test_visible_order_needs_the_mask(tmp_path):
 def reference(tmp_path_factory):
     """One uninterrupted run, shared by the tests below (each writes only into its own tmp_path)."""
     tmp = tmp_path_factory.mktemp("picks_ref")
-    cfg = picks_cfg(tmp)
-    out = tmp / "ref"
-    pipe, events = run(cfg, out)
-    assert events[-1].stage == "done"
-    return cfg, out, pipe
+    return finished_run(picks_cfg(tmp), tmp / "ref")
 
 
 def test_each_step_is_a_scene_without_the_removed_parts(reference):

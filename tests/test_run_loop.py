@@ -31,6 +31,13 @@ def run(cfg, out, world=None, **kw):
     return pipe, list(pipe.run())
 
 
+def finished_run(cfg, out):
+    """An uninterrupted run to its end, as the reference fixtures keep it: (cfg, out, pipeline)."""
+    pipe, events = run(cfg, out)
+    assert events[-1].stage == "done"
+    return cfg, out, pipe
+
+
 def annotations(out) -> dict:
     """Every file a run's consumers read, as text (scene.json, BOP JSON) or plain data (the pickle)."""
     files = {p.relative_to(out).as_posix(): p.read_text() for p in sorted(out.glob("scene.*/scene.json"))}
@@ -45,11 +52,7 @@ def annotations(out) -> dict:
 
 @pytest.fixture
 def reference(tmp_path):
-    cfg = small_cfg(tmp_path)
-    out = tmp_path / "ref"
-    pipe, events = run(cfg, out)
-    assert events[-1].stage == "done"
-    return cfg, out, pipe
+    return finished_run(small_cfg(tmp_path), tmp_path / "ref")
 
 
 def test_run_json_scenes_and_writers(reference):

@@ -194,15 +194,21 @@ def _entry(path, **kw):
     return ObjectEntry(filepath=str(path), **kw)
 
 
-def test_file_without_mesh_is_an_error(tmp_path):
-    p = tmp_path / "empty.obj"
-    p.write_text("# nothing here\n")
+def _load_error(path) -> str:
+    """The DataPipeError that loading `path` as the only object entry raises, as text."""
     cfg = default_config()
-    cfg.objects = [_entry(p)]
+    cfg.objects = [_entry(path)]
     bs = BlendScene(cfg).setup()
     with pytest.raises(DataPipeError) as e:
         ObjectManager(cfg, bs).load_sources()
-    assert str(p) in str(e.value) and "fix" in str(e.value)
+    return str(e.value)
+
+
+def test_file_without_mesh_is_an_error(tmp_path):
+    p = tmp_path / "empty.obj"
+    p.write_text("# nothing here\n")
+    msg = _load_error(p)
+    assert str(p) in msg and "fix" in msg
     assert "empty" not in {o.name for o in bpy.data.objects}
 
 
@@ -211,12 +217,8 @@ def test_unsupported_or_missing_file_is_an_error(tmp_path, name):
     p = tmp_path / name
     if not name.startswith("missing"):
         p.write_text("v 0 0 0\n")
-    cfg = default_config()
-    cfg.objects = [_entry(p)]
-    bs = BlendScene(cfg).setup()
-    with pytest.raises(DataPipeError) as e:
-        ObjectManager(cfg, bs).load_sources()
-    assert str(p) in str(e.value) and "objects[0].filepath" in str(e.value)
+    msg = _load_error(p)
+    assert str(p) in msg and "objects[0].filepath" in msg
 
 
 TET = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.03, 0.0], [0.0, 0.0, 0.04]])
