@@ -18,7 +18,7 @@ from datapipe.engine.distributed import merge_shards
 from datapipe.errors import ConfigError
 from datapipe.io import layout
 from datapipe.io.reader import read_run
-from test_run_loop import annotations, finished_run, run
+from test_run_loop import annotations, finished_run, run, shard_runs
 
 
 def picks_cfg(tmp_path, order="top", per_step=1, until=0, num_renders=9):
@@ -173,13 +173,9 @@ def test_kill_mid_sequence_then_resume_equals_one_run(reference, tmp_path):
 
 def test_shards_merge_into_the_one_run(reference, tmp_path):
     cfg, ref, _ = reference
-    dirs = []
-    for i in range(2):
-        d = tmp_path / f"shard{i}"
-        pipe, events = run(cfg, d, shard=(i, 2))
-        assert events[-1].stage == "done" and pipe.scene_ids == [range(0, 4), range(4, 9)][i]
-        dirs.append(d)
-    merge_shards(dirs, tmp_path / "merged")
+    shards = shard_runs(cfg, tmp_path)
+    assert [pipe.scene_ids for _, pipe in shards] == [range(0, 4), range(4, 9)]
+    merge_shards([d for d, _ in shards], tmp_path / "merged")
     assert annotations(tmp_path / "merged") == annotations(ref)
 
 

@@ -38,6 +38,17 @@ def finished_run(cfg, out):
     return cfg, out, pipe
 
 
+def shard_runs(cfg, tmp_path, n=2):
+    """The run in `n` shards, each to its end: [(its folder, its pipeline)]."""
+    shards = []
+    for i in range(n):
+        d = tmp_path / f"shard{i}"
+        pipe, events = run(cfg, d, shard=(i, n))
+        assert events[-1].stage == "done"
+        shards.append((d, pipe))
+    return shards
+
+
 def annotations(out) -> dict:
     """Every file a run's consumers read, as text (scene.json, BOP JSON) or plain data (the pickle)."""
     files = {p.relative_to(out).as_posix(): p.read_text() for p in sorted(out.glob("scene.*/scene.json"))}
@@ -120,14 +131,10 @@ def test_cancel_then_resume_equals_one_run(reference, tmp_path):
 
 def test_shards_merge_into_the_one_run(reference, tmp_path):
     cfg, ref, _ = reference
-    shards = []
-    for i in range(2):
-        d = tmp_path / f"shard{i}"
-        pipe, events = run(cfg, d, shard=(i, 2))
-        assert events[-1].stage == "done" and pipe.total == sum(pipe.plan[k] for k in pipe.scene_ids)
-        shards.append(d)
+    shards = shard_runs(cfg, tmp_path)
+    assert all(pipe.total == sum(pipe.plan[k] for k in pipe.scene_ids) for _, pipe in shards)
     merged = tmp_path / "merged"
-    summary = merge_shards(shards, merged)
+    summary = merge_shards([d for d, _ in shards], merged)
     assert summary["scenes"] == len(json.loads((ref / layout.RUN_FILE).read_text())["plan"])
     assert annotations(merged) == annotations(ref)
     run_rec = json.loads((merged / layout.RUN_FILE).read_text())
