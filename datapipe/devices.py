@@ -43,20 +43,11 @@ import functools
 import json
 import math
 import os
-import re
 from pathlib import Path
 
 from .errors import ConfigError, Problem
 
 DEVICES_DIR = Path(__file__).resolve().parent / "presets" / "devices"
-BINNING_MODES = ("subsample", "average")   # subsample: every k-th pixel (per-pixel noise unchanged);
-                                           # average: k x k pixels summed (k^2 the signal, k x the read noise)
-METRICS = {   # the vendors' own precision definitions (how tests/sl/test_sl_devices.py measures them)
-    "point_precision": "1 sigma of the XYZ position of a point between consecutive captures (Zivid)",
-    "temporal_noise": "1 sigma of Z over time on an 80%-albedo diffuse surface (Photoneo)",
-    "z_repeatability": "1 sigma of a single pixel's Z over repeated captures of a ceramic plate (Mech-Mind)",
-}
-SOURCE_REF = re.compile(r"^(https://\S+|[\w.-]+/[\w.-]+@[0-9a-f]{40}:\S+)$")   # a URL or repo@commit:path
 CALIBRATION_SUFFIXES = (".yml", ".yaml", ".json", ".xml")   # a `device` ending so names a calibration file
 AUTO_SHARE = 0.8     # radiance 1.0 -> 80% of the full well (as the 'industrial' sensor): electrons_per_unit
 

@@ -82,14 +82,6 @@ def camera_pose_from_config(location, quat_wxyz) -> np.ndarray:
     return blender_camera_to_opencv(pose_matrix(location, quat_to_matrix(quat_wxyz)))
 
 
-def sensor_fit_is_horizontal(sensor_fit: str, width: int, height: int) -> bool:
-    if sensor_fit == "HORIZONTAL":
-        return True
-    if sensor_fit == "VERTICAL":
-        return False
-    return width >= height          # AUTO: the sensor size applies to the larger dimension
-
-
 def intrinsics_from_sensor(focal_mm: float, sensor_mm: float, width: int, height: int,
                            sensor_fit: str = "AUTO") -> np.ndarray:
     """Pinhole K of an unshifted camera given DataPipe's one sensor size; square pixels, pixel
@@ -118,14 +110,6 @@ def intrinsics_matrix(fx_fy_cx_cy) -> np.ndarray:
     """[fx, fy, cx, cy] -> K (3x3 float64, zero skew)."""
     fx, fy, cx, cy = (float(v) for v in fx_fy_cx_cy)
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
-
-def project_points(K, T_cam_X, pts) -> np.ndarray:
-    """Points in frame X (N,3) -> pixel coordinates (N,2) through T_cam_X (4x4) and K."""
-    pts = np.asarray(pts, dtype=np.float64)
-    pc = pts @ T_cam_X[:3, :3].T + T_cam_X[:3, 3]
-    uv = pc @ np.asarray(K).T
-    return uv[:, :2] / uv[:, 2:3]
 
 
 def intrinsics_from_blender_camera(focal_mm: float, sensor_width_mm: float, width: int, height: int,

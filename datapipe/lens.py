@@ -25,7 +25,6 @@ import numpy as np
 
 from .errors import Problem
 
-DISTORTION_KEYS = ("k1", "k2", "p1", "p2", "k3")
 MARGIN_PX = 8              # render pixels beyond the outermost ray on each side: the spline's boundary
                            # error decays as 0.27^n px inward (8 px: 3e-5 of the edge step)
 MAX_RENDER_AREA = 4.0      # a render grid may hold at most 4x the image's pixels

@@ -28,9 +28,22 @@ from .io import layout
 from .io.files import read_json
 from .io.input_files import MAX_JSON_BYTES, read_regular
 
-# scene.json keys that hold matrices: given as numpy arrays
-_MATRICES = ("K", "T_world_cam", "T_world_blcam")
+# an object record's matrices in scene.json: given as numpy arrays
 _OBJECT_MATRICES = ("T_cam_obj", "cam2obj_pose")
+
+
+class _MapFile:
+    """A Render attribute read from its file on each access: `reader(path)`, None when the run did not
+    write that output (one class for the maps that need no more than their reader)."""
+
+    def __init__(self, kind: str, reader, doc: str):
+        self.kind, self.reader, self.__doc__ = kind, reader, doc
+
+    def __get__(self, render, owner=None):
+        if render is None:
+            return self
+        p = render._file(self.kind)
+        return self.reader(p) if p is not None else None
 
 
 @dataclass
@@ -62,10 +75,6 @@ class Render:
             raise OSError(errno.EIO, "not a readable PNG (truncated or corrupt; was the disk full?)", str(p))
         return img
 
-    def _read(self, kind: str, reader) -> np.ndarray | None:
-        p = self._file(kind)
-        return reader(p) if p is not None else None
-
     @property
     def rgb(self) -> np.ndarray | None:
         """(H, W, 3) uint8, RGB order (sRGB, as rgb.png holds it)."""
@@ -73,40 +82,21 @@ class Render:
         return None if img is None else np.ascontiguousarray(img[..., ::-1])
 
     @property
-    def depth(self) -> np.ndarray | None:
-        """(H, W) float32 z-buffer depth: planar, along the camera z axis, m; NaN where no surface."""
-        return self._read("depth", read_depth)
-
-    @property
-    def sl_depth(self) -> np.ndarray | None:
-        """(H, W) float32 structured-light (scanner) depth, m; NaN where the scanner gives no data."""
-        return self._read("sl_depth", read_depth)
-
-    @property
     def sl_valid(self) -> np.ndarray | None:
         """(H, W) bool: the scanner has depth there (sl_valid.png == 255)."""
         img = self._png("sl_valid", cv2.IMREAD_GRAYSCALE)
         return None if img is None else img == 255
 
-    @property
-    def sl_debug(self) -> dict[str, np.ndarray] | None:
-        """The decoder's channels (`structured_light.debug`): confidence, reason, phase, sigma_z, ..."""
-        return self._read("sl_debug", read_exr)
-
-    @property
-    def mask(self) -> np.ndarray | None:
-        """(H, W) int32 instance mask: an object's `mask_index`, 0 = background."""
-        return self._read("mask", read_mask)
-
-    @property
-    def normals(self) -> np.ndarray | None:
-        """(H, W, 3) float32 unit normals in the OpenCV camera frame."""
-        return self._read("normals", read_normals)
-
-    @property
-    def object_coords(self) -> np.ndarray | None:
-        """(H, W, 3) float32 model coordinates (m) of the part at each pixel; NaN off parts."""
-        return self._read("object_coords", read_object_coords)   # X, Y, Z channels, or R, G, B
+    depth = _MapFile("depth", read_depth,
+                     "(H, W) float32 z-buffer depth: planar, along the camera z axis, m; NaN where no surface.")
+    sl_depth = _MapFile("sl_depth", read_depth,
+                        "(H, W) float32 structured-light (scanner) depth, m; NaN where the scanner gives no data.")
+    sl_debug = _MapFile("sl_debug", read_exr,
+                        "The decoder's channels (`structured_light.debug`): confidence, reason, phase, sigma_z, ...")
+    mask = _MapFile("mask", read_mask, "(H, W) int32 instance mask: an object's `mask_index`, 0 = background.")
+    normals = _MapFile("normals", read_normals, "(H, W, 3) float32 unit normals in the OpenCV camera frame.")
+    object_coords = _MapFile("object_coords", read_object_coords,     # X, Y, Z channels, or R, G, B
+                             "(H, W, 3) float32 model coordinates (m) of the part at each pixel; NaN off parts.")
 
 
 @dataclass

@@ -36,16 +36,14 @@ from .io.files import imwrite_atomic, make_dirs, read_json
 from .io.models import load_models
 from .visibility import visible_fractions
 from .io.outdir import OutputStateError
+from .sheet_draw import (BG, LEGEND, colorbar, colorize, fit_tile, hist_panel, instance_color, message_tile,
+                         put_text)
 
 PANELS = ("rgb", "depth", "sl_depth", "diff", "mask", "poses")
 PAD = 8
 HEADER = 34
 LABEL = 22
-LEGEND = 36
 MAX_TILE_W = 480
-BG = (38, 38, 38)
-FG = (235, 235, 235)
-FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
 # ------------------------------------------------------------------------------------------------
@@ -72,89 +70,6 @@ def sheet_size(width: int, height: int) -> tuple[int, int]:
     """(sheet width, sheet height) in pixels."""
     tw, th = tile_size(width, height)
     return 3 * tw + 4 * PAD, HEADER + 2 * (LABEL + th + LEGEND + PAD)
-
-
-# ------------------------------------------------------------------------------------------------
-# drawing helpers
-
-def _text(img, text, org, scale=0.45, color=FG, thickness=1):
-    cv2.putText(img, str(text), (int(org[0]), int(org[1])), FONT, scale, color, thickness, cv2.LINE_AA)
-
-
-def _text_w(text, scale=0.45, thickness=1) -> int:
-    return cv2.getTextSize(str(text), FONT, scale, thickness)[0][0]
-
-
-def instance_color(index: int) -> tuple[int, int, int]:
-    """A bright, stable BGR colour per instance index (never black)."""
-    h = int((index * 0.61803398875 % 1.0) * 180)
-    hsv = np.uint8([[[h, 200, 255]]])
-    b, g, r = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
-    return int(b), int(g), int(r)
-
-
-def _diverging_lut() -> np.ndarray:
-    """256 x 3 BGR: blue (negative) -> white (0) -> red (positive)."""
-    t = np.linspace(-1, 1, 256)
-    r = np.where(t < 0, 1 + t, 1.0)
-    b = np.where(t > 0, 1 - t, 1.0)
-    g = 1 - np.abs(t)
-    rgb = np.stack([b, g, r], 1)
-    rgb = np.where(t[:, None] < 0, rgb * [1, 1, 1], rgb)
-    # keep the ends saturated but not black
-    rgb = 0.15 + 0.85 * rgb
-    return (rgb * 255).astype(np.uint8)
-
-
-DIVERGING = _diverging_lut()
-
-
-def colorize(values: np.ndarray, lo: float, hi: float, *, diverging: bool = False) -> np.ndarray:
-    """float (H,W) -> BGR; NaN -> black. TURBO for depth, blue-white-red for signed errors."""
-    v = np.asarray(values, dtype=np.float64)
-    valid = np.isfinite(v)
-    t = np.zeros(v.shape)
-    if hi > lo:
-        t[valid] = np.clip((v[valid] - lo) / (hi - lo), 0, 1)
-    idx = (t * 255).astype(np.uint8)
-    if diverging:
-        img = DIVERGING[idx]
-    else:
-        img = cv2.applyColorMap(idx, cv2.COLORMAP_TURBO)
-    img[~valid] = 0
-    return img
-
-
-def _colorbar(width: int, lo: float, hi: float, unit: str, *, diverging=False, ticks=3) -> np.ndarray:
-    bar = np.full((LEGEND, width, 3), BG, np.uint8)
-    x0, x1 = 6, width - 6
-    grad = np.linspace(lo, hi, x1 - x0)[None, :].repeat(10, 0)
-    bar[4:14, x0:x1] = colorize(grad, lo, hi, diverging=diverging)
-    for k in range(ticks):
-        f = k / (ticks - 1)
-        val = lo + f * (hi - lo)
-        x = int(x0 + f * (x1 - x0 - 1))
-        cv2.line(bar, (x, 14), (x, 18), FG, 1)
-        label = f"{val:+.1f}" if diverging else f"{val:.0f}"
-        if k == ticks - 1:
-            label += f" {unit}"
-        w = _text_w(label, 0.4)
-        _text(bar, label, (min(max(x - w // 2, 0), width - w), 31), 0.4)
-    return bar
-
-
-def _fit(img: np.ndarray, tw: int, th: int, *, nearest=False) -> np.ndarray:
-    if img.shape[1] == tw and img.shape[0] == th:
-        return img
-    return cv2.resize(img, (tw, th), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
-
-
-def _message_tile(tw, th, lines) -> np.ndarray:
-    tile = np.full((th, tw, 3), 70, np.uint8)
-    for k, line in enumerate(lines):
-        w = _text_w(line, 0.55)
-        _text(tile, line, ((tw - w) // 2, th // 2 - 10 * (len(lines) - 1) + 22 * k), 0.55, (200, 200, 200))
-    return tile
 
 
 # ------------------------------------------------------------------------------------------------
@@ -266,7 +181,7 @@ def _draw_poses(rgb: np.ndarray, rd: dict, info: dict[int, dict], scale: float) 
                 cv2.line(img, q[4 + a], q[4 + b], color if visible else (110, 110, 110), thick, cv2.LINE_AA)
         for k, c in ((1, (60, 60, 255)), (2, (60, 230, 60)), (3, (255, 120, 40))):   # x red, y green, z blue
             cv2.line(img, q[0], q[k], c, 2, cv2.LINE_AA)
-        _text(img, str(o["obj_id"]), (q[0][0] + 3, q[0][1] - 3), 0.35, color)
+        put_text(img, str(o["obj_id"]), (q[0][0] + 3, q[0][1] - 3), 0.35, color)
     return img
 
 
@@ -283,7 +198,7 @@ def render_sheet(run_dir: Path, scene_dir: Path, scene: dict, rd: dict, info: di
     rects = panel_rects(W, H)
     tiles, labels, legends = {}, {}, {}
 
-    tiles["rgb"] = _fit(data["rgb"], tw, th)
+    tiles["rgb"] = fit_tile(data["rgb"], tw, th)
     labels["rgb"] = "RGB"
     z = data["depth"]
     lo, hi = depth_range(z)
@@ -291,24 +206,24 @@ def render_sheet(run_dir: Path, scene_dir: Path, scene: dict, rd: dict, info: di
     for key, d, title, missing in (("depth", z, "depth, z-buffer", "no depth output"),
                                    ("sl_depth", sl, "depth, structured light", "structured light off")):
         if d is not None:       # both on the z-buffer's colour scale, so they compare at a glance
-            tiles[key] = _fit(colorize(d, lo, hi), tw, th, nearest=True)
+            tiles[key] = fit_tile(colorize(d, lo, hi), tw, th, nearest=True)
             labels[key] = f"{title} ({_valid(d).mean() * 100:.0f}% valid)"
-            legends[key] = _colorbar(tw, lo, hi, "mm")
+            legends[key] = colorbar(tw, lo, hi, "mm")
         else:
-            tiles[key] = _message_tile(tw, th, [missing])
+            tiles[key] = message_tile(tw, th, [missing])
             labels[key] = title
     if sl is not None and z is not None:
         both = _valid(sl) & _valid(z)
         err = np.full(z.shape, np.nan)
         err[both] = sl[both] - z[both]
         R = error_range(err[both])
-        tiles["diff"] = _fit(colorize(err, -R, R, diverging=True), tw, th, nearest=True)
+        tiles["diff"] = fit_tile(colorize(err, -R, R, diverging=True), tw, th, nearest=True)
         e = err[both]
         stats = f"mean {e.mean():+.2f}, std {e.std():.2f} mm" if e.size else "no overlap"
         labels["diff"] = f"SL - z-buffer: {stats}"
-        legends["diff"] = _colorbar(tw, -R, R, "mm", diverging=True, ticks=3)
+        legends["diff"] = colorbar(tw, -R, R, "mm", diverging=True, ticks=3)
     else:
-        tiles["diff"] = _message_tile(tw, th, ["structured light off"] if sl is None else ["no depth output"])
+        tiles["diff"] = message_tile(tw, th, ["structured light off"] if sl is None else ["no depth output"])
         labels["diff"] = "SL - z-buffer"
     m = data["mask"]
     if m is not None:
@@ -316,10 +231,10 @@ def render_sheet(run_dir: Path, scene_dir: Path, scene: dict, rd: dict, info: di
         for idx in np.unique(m):
             if idx > 0:
                 cm[m == idx] = instance_color(int(idx))
-        tiles["mask"] = _fit(cm, tw, th, nearest=True)
+        tiles["mask"] = fit_tile(cm, tw, th, nearest=True)
         labels["mask"] = f"instance mask ({len([i for i in np.unique(m) if i > 0])} visible)"
     else:
-        tiles["mask"] = _message_tile(tw, th, ["no mask output"])
+        tiles["mask"] = message_tile(tw, th, ["no mask output"])
         labels["mask"] = "instance mask"
     tiles["poses"] = _draw_poses(tiles["rgb"], rd, info, scale)
     labels["poses"] = f"poses: {len(rd.get('objects', []))} objects (axes x r, y g, z b)"
@@ -327,54 +242,17 @@ def render_sheet(run_dir: Path, scene_dir: Path, scene: dict, rd: dict, info: di
     for name in PANELS:
         x, y, w, h = rects[name]
         sheet[y:y + h, x:x + w] = tiles[name]
-        _text(sheet, labels[name], (x + 2, y - 7), 0.42)
+        put_text(sheet, labels[name], (x + 2, y - 7), 0.42)
         if name in legends:
             sheet[y + h:y + h + LEGEND, x:x + w] = legends[name]
     title = (f"{scene_dir.name} / {rd['name']}   image_id {rd.get('image_id')}   "
              f"{W}x{H}   {len(rd.get('objects', []))} objects   {Path(run_dir).name}")
-    _text(sheet, title, (PAD, 22), 0.55)
+    put_text(sheet, title, (PAD, 22), 0.55)
     return sheet
 
 
 # ------------------------------------------------------------------------------------------------
 # the overview
-
-def _hist_panel(values, bins: np.ndarray, title: str, xlabel: str, *, w=440, h=300, color=(90, 170, 250),
-                note: str | None = None, fmt="{:g}", integer=False) -> np.ndarray:
-    """A histogram drawn with cv2: bars, count axis, x ticks (integer=True: one label per bar)."""
-    img = np.full((h, w, 3), BG, np.uint8)
-    _text(img, title, (8, 18), 0.5)
-    if note:
-        _text(img, note, (8, 38), 0.38, (220, 220, 160))
-    x0, x1, y0, y1 = 46, w - 12, 50, h - 44          # plot area (y0 top, y1 bottom)
-    cv2.rectangle(img, (x0, y0), (x1, y1), (90, 90, 90), 1)
-    values = np.asarray(values, dtype=np.float64)
-    if values.size == 0:
-        return img
-    counts, edges = np.histogram(values, bins=bins)
-    top = max(1, int(counts.max()))
-    n = len(counts)
-    for k, c in enumerate(counts):
-        bx0 = x0 + 1 + int(k * (x1 - x0 - 1) / n)
-        bx1 = x0 + 1 + int((k + 1) * (x1 - x0 - 1) / n) - (2 if integer else 1)
-        by = y1 - int(round(c / top * (y1 - y0 - 4)))
-        if c > 0:
-            cv2.rectangle(img, (bx0, by), (max(bx0, bx1), y1 - 1), color, -1)
-    if integer:
-        every = max(1, int(math.ceil(n / 15)))
-        ticks = [((k + 0.5) / n, f"{(edges[k] + edges[k + 1]) / 2:.0f}") for k in range(0, n, every)]
-    else:
-        ticks = [(f, fmt.format(edges[0] + f * (edges[-1] - edges[0]))) for f in (0.0, 0.25, 0.5, 0.75, 1.0)]
-    for f, s in ticks:
-        x = int(x0 + f * (x1 - x0))
-        cv2.line(img, (x, y1), (x, y1 + 4), FG, 1)
-        tw_ = _text_w(s, 0.4)
-        _text(img, s, (min(max(x - tw_ // 2, 0), w - tw_), y1 + 18), 0.4)
-    _text(img, str(top), (max(2, x0 - 6 - _text_w(str(top), 0.4)), y0 + 10), 0.4)
-    _text(img, "0", (x0 - 14, y1), 0.4)
-    _text(img, xlabel, (x0, h - 8), 0.42)
-    return img
-
 
 def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray:
     """The run's overview as a BGR image (samples at most `max_renders` renders, evenly)."""
@@ -385,28 +263,47 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
     renders = [(sd, sc, rd) for sd, sc in scenes for rd in sc.get("renders", [])]
     step = max(1, math.ceil(len(renders) / max_renders))
     sample = renders[::step]
+    stats = _OverviewStats()
+    meshes = _run_meshes(run_dir)
+    for sd, _, rd in sample:
+        stats.add(_load_render(sd, rd), rd, meshes)
+    panels = [_depth_error_panel(stats), _visible_fraction_panel(stats.fracs), _instances_panel(stats)]
+    title = (f"{run_dir.name}: {len(scenes)} scenes, {len(renders)} renders, {sum(stats.n_all) if step == 1 else '~'} "
+             f"instances" + (f" (statistics over {len(sample)} sampled renders)" if step > 1 else ""))
+    return _overview_sheet(panels, title, _run_line(run_dir))
+
+
+def _run_meshes(run_dir: Path) -> dict:
+    """{obj_id: (vertices mm, faces)} of the run's models/ folder ({} without one, or unreadable)."""
     models = {}
     if (run_dir / layout.MODELS_DIR).is_dir():
         try:
             models = load_models(run_dir / layout.MODELS_DIR)
         except Exception:
             models = {}
-    meshes = {k: (mdl.verts_mm, mdl.faces) for k, mdl in models.items()}
-    errs, fracs, n_all, n_vis, sl_valid = [], [], [], [], []
-    any_sl = False
-    for sd, sc, rd in sample:
-        data = _load_render(sd, rd)
+    return {k: (mdl.verts_mm, mdl.faces) for k, mdl in models.items()}
+
+
+class _OverviewStats:
+    """What the overview's panels count over the sampled renders."""
+
+    def __init__(self):
+        self.errs, self.fracs, self.n_all, self.n_vis, self.sl_valid = [], [], [], [], []
+        self.any_sl = False
+
+    def add(self, data: dict, rd: dict, meshes: dict) -> None:
+        """One render: `data` its maps (_load_render), `rd` its scene.json record."""
         z, sl, m = data["depth"], data["sl_depth"], data["mask"]
         if sl is not None and z is not None:
-            any_sl = True
+            self.any_sl = True
             both = _valid(sl) & _valid(z)
             e = (sl[both] - z[both]).astype(np.float32)
             if e.size > 20000:
                 e = e[:: e.size // 20000 + 1]
-            errs.append(e)
-            sl_valid.append(float(_valid(sl).mean()))
+            self.errs.append(e)
+            self.sl_valid.append(float(_valid(sl).mean()))
         objs = rd.get("objects", [])
-        n_all.append(len(objs))
+        self.n_all.append(len(objs))
         K = np.asarray(rd["K"], dtype=np.float64)
         nv = 0
         for o in objs:
@@ -414,38 +311,60 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
             nv += visib > 0
         stored = [o["visib_fract"] for o in objs if isinstance(o.get("visib_fract"), (int, float))]
         if objs and len(stored) == len(objs):     # the run recorded them (scene.json): no re-rasterising
-            fracs += stored
+            self.fracs += stored
         else:                                     # a run from before visib_fract was recorded
-            fracs += visible_fractions(objs, m, K, meshes, data["W"], data["H"], dist=rd.get("distortion"))
-        n_vis.append(nv)
-    err = np.concatenate(errs) if errs else np.zeros(0)
-    panels = []
-    if any_sl and err.size:
-        R = error_range(err)
-        e_in = err[np.abs(err) <= R]
-        note = (f"mean {err.mean():+.2f} std {err.std():.2f} med|e| {np.median(np.abs(err)):.2f} "
-                f"p95|e| {np.percentile(np.abs(err), 95):.2f} mm, {np.mean(sl_valid) * 100:.0f}% valid")
-        panels.append(_hist_panel(e_in, np.linspace(-R, R, 61), "structured light - z-buffer depth",
-                                  f"error [mm] ({len(err)} px, {(np.abs(err) > R).mean() * 100:.1f}% beyond +-{R:g})",
-                                  note=note, fmt="{:+.1f}"))
-    else:
-        panels.append(_hist_panel([], np.linspace(-1, 1, 3), "structured light - z-buffer depth", "error [mm]",
-                                  note="structured light off"))
-    if fracs:
-        f = np.asarray(fracs)
-        panels.append(_hist_panel(f, np.linspace(0, 1, 11), "visible fraction per instance",
-                                  f"visib_fract ({len(f)} instances, {np.mean(f < 0.1) * 100:.0f}% < 0.1)",
-                                  note=f"median {np.median(f):.2f}, p10 {np.percentile(f, 10):.2f}, "
-                                       f"p90 {np.percentile(f, 90):.2f}",
-                                  color=(120, 210, 120), fmt="{:.2f}"))
-    else:
-        panels.append(_hist_panel([], np.linspace(0, 1, 11), "visible fraction per instance", "visib_fract",
-                                  note="no models/ folder: cannot compute full silhouettes"))
-    top = max(n_all) if n_all else 1
+            self.fracs += visible_fractions(objs, m, K, meshes, data["W"], data["H"], dist=rd.get("distortion"))
+        self.n_vis.append(nv)
+
+
+def _depth_error_panel(stats: _OverviewStats) -> np.ndarray:
+    err = np.concatenate(stats.errs) if stats.errs else np.zeros(0)
+    if not (stats.any_sl and err.size):
+        return hist_panel([], np.linspace(-1, 1, 3), "structured light - z-buffer depth", "error [mm]",
+                           note="structured light off")
+    R = error_range(err)
+    e_in = err[np.abs(err) <= R]
+    note = (f"mean {err.mean():+.2f} std {err.std():.2f} med|e| {np.median(np.abs(err)):.2f} "
+            f"p95|e| {np.percentile(np.abs(err), 95):.2f} mm, {np.mean(stats.sl_valid) * 100:.0f}% valid")
+    return hist_panel(e_in, np.linspace(-R, R, 61), "structured light - z-buffer depth",
+                       f"error [mm] ({len(err)} px, {(np.abs(err) > R).mean() * 100:.1f}% beyond +-{R:g})",
+                       note=note, fmt="{:+.1f}")
+
+
+def _visible_fraction_panel(fracs: list) -> np.ndarray:
+    if not fracs:
+        return hist_panel([], np.linspace(0, 1, 11), "visible fraction per instance", "visib_fract",
+                           note="no models/ folder: cannot compute full silhouettes")
+    f = np.asarray(fracs)
+    return hist_panel(f, np.linspace(0, 1, 11), "visible fraction per instance",
+                       f"visib_fract ({len(f)} instances, {np.mean(f < 0.1) * 100:.0f}% < 0.1)",
+                       note=f"median {np.median(f):.2f}, p10 {np.percentile(f, 10):.2f}, "
+                            f"p90 {np.percentile(f, 90):.2f}",
+                       color=(120, 210, 120), fmt="{:.2f}")
+
+
+def _instances_panel(stats: _OverviewStats) -> np.ndarray:
+    top = max(stats.n_all) if stats.n_all else 1
     bins = np.arange(-0.5, top + 1.5, 1.0)
-    panels.append(_hist_panel(n_vis, bins, "instances per render (visible)",
-                              f"instances (mean {np.mean(n_all):.1f} annotated, {np.mean(n_vis):.1f} visible)",
-                              color=(230, 160, 90), integer=True))
+    return hist_panel(stats.n_vis, bins, "instances per render (visible)",
+                       f"instances (mean {np.mean(stats.n_all):.1f} annotated, {np.mean(stats.n_vis):.1f} visible)",
+                       color=(230, 160, 90), integer=True)
+
+
+def _run_line(run_dir: Path) -> str | None:
+    """The sheet's footer from run.json (None without a readable one)."""
+    run_json = run_dir / layout.RUN_FILE
+    if run_json.is_file():
+        try:
+            rj = read_json(run_json)
+            return f"seed {rj.get('seed')}   plan {len(rj.get('plan', []))} scenes   status {rj.get('status', '?')}"
+        except (OSError, json.JSONDecodeError):
+            pass
+    return None
+
+
+def _overview_sheet(panels: list[np.ndarray], title: str, footer: str | None) -> np.ndarray:
+    """The panels side by side under `title`, `footer` below them."""
     ph, pw = panels[0].shape[:2]
     W = 3 * pw + 4 * PAD
     Hs = HEADER + ph + PAD + 24
@@ -453,18 +372,9 @@ def overview_image(run_dir: str | Path, *, max_renders: int = 400) -> np.ndarray
     for k, p in enumerate(panels):
         x = PAD + k * (pw + PAD)
         img[HEADER:HEADER + ph, x:x + pw] = p
-    n_inst = sum(n_all)
-    title = (f"{run_dir.name}: {len(scenes)} scenes, {len(renders)} renders, {n_inst if step == 1 else '~'} "
-             f"instances" + (f" (statistics over {len(sample)} sampled renders)" if step > 1 else ""))
-    _text(img, title, (PAD, 22), 0.55)
-    run_json = run_dir / layout.RUN_FILE
-    if run_json.is_file():
-        try:
-            rj = read_json(run_json)
-            _text(img, f"seed {rj.get('seed')}   plan {len(rj.get('plan', []))} scenes   status "
-                       f"{rj.get('status', '?')}", (PAD, Hs - 8), 0.42, (200, 200, 200))
-        except (OSError, json.JSONDecodeError):
-            pass
+    put_text(img, title, (PAD, 22), 0.55)
+    if footer is not None:
+        put_text(img, footer, (PAD, Hs - 8), 0.42, (200, 200, 200))
     return img
 
 
@@ -563,13 +473,13 @@ def grid_image(run_dir: str | Path, n: int, *, seed: int = 0) -> np.ndarray:
         sd, sc, rd = renders[idx]
         p = layout.render_file(sd, rd, "rgb")
         rgb = cv2.imread(str(p), cv2.IMREAD_COLOR) if p.is_file() else None
-        tile = _fit(rgb, tw, th) if rgb is not None else _message_tile(tw, th, ["no rgb output"])
+        tile = fit_tile(rgb, tw, th) if rgb is not None else message_tile(tw, th, ["no rgb output"])
         row, col = divmod(k, cols)
         x, y = PAD + col * (tw + PAD), HEADER + row * (th + cap + PAD)
         img[y:y + th, x:x + tw] = tile
         for j, line in enumerate(captions[k]):
-            _text(img, line, (x + 1, y + th + 14 + 16 * j), 0.38)
-    _text(img, f"{run_dir.name}: {len(pick)} of {len(renders)} renders (seed {seed})", (PAD, 22), 0.55)
+            put_text(img, line, (x + 1, y + th + 14 + 16 * j), 0.38)
+    put_text(img, f"{run_dir.name}: {len(pick)} of {len(renders)} renders (seed {seed})", (PAD, 22), 0.55)
     return img
 
 

@@ -3,53 +3,21 @@
 Run once; the OBJ files are committed. Shapes are typical bin-picking parts: a peg (cylinder),
 a hex nut (prism with a hole) and an L-bracket (extruded profile).
 """
+import sys
 from pathlib import Path
 
 import numpy as np
 
-OUT = Path(__file__).resolve().parents[1] / "datapipe" / "assets"
-
-
-def extrude(outer, height, holes=()):
-    """Extrude a CCW polygon (optionally with one CW-ordered ring hole of the same vertex count)."""
-    outer = np.asarray(outer, float)
-    n = len(outer)
-    z0, z1 = -height / 2, height / 2
-    verts = [(x, y, z0) for x, y in outer] + [(x, y, z1) for x, y in outer]
-    faces = []
-    for i in range(n):                        # outer side walls
-        j = (i + 1) % n
-        faces += [(i, j, n + j), (i, n + j, n + i)]
-    if holes:
-        inner = np.asarray(holes[0], float)
-        assert len(inner) == n
-        b = len(verts)
-        verts += [(x, y, z0) for x, y in inner] + [(x, y, z1) for x, y in inner]
-        for i in range(n):                    # inner walls face the hole's axis
-            j = (i + 1) % n
-            faces += [(b + i, b + n + j, b + j), (b + i, b + n + i, b + n + j)]
-            # ring caps between outer i..j and inner i..j
-            faces += [(i, b + j, j), (i, b + i, b + j)]                      # bottom (normal -z)
-            faces += [(n + i, n + j, b + n + j), (n + i, b + n + j, b + n + i)]  # top (normal +z)
-    else:                                     # fan caps (convex outer) or ear-free simple shapes
-        for i in range(1, n - 1):
-            faces += [(0, i + 1, i), (n, n + i, n + i + 1)]
-    return np.array(verts), faces
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "datapipe" / "assets"
+sys.path.insert(0, str(ROOT / "tests"))
+from physics_parts import extrude_profile, ring_prism  # noqa: E402   (the test parts' extruders)
 
 
 def l_bracket(w=0.04, h=0.03, t=0.006, depth=0.02):
-    # L profile in the x-z plane extruded along y; triangulated as two rectangles.
-    prof = [(0, 0), (w, 0), (w, t), (t, t), (t, h), (0, h)]
-    prof = np.array(prof) - [w / 3, h / 3]
-    n = len(prof)
-    verts = [(x, -depth / 2, z) for x, z in prof] + [(x, depth / 2, z) for x, z in prof]
-    faces = []
-    for i in range(n):
-        j = (i + 1) % n
-        faces += [(i, n + j, j), (i, n + i, n + j)]
-    for a, b, c in [(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 5)]:
-        faces += [(a, b, c), (n + a, n + c, n + b)]
-    return np.array(verts), faces
+    """L profile in the x-z plane extruded along y; its caps are two rectangles fanned from the corner."""
+    prof = np.array([(0, 0), (w, 0), (w, t), (t, t), (t, h), (0, h)]) - [w / 3, h / 3]
+    return extrude_profile(prof, depth, caps=[(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 5)], centre=False)
 
 
 def write_obj(path, verts, faces, name):
@@ -75,11 +43,11 @@ def check_closed_outward(verts, faces):
 if __name__ == "__main__":
     OUT.mkdir(parents=True, exist_ok=True)
     ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
-    peg = extrude(np.c_[0.012 * np.cos(ang), 0.012 * np.sin(ang)], 0.05)
+    peg = ring_prism(np.c_[0.012 * np.cos(ang), 0.012 * np.sin(ang)], 0.05)
     hexa = np.linspace(0, 2 * np.pi, 6, endpoint=False) + np.pi / 6
     r_out = 0.015 / np.cos(np.pi / 6)
-    nut = extrude(np.c_[r_out * np.cos(hexa), r_out * np.sin(hexa)], 0.012,
-                  holes=[np.c_[0.008 * np.cos(hexa), 0.008 * np.sin(hexa)]])
+    nut = ring_prism(np.c_[r_out * np.cos(hexa), r_out * np.sin(hexa)], 0.012,
+                     np.c_[0.008 * np.cos(hexa), 0.008 * np.sin(hexa)])
     bracket = l_bracket()
     for name, (v, f) in {"peg": peg, "nut": nut, "bracket": bracket}.items():
         vol = check_closed_outward(v, f)

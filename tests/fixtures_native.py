@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from datapipe.config import Config, ObjectEntry, CameraPose
-from datapipe.io import legacy as legacy_pickle
+from datapipe.io.legacy import LegacyPickleWriter
 from datapipe.io.exr import write_exr
 from datapipe.geometry import BLENDER_TO_OPENCV, intrinsics_from_sensor
 from datapipe.draws.seeds import plan_scenes, render_seed, scene_seed, shard_scenes, parse_shard
@@ -340,7 +340,7 @@ def make_native_run(tmp_dir, *, cfg: Config | None = None, seed: int | None = No
         name, scene_json, _ = write_scene(out, cfg, seed, s, plan, min_boxes=min_boxes, max_boxes=max_boxes,
                                           spread=spread, truncate=truncate)
         if cfg.output.legacy_pickle:
-            legacy_pickle.update_legacy_pickle(out, scene_json)   # the pipeline's own writer
+            LegacyPickleWriter(out).add_scene(out / name, scene_json)   # the pipeline's own writer (loads the file)
         done.append(s)
         _write_run_files(out, cfg, seed, plan, shard, done, legacy)
         if scene_delay:

@@ -1,5 +1,6 @@
 """Procedural test parts for the physics tests and benchmarks/bench_physics.py: closed, outward-wound
-triangle meshes in metres, written as OBJ. No bpy.
+triangle meshes in metres, written as OBJ. No bpy. scripts/make_assets.py builds the demo parts
+(datapipe/assets/) with the same two extruders, `ring_prism` and `extrude_profile`.
 
     plate(0.04, 0.04, 0.001)     thin plate 40 x 40 x 1 mm
     washer(0.012, 0.0065, 0.0015) flat washer (ring), 24 sides
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 
-def _ring_prism(outer, height, inner=None):
+def ring_prism(outer, height, inner=None):
     """Extrude a CCW polygon (x, y) along z; with `inner` (same vertex count) a ring with a hole."""
     outer = np.asarray(outer, float)
     n = len(outer)
@@ -65,8 +66,9 @@ def _ear_clip(poly):
     return tris
 
 
-def extrude_profile(profile, depth):
-    """Extrude a simple CCW profile in the x-z plane along y (any concave outline)."""
+def extrude_profile(profile, depth, caps=None, centre=True):
+    """Extrude a simple CCW profile in the x-z plane along y (any concave outline). `caps`: the
+    profile's triangles (default: ear clipping); `centre`: move the bounding box's centre to the origin."""
     prof = np.asarray(profile, float)
     n = len(prof)
     # profile (x, z) CCW seen from -y: extrude along +y
@@ -75,30 +77,30 @@ def extrude_profile(profile, depth):
     for i in range(n):
         j = (i + 1) % n
         faces += [(i, n + j, j), (i, n + i, n + j)]
-    for a, b, c in _ear_clip(prof):
+    for a, b, c in _ear_clip(prof) if caps is None else caps:
         faces += [(a, b, c), (n + a, n + c, n + b)]
     v, f = np.array(verts), np.array(faces)
-    return v - (v.min(axis=0) + v.max(axis=0)) / 2, f
+    return (v - (v.min(axis=0) + v.max(axis=0)) / 2 if centre else v), f
 
 
 def plate(w=0.04, d=0.04, t=0.001):
-    return _ring_prism([(-w / 2, -d / 2), (w / 2, -d / 2), (w / 2, d / 2), (-w / 2, d / 2)], t)
+    return ring_prism([(-w / 2, -d / 2), (w / 2, -d / 2), (w / 2, d / 2), (-w / 2, d / 2)], t)
 
 
 def washer(r_out=0.012, r_in=0.0065, t=0.0015, sides=24):
     a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
-    return _ring_prism(np.c_[r_out * np.cos(a), r_out * np.sin(a)], t, np.c_[r_in * np.cos(a), r_in * np.sin(a)])
+    return ring_prism(np.c_[r_out * np.cos(a), r_out * np.sin(a)], t, np.c_[r_in * np.cos(a), r_in * np.sin(a)])
 
 
 def peg(r=0.0025, h=0.005, sides=16):
     a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
-    return _ring_prism(np.c_[r * np.cos(a), r * np.sin(a)], h)
+    return ring_prism(np.c_[r * np.cos(a), r * np.sin(a)], h)
 
 
 def hex_nut(across_flats=0.01, hole=0.0028, t=0.004):
     a = np.linspace(0, 2 * np.pi, 6, endpoint=False) + np.pi / 6
     r = across_flats / 2 / np.cos(np.pi / 6)
-    return _ring_prism(np.c_[r * np.cos(a), r * np.sin(a)], t, np.c_[hole * np.cos(a), hole * np.sin(a)])
+    return ring_prism(np.c_[r * np.cos(a), r * np.sin(a)], t, np.c_[hole * np.cos(a), hole * np.sin(a)])
 
 
 def u_channel(w=0.04, h=0.025, t=0.004, depth=0.03):

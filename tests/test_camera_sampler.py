@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.draws.camera_sampler import draw_bin_view, look_at_pose, pose_parameters, view_problems
-from datapipe.geometry import BLENDER_TO_OPENCV, camera_pose_from_config, project_points
+from datapipe.draws.camera_sampler import draw_bin_view, look_at_pose, view_problems
+from datapipe.geometry import BLENDER_TO_OPENCV, camera_pose_from_config, projection_matrix
 from datapipe.draws.seeds import camera_rng
+from pose_checks import pixels, pose_parameters
 
 
 def _sampler(**kw):
@@ -42,12 +43,12 @@ def test_tilt_and_azimuth_by_hand():
     T = look_at_pose(target, 1.0, 30.0, 0.0, 0.0)
     assert np.allclose(T[:3, 3], [0.5, 0.0, math.sqrt(3) / 2])
     K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
-    uv = project_points(K, np.linalg.inv(T), [target, [0.1, 0, 0], [-0.1, 0, 0]])
+    uv = pixels(projection_matrix(K, T), [target, [0.1, 0, 0], [-0.1, 0, 0]])
     assert np.allclose(uv[0], [319.5, 239.5])
     assert uv[1, 1] > 239.5 > uv[2, 1]          # the near side (+X) is lower in the image
     # roll +90 deg turns the camera's x onto its former y: the +X point moves from below the centre
     # to its right, on the centre row
-    uv90 = project_points(K, np.linalg.inv(look_at_pose(target, 1.0, 30.0, 0.0, 90.0)), [[0.1, 0, 0]])
+    uv90 = pixels(projection_matrix(K, look_at_pose(target, 1.0, 30.0, 0.0, 90.0)), [[0.1, 0, 0]])
     assert uv90[0, 0] > 319.5 and uv90[0, 1] == pytest.approx(239.5)
 
 

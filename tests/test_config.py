@@ -108,6 +108,15 @@ def _problems(cfg, **kw):
     return {p.path: p for p in cfg.problems(**kw)}
 
 
+def _sl(**fields):
+    """A CASES mutation: structured light on, then its `fields` set (in the order given)."""
+    def mutate(c):
+        c.structured_light.enabled = True
+        for k, v in fields.items():
+            setattr(c.structured_light, k, v)
+    return mutate
+
+
 # (mutation, field path expected, fragment of the message)
 CASES = [
     (lambda c: setattr(c.scene, "num_renders", 0), "scene.num_renders", ">= 1"),
@@ -133,47 +142,30 @@ CASES = [
     (lambda c: setattr(c.camera.poses[0], "rotation", [0, 0, 0, 0]), "camera.poses[0].rotation", "zero quaternion"),
     (lambda c: setattr(c.scene, "max_renders_per_scene", 99), "scene.max_renders_per_scene", "only 6 camera poses"),
     (lambda c: setattr(c.camera, "clip_end", 0.01), "camera.clip_end", "clip_start"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "steps", 2)),
-     "structured_light.steps", ">= 3"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "periods", [1, 400])),
-     "structured_light.periods", "fewer than 3 px"),
+    (_sl(steps=2), "structured_light.steps", ">= 3"),
+    (_sl(periods=[1, 400]), "structured_light.periods", "fewer than 3 px"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.projector, "rotation", [0, 0])),
      "projector.rotation", "needs 3"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "unwrap", "magic")),
-     "structured_light.unwrap", "unknown value"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "projector_gamma", 0)),
-     "structured_light.projector_gamma", "[0.2, 5]"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "periods", [16, 64])),
-     "structured_light.periods", "share the factor 16"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "exposure", "bright")),
-     "structured_light.exposure", "unknown mode"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "exposure", 0.0)),
-     "structured_light.exposure", "> 0"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", [1, -4])),
-     "structured_light.hdr", "factor 1"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", [1, 1])),
-     "structured_light.hdr", "repeats"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "hdr", "bright")),
-     "structured_light.hdr", "unknown mode"),
+    (_sl(unwrap="magic"), "structured_light.unwrap", "unknown value"),
+    (_sl(projector_gamma=0), "structured_light.projector_gamma", "[0.2, 5]"),
+    (_sl(periods=[16, 64]), "structured_light.periods", "share the factor 16"),
+    (_sl(exposure="bright"), "structured_light.exposure", "unknown mode"),
+    (_sl(exposure=0.0), "structured_light.exposure", "> 0"),
+    (_sl(hdr=[1, -4]), "structured_light.hdr", "factor 1"),
+    (_sl(hdr=[1, 1]), "structured_light.hdr", "repeats"),
+    (_sl(hdr="bright"), "structured_light.hdr", "unknown mode"),
     (lambda c: setattr(c.objects[0], "material", "chrome"), "objects[0].material", "unknown material"),
     (lambda c: setattr(c.objects[1], "material", {"roughnes": 0.2}), "objects[1].material", "unknown key"),
     (lambda c: setattr(c.objects[1], "material", {"base_color": [2, 0, 0]}), "objects[1].material", "base_color"),
     (lambda c: setattr(c.objects[2], "material", ["steel", 3]), "objects[2].material", "item 1"),
     (lambda c: setattr(c.scene, "bin_material", ["steel", "gold"]), "scene.bin_material", "item 1: unknown material"),
     (lambda c: setattr(c.scene, "bin_material", []), "scene.bin_material", "empty list"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "quick")),
-     "structured_light.fringe_mode", "unknown value"),
+    (_sl(fringe_mode="quick"), "structured_light.fringe_mode", "unknown value"),
     (lambda c: setattr(c.scene, "other_objects", "delete"), "scene.other_objects", "unknown value"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "reflection_filter", "on")),
-     "structured_light.reflection_filter", "unknown value"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "ambient", "hall")),
-     "structured_light.ambient", "unknown value"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "fast"),
-                setattr(c.structured_light, "reflection_filter", "global")),
-     "structured_light.reflection_filter", "fast mode"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "fringe_mode", "quadrature"),
-                setattr(c.structured_light, "projector_gamma", 2.2)),
-     "structured_light.fringe_mode", "projector gamma"),
+    (_sl(reflection_filter="on"), "structured_light.reflection_filter", "unknown value"),
+    (_sl(ambient="hall"), "structured_light.ambient", "unknown value"),
+    (_sl(fringe_mode="fast", reflection_filter="global"), "structured_light.reflection_filter", "fast mode"),
+    (_sl(fringe_mode="quadrature", projector_gamma=2.2), "structured_light.fringe_mode", "projector gamma"),
     (lambda c: setattr(c.render, "adaptive_threshold", -0.01), "render.adaptive_threshold", "must be in [0, 1)"),
     (lambda c: setattr(c.render, "samples", 0), "render.samples", ">= 1"),
     (lambda c: setattr(c.render, "outputs", ["rgb", "thermal"]), "render.outputs[1]", "unknown value"),
@@ -197,15 +189,13 @@ CASES = [
      "projector.rotation", "NaN"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.projector, "power", math.inf)),
      "projector.power", "finite"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "steps", 100000)),
-     "structured_light.steps", "more than 32"),
+    (_sl(steps=100000), "structured_light.steps", "more than 32"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "steps", 32),
                 setattr(c.structured_light, "periods", [1, 4, 16, 64]), setattr(c.camera, "resolution", [4096, 3072]),
                 setattr(c.projector, "resolution", [3840, 2160])), "structured_light.steps", "GiB"),
     (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "periods", [1, 300]),
                 setattr(c.camera, "resolution", [64, 48])), "structured_light.periods", "camera pixels"),
-    (lambda c: (setattr(c.structured_light, "enabled", True), setattr(c.structured_light, "samples", 0)),
-     "structured_light.samples", ">= 1"),
+    (_sl(samples=0), "structured_light.samples", ">= 1"),
     (lambda c: setattr(c.objects[0], "filepath", os.path.dirname(__file__)), "objects[0].filepath", "is a folder"),
 ]
 

@@ -3,6 +3,7 @@ trip, validate's warnings, `python -m datapipe sensors`, and the fringe-memory c
 resolution. The precision against the data sheets: tests/sl/test_sl_devices.py."""
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,16 @@ from datapipe import devices
 from datapipe.errors import ConfigError
 from datapipe.sl.scanner import Scanner
 from datapipe.sl.sensor import PRESETS, SensorModel
+
+# what a device preset's fields may hold (presets/devices/*.json; datapipe/devices.py reads them)
+BINNING_MODES = ("subsample", "average")   # subsample: every k-th pixel (per-pixel noise unchanged);
+                                           # average: k x k pixels summed (k^2 the signal, k x the read noise)
+METRICS = {   # the vendors' own precision definitions (how tests/sl/test_sl_devices.py measures them)
+    "point_precision": "1 sigma of the XYZ position of a point between consecutive captures (Zivid)",
+    "temporal_noise": "1 sigma of Z over time on an 80%-albedo diffuse surface (Photoneo)",
+    "z_repeatability": "1 sigma of a single pixel's Z over repeated captures of a ceramic plate (Mech-Mind)",
+}
+SOURCE_REF = re.compile(r"^(https://\S+|[\w.-]+/[\w.-]+@[0-9a-f]{40}:\S+)$")   # a URL or repo@commit:path
 
 
 def preset(**top) -> dict:
@@ -109,7 +120,7 @@ def test_every_number_in_a_preset_is_a_sourced_or_assumed_figure(name):
     or why it is assumed. No number hides in a note, a setting or the sensor."""
     raw = devices.raw(name)
     for ref in raw["sources"].values():
-        assert devices.SOURCE_REF.match(ref["ref"]), f"{name}: {ref['ref']} is neither a URL nor repo@commit:path"
+        assert SOURCE_REF.match(ref["ref"]), f"{name}: {ref['ref']} is neither a URL nor repo@commit:path"
         assert ref["what"]
     stray = [p for p, _ in _numbers({k: v for k, v in raw.items() if k != "figures"})]
     assert stray == [], f"{name}: numbers outside the figures: {stray}"
@@ -130,8 +141,8 @@ def test_every_number_in_a_preset_is_a_sourced_or_assumed_figure(name):
 def test_every_preset_is_complete():
     for name in devices.names():
         dev = devices.device(name)
-        assert dev["precision"]["metric"] in devices.METRICS
-        assert dev["binning"]["mode"] in devices.BINNING_MODES and 1 in dev["binning"]["factors"]
+        assert dev["precision"]["metric"] in METRICS
+        assert dev["binning"]["mode"] in BINNING_MODES and 1 in dev["binning"]["factors"]
         lo, hi = dev["working_distance"]["range"]
         assert lo < dev["working_distance"]["optimal"] < hi and lo <= dev["precision"]["distance"] <= hi
         assert ("calibrated_to" in dev["noise_model"]) != ("sibling" in dev["noise_model"])

@@ -25,10 +25,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "datapipe"
-MAX_FUNCTION_LINES = 120
+MAX_FUNCTION_LINES = 80          # issue #32: a function a newcomer reads on one screen
 MAX_MODULE_LINES = 600
 # qualified name -> why it may be longer for now
 LONG_FUNCTION_EXCEPTIONS = {
+    "datapipe/sl/spatial.py:correct_orders": "being split in the decoder work",
+    "datapipe/sl/decode_slab.py:decode_slab": "being split in the decoder work",
+    "datapipe/sl/unwrap.py:unwrap_cycles": "being split in the decoder work",
+    "datapipe/sl/noise.py:_statistics": "being split in the decoder work",
 }
 
 # Blender's side is core/ (bpy at import) and ui/ (the add-on's panels); every other module of the

@@ -15,11 +15,10 @@ from datapipe.config import PicksConfig
 from datapipe.draws import picks
 from datapipe.draws.seeds import shard_scenes
 from datapipe.engine.distributed import merge_shards
-from datapipe.engine.pipeline import Pipeline
 from datapipe.errors import ConfigError
 from datapipe.io import layout
 from datapipe.reader import read_run
-from test_run_loop import annotations
+from test_run_loop import annotations, finished_run, run, shard_runs
 
 
 def picks_cfg(tmp_path, order="top", per_step=1, until=0, num_renders=9):
@@ -30,11 +29,6 @@ def picks_cfg(tmp_path, order="top", per_step=1, until=0, num_renders=9):
     cfg.output.overview = False
     cfg.scene.picks = PicksConfig(per_step=per_step, order=order, until=until)
     return cfg
-
-
-def run(cfg, out, world=None, **kw):
-    pipe = Pipeline(cfg, out, world=world or BoxWorld.factory(), **kw)
-    return pipe, list(pipe.run())
 
 
 def scenes(out):
@@ -109,11 +103,7 @@ def test_visible_order_needs_the_mask(tmp_path):
 def reference(tmp_path_factory):
     """One uninterrupted run, shared by the tests below (each writes only into its own tmp_path)."""
     tmp = tmp_path_factory.mktemp("picks_ref")
-    cfg = picks_cfg(tmp)
-    out = tmp / "ref"
-    pipe, events = run(cfg, out)
-    assert events[-1].stage == "done"
-    return cfg, out, pipe
+    return finished_run(picks_cfg(tmp), tmp / "ref")
 
 
 def test_each_step_is_a_scene_without_the_removed_parts(reference):
@@ -183,13 +173,9 @@ def test_kill_mid_sequence_then_resume_equals_one_run(reference, tmp_path):
 
 def test_shards_merge_into_the_one_run(reference, tmp_path):
     cfg, ref, _ = reference
-    dirs = []
-    for i in range(2):
-        d = tmp_path / f"shard{i}"
-        pipe, events = run(cfg, d, shard=(i, 2))
-        assert events[-1].stage == "done" and pipe.scene_ids == [range(0, 4), range(4, 9)][i]
-        dirs.append(d)
-    merge_shards(dirs, tmp_path / "merged")
+    shards = shard_runs(cfg, tmp_path)
+    assert [pipe.scene_ids for _, pipe in shards] == [range(0, 4), range(4, 9)]
+    merge_shards([d for d, _ in shards], tmp_path / "merged")
     assert annotations(tmp_path / "merged") == annotations(ref)
 
 

@@ -31,6 +31,24 @@ def run(cfg, out, world=None, **kw):
     return pipe, list(pipe.run())
 
 
+def finished_run(cfg, out):
+    """An uninterrupted run to its end, as the reference fixtures keep it: (cfg, out, pipeline)."""
+    pipe, events = run(cfg, out)
+    assert events[-1].stage == "done"
+    return cfg, out, pipe
+
+
+def shard_runs(cfg, tmp_path, n=2):
+    """The run in `n` shards, each to its end: [(its folder, its pipeline)]."""
+    shards = []
+    for i in range(n):
+        d = tmp_path / f"shard{i}"
+        pipe, events = run(cfg, d, shard=(i, n))
+        assert events[-1].stage == "done"
+        shards.append((d, pipe))
+    return shards
+
+
 def annotations(out) -> dict:
     """Every file a run's consumers read, as text (scene.json, BOP JSON) or plain data (the pickle)."""
     files = {p.relative_to(out).as_posix(): p.read_text() for p in sorted(out.glob("scene.*/scene.json"))}
@@ -45,11 +63,7 @@ def annotations(out) -> dict:
 
 @pytest.fixture
 def reference(tmp_path):
-    cfg = small_cfg(tmp_path)
-    out = tmp_path / "ref"
-    pipe, events = run(cfg, out)
-    assert events[-1].stage == "done"
-    return cfg, out, pipe
+    return finished_run(small_cfg(tmp_path), tmp_path / "ref")
 
 
 def test_run_json_scenes_and_writers(reference):
@@ -117,14 +131,10 @@ def test_cancel_then_resume_equals_one_run(reference, tmp_path):
 
 def test_shards_merge_into_the_one_run(reference, tmp_path):
     cfg, ref, _ = reference
-    shards = []
-    for i in range(2):
-        d = tmp_path / f"shard{i}"
-        pipe, events = run(cfg, d, shard=(i, 2))
-        assert events[-1].stage == "done" and pipe.total == sum(pipe.plan[k] for k in pipe.scene_ids)
-        shards.append(d)
+    shards = shard_runs(cfg, tmp_path)
+    assert all(pipe.total == sum(pipe.plan[k] for k in pipe.scene_ids) for _, pipe in shards)
     merged = tmp_path / "merged"
-    summary = merge_shards(shards, merged)
+    summary = merge_shards([d for d, _ in shards], merged)
     assert summary["scenes"] == len(json.loads((ref / layout.RUN_FILE).read_text())["plan"])
     assert annotations(merged) == annotations(ref)
     run_rec = json.loads((merged / layout.RUN_FILE).read_text())

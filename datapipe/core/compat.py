@@ -25,7 +25,6 @@ IS_5 = VERSION >= (5, 0, 0)
 # ------------------------------------------------------------------------------------------------
 # engines
 
-CYCLES = "CYCLES"
 EEVEE = "BLENDER_EEVEE" if IS_5 else "BLENDER_EEVEE_NEXT"
 
 
@@ -168,12 +167,6 @@ def file_output_add_input(fo, name: str, socket_type: str):
     else:
         fo.layer_slots.new(name)
     return fo.inputs[name]
-
-
-def file_output_input_names(fo) -> list[str]:
-    if IS_5:
-        return [item.name for item in fo.file_output_items]
-    return [slot.name for slot in fo.layer_slots]
 
 
 _FRAME_SUFFIX = re.compile(r"^\d*$")

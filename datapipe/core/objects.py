@@ -379,10 +379,6 @@ class ObjectManager:
             tpl.thin = float(np.ptp(verts, axis=0).min())
 
     # -- model data for annotations ---------------------------------------------------------------
-    def model_points(self, entry_index: int) -> np.ndarray:
-        """(V, 3) float64 vertices of entry `entry_index`'s template: model coordinates, metres."""
-        return _vertices(self.templates[entry_index].obj.data)
-
     def model_mesh(self, entry_index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(verts (V,3) float64, triangles (F,3) int64, vertex normals (V,3) float64), model frame."""
         return self.model_mesh_of(self.templates[entry_index].obj.data)
@@ -396,12 +392,6 @@ class ObjectManager:
         normals = np.zeros(len(me.vertices) * 3, dtype=np.float32)
         me.vertices.foreach_get("normal", normals)
         return verts, tris.reshape(-1, 3).astype(np.int64), normals.reshape(-1, 3).astype(np.float64)
-
-    def template(self, entry_index: int) -> bpy.types.Object:
-        return self.templates[entry_index].obj
-
-    def bounding_radius(self, entry_index: int) -> float:
-        return self.templates[entry_index].radius
 
     # -- instances --------------------------------------------------------------------------------
     def populate(self, rng: np.random.Generator, *, staged: bool = False) -> list[Instance]:

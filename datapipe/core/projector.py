@@ -136,22 +136,6 @@ class Projector:
             T_world_cam = blender_camera_to_opencv(_normalized(self.camera_obj.matrix_world))
         return projector_matrix(self.cfg, T_world_cam)
 
-    def T_world_proj_blender(self, i: int = 0) -> np.ndarray:
-        """Light i's world pose as Blender evaluates it (OpenCV projector frame).
-
-        Evaluated in its own fringe view layer when that exists (the light is excluded from every
-        other layer, where its matrix_world is not updated); else parent @ parent_inverse @ basis."""
-        from ..geometry import blender_camera_to_opencv
-        ob = self.lights[i]
-        layers = self.view_layers
-        if i < len(layers):
-            vl = layers[i]
-            vl.update()
-            M = ob.evaluated_get(vl.depsgraph).matrix_world
-        else:
-            M = self.camera_obj.matrix_world @ ob.matrix_parent_inverse @ ob.matrix_basis
-        return blender_camera_to_opencv(_normalized(M))
-
     # -- build ------------------------------------------------------------------------------------
     def build(self, patterns) -> list:
         """One spot light per pattern, each alone in its collection `datapipe_sl_NN` (linked to the

@@ -40,7 +40,7 @@ LIGHT_HEIGHT = 2.5          # m, key light above the floor. Cycles gives an AREA
                             # an on-axis irradiance of about P / (pi^2 h^2): 50 W -> 0.8 W/m^2, so a
                             # grey (0.5) floor renders near 0.4 linear under the Standard view transform
 LIGHT_SIZE = 1.0            # m, a soft box: soft shadows
-INSIDE_MARGIN = 0.005       # m, default tolerance of inside_bin()
+INSIDE_MARGIN = 0.005       # m, how far a settled part may be outside the footprint or under floor_z (simulation)
 STATIC_MARGIN = 0.0005      # m, collision margin of the bin's boxes
 GROUND_HALF_SIZE = 2.0      # m, the floor reaches at least this far from the zone's centre ...
 GROUND_FACTOR = 10.0        # ... and at least 10x the bin's half size
@@ -181,11 +181,6 @@ class BlendScene:
         p = np.asarray(location, dtype=np.float64)
         d = np.abs(p[:2] - self.drop_zone_center[:2])
         return bool(np.all(d <= self.drop_zone_half[:2] + margin))
-
-    def inside_bin(self, location, margin: float = INSIDE_MARGIN) -> bool:
-        """True if `location` (world, m) is over the zone's footprint and above floor_z - margin."""
-        p = np.asarray(location, dtype=np.float64)
-        return self.inside_footprint(p, margin) and bool(p[2] >= self.floor_z - margin)
 
     # -- other objects of the open scene ----------------------------------------------------------
     def hide_other_objects(self, scene) -> list[str]:
@@ -434,7 +429,7 @@ class BlendScene:
         a second Background node, its image rotated about world Z and of the drawn strength, added to
         the white ambient. The fringe layers keep their black world override (the projector alone
         lights them); the projector-off layer of structured_light.ambient "scene" sees it."""
-        import math
+        from ..draws.environment import rotation_rad
         nt = self.scene.world.node_tree
         if self._env_nodes is None:
             out = next(n for n in nt.nodes if n.type == 'OUTPUT_WORLD')
@@ -457,7 +452,7 @@ class BlendScene:
         tex.image = load_image(draw["map"])
         if old is not None and old is not tex.image and old.users == 0 and old.get(IMAGE_TAG):
             bpy.data.images.remove(old)                               # one map of ours held at a time
-        mapping.inputs["Rotation"].default_value = (0.0, 0.0, math.radians(float(draw["rotation_deg"])))
+        mapping.inputs["Rotation"].default_value = (0.0, 0.0, rotation_rad(draw))
         env_bg.inputs["Strength"].default_value = float(draw["strength"])
 
 

@@ -98,4 +98,5 @@ def draw_environment(lighting, maps: list[str], rng: np.random.Generator) -> dic
 
 
 def rotation_rad(draw: dict) -> float:
+    """A draw's rotation about the world's Z axis in radians (what core/scene.py gives the mapping node)."""
     return math.radians(float(draw["rotation_deg"]))

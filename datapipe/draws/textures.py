@@ -34,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 
-PROCEDURAL = ("noise", "voronoi", "wave", "brick", "checker")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr", ".bmp", ".tga")
 MAX_SET_FILES = 10_000           # files looked at in an image folder (a texture library, not a disk)
 _MAP_WORDS = {

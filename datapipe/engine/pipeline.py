@@ -50,9 +50,6 @@ class QualityError(DataPipeError):
 STAGES = ("placement", "simulation", "render", "structured_light", "write")
 
 
-_fmt_s = fmt_s
-
-
 def _config_identity(cfg: Config) -> dict:
     return layout.config_identity(cfg.to_dict())
 
@@ -229,7 +226,7 @@ class Pipeline:
                 self.tracker.stop()
             world.close()
         yield from self._finished(writers, done, f"finished {self._made} render(s) in "
-                                                 f"{_fmt_s(time.perf_counter() - self._t_start)}; "
+                                                 f"{fmt_s(time.perf_counter() - self._t_start)}; "
                                                  f"{totals_line(self.run_stats()['physics'])}")
 
     @property

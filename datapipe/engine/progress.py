@@ -37,7 +37,6 @@ STEPS = ("placement", "simulation", "render", "write", "fringes", "decode", "map
 STEP_LABELS = {"placement": "placing parts", "simulation": "simulating", "render": "rendering (Cycles)",
                "write": "writing", "fringes": "structured light (Cycles)", "decode": "decoding",
                "maps": "writing structured-light maps", "annotate": "annotating"}
-SCENE_STEPS = ("placement", "simulation")
 HEARTBEAT_S = 30.0
 
 

@@ -82,11 +82,6 @@ def scene_dirs(run_dir: str | os.PathLike) -> list[Path]:
     return sorted(p for p in Path(run_dir).glob(SCENE_PREFIX + "*") if p.is_dir())
 
 
-def complete_scenes(run_dir: str | os.PathLike) -> list[Path]:
-    """Scene folders of a run that are complete, in order."""
-    return [p for p in scene_dirs(run_dir) if scene_complete(p)]
-
-
 def iter_scenes(run_dir: str | os.PathLike) -> Iterator[tuple[Path, dict]]:
     """(scene folder, scene.json) of every complete scene of a run, in order."""
     for p in scene_dirs(run_dir):

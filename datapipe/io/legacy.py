@@ -48,14 +48,6 @@ def write_legacy_output(path: Path, data: dict) -> None:
     write_bytes_atomic(path, legacy_bytes(data))
 
 
-def update_legacy_pickle(out_dir: Path, scene: dict) -> None:
-    """Add one scene to output_dict.pickle (re-written atomically)."""
-    path = Path(out_dir) / layout.LEGACY_PICKLE
-    data = load_legacy_output(path) if path.is_file() else {}
-    data[scene["name"]] = legacy_scene_entry(scene)
-    write_legacy_output(path, data)
-
-
 def load_legacy_output(path: Path) -> dict:
     """Our own output_dict.pickle: dicts, lists, strings, numbers and numpy float arrays only."""
     with open(path, "rb") as f:

@@ -58,14 +58,27 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 
     Polygons with more than 3 corners are fanned into triangles."""
     raw = read_regular(path, MAX_MESH_BYTES)         # never a FIFO or device (io/input_files.py)
+    fmt, elements, body_start = _ply_header(raw, path)
+    if fmt == "ascii":
+        verts, polys = _ply_ascii_body(raw[body_start:].split(), elements)
+        tri = np.zeros((0, 3), dtype=np.int64)
+    else:
+        verts, polys, tri = _ply_binary_body(raw, body_start, elements, ">" if fmt == "binary_big_endian" else "<")
+    if polys:
+        tri = np.array([[p[0], p[k], p[k + 1]] for p in polys for k in range(1, len(p) - 1)], dtype=np.int64)
+    return verts, tri.reshape(-1, 3)
+
+
+def _ply_header(raw: bytes, path) -> tuple[str, list[dict], int]:
+    """(format, elements [{name, count, props}], offset of the body). A property is (name, type) or,
+    for a list, (name, "list", count type, index type)."""
     end = raw.find(b"end_header")
     if not raw.startswith(b"ply") or end < 0:
         raise DataPipeError(f"{path}: not a PLY file")
     body_start = raw.index(b"\n", end) + 1
-    lines = raw[:end].decode("ascii", "replace").splitlines()
     fmt = None
     elements: list[dict] = []
-    for line in lines:
+    for line in raw[:end].decode("ascii", "replace").splitlines():
         tok = line.split()
         if not tok:
             continue
@@ -80,63 +93,73 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
                 elements[-1]["props"].append((tok[2], _PLY_TYPES[tok[1]]))
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise DataPipeError(f"{path}: PLY format {fmt!r} not supported (use ascii or binary_little_endian)")
-    order = ">" if fmt == "binary_big_endian" else "<"
+    return fmt, elements, body_start
+
+
+def _is_face_list(el: dict, prop: tuple) -> bool:
+    return el["name"] == "face" and prop[0] in ("vertex_indices", "vertex_index")
+
+
+def _ply_ascii_body(tokens: list[bytes], elements: list[dict]) -> tuple[np.ndarray, list[list[int]]]:
+    """(vertices (V,3), face polygons) of an ascii body's tokens."""
+    verts = np.zeros((0, 3))
+    polys: list[list[int]] = []
+    pos = 0
+    for el in elements:
+        if el["name"] == "vertex" and all(len(p) == 2 for p in el["props"]):
+            n, k = el["count"], len(el["props"])
+            arr = np.array(tokens[pos:pos + n * k], dtype=np.float64).reshape(n, k)
+            pos += n * k
+            names = [p[0] for p in el["props"]]
+            verts = arr[:, [names.index("x"), names.index("y"), names.index("z")]]
+            continue
+        for _ in range(el["count"]):
+            for p in el["props"]:
+                if len(p) == 4:
+                    cnt = int(tokens[pos]); pos += 1
+                    vals = [int(t) for t in tokens[pos:pos + cnt]]; pos += cnt
+                    if _is_face_list(el, p):
+                        polys.append(vals)
+                else:
+                    pos += 1
+    return verts, polys
+
+
+def _ply_binary_body(raw: bytes, pos: int, elements: list[dict],
+                     order: str) -> tuple[np.ndarray, list[list[int]], np.ndarray]:
+    """(vertices (V,3), face polygons, triangles (F,3) read in one piece) of a binary body from `pos`."""
     verts = np.zeros((0, 3))
     polys: list[list[int]] = []
     tri = np.zeros((0, 3), dtype=np.int64)
-    if fmt == "ascii":
-        tokens = raw[body_start:].split()
-        pos = 0
-        for el in elements:
-            if el["name"] == "vertex" and all(len(p) == 2 for p in el["props"]):
-                n, k = el["count"], len(el["props"])
-                arr = np.array(tokens[pos:pos + n * k], dtype=np.float64).reshape(n, k)
-                pos += n * k
-                names = [p[0] for p in el["props"]]
-                verts = arr[:, [names.index("x"), names.index("y"), names.index("z")]]
-                continue
-            for _ in range(el["count"]):
-                for p in el["props"]:
-                    if len(p) == 4:
-                        cnt = int(tokens[pos]); pos += 1
-                        vals = [int(t) for t in tokens[pos:pos + cnt]]; pos += cnt
-                        if el["name"] == "face" and p[0] in ("vertex_indices", "vertex_index"):
-                            polys.append(vals)
-                    else:
-                        pos += 1
-    else:
-        pos = body_start
-        for el in elements:
-            if all(len(p) == 2 for p in el["props"]):
-                dt = np.dtype([(p[0], order + p[1]) for p in el["props"]])
+    for el in elements:
+        if all(len(p) == 2 for p in el["props"]):
+            dt = np.dtype([(p[0], order + p[1]) for p in el["props"]])
+            arr = np.frombuffer(raw, dtype=dt, count=el["count"], offset=pos)
+            pos += dt.itemsize * el["count"]
+            if el["name"] == "vertex":
+                verts = np.stack([arr["x"], arr["y"], arr["z"]], axis=1).astype(np.float64)
+            continue
+        # fast path: faces that are all triangles with one list property
+        if (el["name"] == "face" and len(el["props"]) == 1 and len(el["props"][0]) == 4):
+            _, _, ct, it = el["props"][0]
+            dt = np.dtype([("n", order + ct), ("i", order + it, (3,))])
+            if pos + dt.itemsize * el["count"] <= len(raw):
                 arr = np.frombuffer(raw, dtype=dt, count=el["count"], offset=pos)
-                pos += dt.itemsize * el["count"]
-                if el["name"] == "vertex":
-                    verts = np.stack([arr["x"], arr["y"], arr["z"]], axis=1).astype(np.float64)
-                continue
-            # fast path: faces that are all triangles with one list property
-            if (el["name"] == "face" and len(el["props"]) == 1 and len(el["props"][0]) == 4):
-                _, _, ct, it = el["props"][0]
-                dt = np.dtype([("n", order + ct), ("i", order + it, (3,))])
-                if pos + dt.itemsize * el["count"] <= len(raw):
-                    arr = np.frombuffer(raw, dtype=dt, count=el["count"], offset=pos)
-                    if np.all(arr["n"] == 3):
-                        tri = arr["i"].astype(np.int64)
-                        pos += dt.itemsize * el["count"]
-                        continue
-            for _ in range(el["count"]):
-                for p in el["props"]:
-                    if len(p) == 4:
-                        cdt, idt = np.dtype(order + p[2]), np.dtype(order + p[3])
-                        cnt = int(np.frombuffer(raw, cdt, 1, pos)[0]); pos += cdt.itemsize
-                        vals = np.frombuffer(raw, idt, cnt, pos).tolist(); pos += idt.itemsize * cnt
-                        if el["name"] == "face" and p[0] in ("vertex_indices", "vertex_index"):
-                            polys.append(vals)
-                    else:
-                        pos += np.dtype(p[1]).itemsize
-    if polys:
-        tri = np.array([[p[0], p[k], p[k + 1]] for p in polys for k in range(1, len(p) - 1)], dtype=np.int64)
-    return verts, tri.reshape(-1, 3)
+                if np.all(arr["n"] == 3):
+                    tri = arr["i"].astype(np.int64)
+                    pos += dt.itemsize * el["count"]
+                    continue
+        for _ in range(el["count"]):
+            for p in el["props"]:
+                if len(p) == 4:
+                    cdt, idt = np.dtype(order + p[2]), np.dtype(order + p[3])
+                    cnt = int(np.frombuffer(raw, cdt, 1, pos)[0]); pos += cdt.itemsize
+                    vals = np.frombuffer(raw, idt, cnt, pos).tolist(); pos += idt.itemsize * cnt
+                    if _is_face_list(el, p):
+                        polys.append(vals)
+                else:
+                    pos += np.dtype(p[1]).itemsize
+    return verts, polys, tri
 
 
 def diameter(points: np.ndarray) -> float:

@@ -184,12 +184,6 @@ class Capture:
     reference: float                              # exposure whose DN units `images` are in
     chosen: np.ndarray | None = None              # (H, W) uint8 index into `exposures` (fused only)
 
-    def chosen_counts(self) -> list[int] | None:
-        """Pixels that took each exposure (None for a single exposure)."""
-        if self.chosen is None:
-            return None
-        return [int(c) for c in np.bincount(self.chosen.ravel(), minlength=len(self.exposures))]
-
 
 def _stream(seed, k: int):
     """Exposure k's random stream: exposure 0 uses the seed itself (a single exposure gives the

@@ -89,7 +89,6 @@ MULTIPATH = int(Reason.MULTIPATH)  # reason code of pixels removed by the multip
 REFLECTION = int(Reason.REFLECTION)  # reason code of pixels removed by the global reflection filter
 ROW_PERIODS = [8]                # the row code: 8 periods over the projector height, unwrapped by the
                                  # decoded point's predicted row (sl.filters.reflection_filter)
-REASON_NAMES = {r.value: r.name for r in Reason}
 
 
 @dataclass
@@ -148,11 +147,10 @@ class Scan:
 
     def summary(self) -> dict:
         res = self.result
-        counts = np.bincount(res.reason.ravel(), minlength=max(REASON_NAMES) + 1)
         cap = self.capture
         factors = [e / cap.reference for e in cap.exposures] if cap is not None and len(cap.exposures) > 1 else []
         out = {"unwrap": res.method, "valid_fraction": float(res.valid.mean()),
-               "reasons": {REASON_NAMES[i]: int(counts[i]) for i in sorted(REASON_NAMES)},
+               "reasons": res.reason_counts(),
                "median_sigma_z": _nanmedian(self.sigma_z), "exposure": self.exposure,
                "exposure_mode": self.exposure_mode, "hdr": [float(f) for f in factors],
                "reflection_filter": ("global" if self.reflection is not None

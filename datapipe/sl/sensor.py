@@ -21,7 +21,7 @@ dark current, fixed-pattern noise / PRNU, blooming, lens blur, rolling shutter.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -54,9 +54,6 @@ class SensorModel:
             return PRESETS[name]
         except KeyError:
             raise bad_value("preset", f"unknown sensor preset {name!r}", f"use one of {sorted(PRESETS)}") from None
-
-    def with_(self, **kw) -> "SensorModel":
-        return replace(self, **kw)
 
     # -- derived ---------------------------------------------------------------------------
     @property

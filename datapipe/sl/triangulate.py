@@ -23,6 +23,7 @@ uncertainty of a pixel (see :meth:`Triangulator.depth_slope`).
 """
 from __future__ import annotations
 
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -40,10 +41,14 @@ __all__ = ["Triangulator", "TriangulationResult", "intrinsics_from_blender_camer
 def intrinsics_from_blender(focal_mm: float, sensor_width_mm: float, width: int, height: int,
                             sensor_fit: str = "AUTO", *, sensor_height_mm: float = 24.0,
                             shift_x: float = 0.0, shift_y: float = 0.0) -> np.ndarray:
-    """Deprecated alias of `intrinsics_from_blender_camera`, kept because ``datapipe.sl`` exported
-    it: same arguments, same defaults (a VERTICAL fit uses ``sensor_height_mm``, 24 mm unless
-    given, as a real Blender camera does), same result. For DataPipe configs' one-sensor-size
-    convention use `datapipe.geometry.intrinsics_from_sensor`."""
+    """Deprecated alias of `intrinsics_from_blender_camera` (removed in DataPipe 0.2.0; docs/API.md,
+    "Deprecations"), kept because ``datapipe.sl`` 0.1.0 exported it: same arguments, same defaults (a
+    VERTICAL fit uses ``sensor_height_mm``, 24 mm unless given, as a real Blender camera does), same
+    result. For DataPipe configs' one-sensor-size convention use
+    `datapipe.geometry.intrinsics_from_sensor`."""
+    warnings.warn("datapipe.sl.intrinsics_from_blender is deprecated and will be removed in DataPipe 0.2.0: "
+                  "use datapipe.sl.intrinsics_from_blender_camera (the same arguments and result)",
+                  DeprecationWarning, stacklevel=2)
     return intrinsics_from_blender_camera(focal_mm, sensor_width_mm, width, height, sensor_fit,
                                           sensor_height_mm=sensor_height_mm, shift_x=shift_x, shift_y=shift_y)
 

@@ -4,6 +4,8 @@ Ground truth is Blender itself (bpy_extras.object_utils.world_to_camera_view, th
 matrix_world) or plain quaternion algebra written out here, never the code under test.
 """
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,10 +14,14 @@ bpy = pytest.importorskip("bpy")
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 from mathutils import Vector  # noqa: E402
 
+from blender_probes import light_world_pose  # noqa: E402
 from datapipe import geometry  # noqa: E402
 from datapipe.config import CameraPose, Config  # noqa: E402
 from datapipe.core.camera import CAMERA_NAME, BlendCamera  # noqa: E402
 from datapipe.errors import DataPipeError  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from pose_checks import pixels, pose_parameters  # noqa: E402
 
 
 def quat_axis_angle(axis, angle):
@@ -76,7 +82,7 @@ def test_K_matches_blender_projection(factory_scene, res, fit):
         pw = pc @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
         ndc = np.array([world_to_camera_view(scene, cam.obj, Vector(p))[:] for p in pw])
         uv_blender = np.column_stack([ndc[:, 0] * W - 0.5, (1 - ndc[:, 1]) * H - 0.5])
-        uv = geometry.project_points(cam.K, np.linalg.inv(T_world_cam), pw)
+        uv = pixels(geometry.projection_matrix(cam.K, T_world_cam), pw)
         np.testing.assert_allclose(uv, uv_blender, atol=1e-4)
         np.testing.assert_allclose(ndc[:, 2], pc[:, 2], atol=1e-6)   # Blender's z = planar depth
 
@@ -121,7 +127,7 @@ def test_draw_poses_without_replacement(factory_scene):
 def test_sampled_view_places_camera_and_parented_projector(factory_scene):
     """A bin_view draw moves the camera object to the drawn look-at pose (Blender's matrix_world is
     the ground truth) and the projector, parented to the camera, follows it (T_cam_proj fixed)."""
-    from datapipe.draws.camera_sampler import draw_bin_view, pose_parameters
+    from datapipe.draws.camera_sampler import draw_bin_view
     from datapipe.config import CameraSamplerConfig
     from datapipe.core import projector as pj
     from datapipe.draws.seeds import camera_rng
@@ -138,7 +144,7 @@ def test_sampled_view_places_camera_and_parented_projector(factory_scene):
         p = pose_parameters(cam.T_world_cam(), view.target)
         assert p["distance"] == pytest.approx(view.distance, abs=1e-6)
         assert p["tilt_deg"] == pytest.approx(view.tilt_deg, abs=1e-4) and p["miss"] < 1e-6
-        np.testing.assert_allclose(proj.T_world_proj_blender(0), T @ pj.T_cam_proj(cfg), atol=1e-6)
+        np.testing.assert_allclose(light_world_pose(proj, 0), T @ pj.T_cam_proj(cfg), atol=1e-6)
         u, v, _ = world_to_camera_view(factory_scene, cam.obj, Vector(view.target))   # on the optical axis
         assert (u, v) == (pytest.approx(0.5, abs=1e-6), pytest.approx(0.5, abs=1e-6))
     proj.teardown()

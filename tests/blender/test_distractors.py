@@ -24,6 +24,7 @@ from datapipe import config as C
 from datapipe.engine.pipeline import Pipeline
 from datapipe.io.bop import export_bop
 from datapipe.io.exr import read_depth, read_mask
+from small_runs import small_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bop_toolkit_check import check, model_depth, toolkit  # noqa: E402
@@ -46,13 +47,7 @@ def _obj_mesh(path: Path):
 
 
 def _config():
-    cfg = C.default_config()
-    cfg.scene.num_renders = 2
-    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 2
-    cfg.camera.resolution = [160, 120]
-    cfg.render.samples = 1
-    cfg.render.threads = 2
-    cfg.structured_light.enabled = False
+    cfg = small_config(2, 2, (160, 120))
     cfg.output.formats = ["native", "bop"]
     peg = cfg.objects[0]
     peg.min_instances = peg.max_instances = 3

@@ -43,8 +43,8 @@ def _build(cfg, pack=None):
 
 
 def _items(slc):
-    from datapipe.core import compat
-    return compat.file_output_input_names(slc.strategy.file_output)
+    from blender_probes import file_output_input_names
+    return file_output_input_names(slc.strategy.file_output)
 
 
 MODES = [("fast", None), ("render", None), ("quadrature", True), ("quadrature", False)]   # (mode, packed)

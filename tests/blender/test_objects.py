@@ -60,7 +60,7 @@ def test_each_file_imported_once_and_instances_share_mesh():
         assert om.import_count == 3
         assert len(bpy.data.meshes) == meshes        # no new mesh data per scene
         for inst in insts:
-            tpl = om.template(inst.entry_index)
+            tpl = om.templates[inst.entry_index].obj
             assert inst.obj.data == tpl.data          # linked copy of its template
             assert inst.obj.type == 'MESH' and inst.obj.rigid_body.type == 'ACTIVE'
             entry = cfg.objects[inst.entry_index]
@@ -117,10 +117,10 @@ def test_model_points_equal_file_vertices_times_scale():
     bs, om = setup(cfg)
     for i, entry in enumerate(cfg.objects):
         v, faces = parse_obj(entry.filepath)
-        pts = om.model_points(i)
+        pts = om.model_mesh(i)[0]
         assert pts.dtype == np.float64 and pts.shape == v.shape
         assert np.allclose(pts, v * entry.scale, atol=1e-6)
-        assert np.allclose(np.array(om.template(i).matrix_world), np.eye(4))
+        assert np.allclose(np.array(om.templates[i].obj.matrix_world), np.eye(4))
         verts, tris, normals = om.model_mesh(i)
         assert np.allclose(verts, v * entry.scale, atol=1e-6)
         n_tris = sum(len(f) - 2 for f in faces)
@@ -194,15 +194,21 @@ def _entry(path, **kw):
     return ObjectEntry(filepath=str(path), **kw)
 
 
-def test_file_without_mesh_is_an_error(tmp_path):
-    p = tmp_path / "empty.obj"
-    p.write_text("# nothing here\n")
+def _load_error(path) -> str:
+    """The DataPipeError that loading `path` as the only object entry raises, as text."""
     cfg = default_config()
-    cfg.objects = [_entry(p)]
+    cfg.objects = [_entry(path)]
     bs = BlendScene(cfg).setup()
     with pytest.raises(DataPipeError) as e:
         ObjectManager(cfg, bs).load_sources()
-    assert str(p) in str(e.value) and "fix" in str(e.value)
+    return str(e.value)
+
+
+def test_file_without_mesh_is_an_error(tmp_path):
+    p = tmp_path / "empty.obj"
+    p.write_text("# nothing here\n")
+    msg = _load_error(p)
+    assert str(p) in msg and "fix" in msg
     assert "empty" not in {o.name for o in bpy.data.objects}
 
 
@@ -211,12 +217,8 @@ def test_unsupported_or_missing_file_is_an_error(tmp_path, name):
     p = tmp_path / name
     if not name.startswith("missing"):
         p.write_text("v 0 0 0\n")
-    cfg = default_config()
-    cfg.objects = [_entry(p)]
-    bs = BlendScene(cfg).setup()
-    with pytest.raises(DataPipeError) as e:
-        ObjectManager(cfg, bs).load_sources()
-    assert str(p) in str(e.value) and "objects[0].filepath" in str(e.value)
+    msg = _load_error(p)
+    assert str(p) in msg and "objects[0].filepath" in msg
 
 
 TET = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.03, 0.0], [0.0, 0.0, 0.04]])
@@ -273,7 +275,7 @@ def test_ply_and_stl_import_without_axis_change(tmp_path, ext, writer):
     cfg.objects = [_entry(p, scale=2.0, min_instances=2, max_instances=2)]
     bs, om = setup(cfg)
     assert om.import_count == 1
-    assert _rows(om.model_points(0)) == _rows(TET * 2.0)
+    assert _rows(om.model_mesh(0)[0]) == _rows(TET * 2.0)
     insts = om.populate(np.random.default_rng(0))
     assert [i.name for i in insts] == ["tet_000", "tet_001"]
 
@@ -286,8 +288,8 @@ def test_gltf_import_converts_y_up(tmp_path):
     bs, om = setup(cfg)
     # glTF is Y-up: Blender maps file (x, y, z) to (x, -z, y); the node's translation is baked in
     expect = (TET + [0.1, 0.0, 0.0]) @ np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]]) * 2.0
-    assert _rows(om.model_points(0)) == _rows(expect)
-    assert np.allclose(np.array(om.template(0).matrix_world), np.eye(4))
+    assert _rows(om.model_mesh(0)[0]) == _rows(expect)
+    assert np.allclose(np.array(om.templates[0].obj.matrix_world), np.eye(4))
 
 
 def test_obj_with_several_meshes_is_joined(tmp_path):
@@ -298,7 +300,7 @@ def test_obj_with_several_meshes_is_joined(tmp_path):
     cfg.objects = [_entry(p)]
     bs, om = setup(cfg)
     v, _ = parse_obj(p)
-    assert _rows(om.model_points(0)) == _rows(v)
+    assert _rows(om.model_mesh(0)[0]) == _rows(v)
     assert len(bpy.data.collections["datapipe_templates"].objects) == 1
     assert om.model_mesh(0)[1].shape == (2, 3)
 
@@ -313,12 +315,12 @@ def test_off_centre_origin_gets_a_centred_simulation_mesh(tmp_path):
     cfg = default_config()
     cfg.objects = [_entry(p)]
     bs, om = setup(cfg)
-    me = om.template(0).data
+    me = om.templates[0].obj.data
     assert np.allclose(me["datapipe_com"], [0.01, 0.01, 0.01], atol=1e-6)
     sim = me["datapipe_sim_mesh"]
     co = np.array([tuple(x.co) for x in sim.vertices])
     assert np.allclose(co.min(0), -0.01, atol=1e-6) and np.allclose(co.max(0), 0.01, atol=1e-6)
-    assert np.allclose(om.model_points(0).min(0), 0.0, atol=1e-7)     # model frame unchanged
+    assert np.allclose(om.model_mesh(0)[0].min(0), 0.0, atol=1e-7)     # model frame unchanged
 
 
 def test_duplicate_entry_names_are_an_error():

@@ -9,7 +9,6 @@ the seed, so the later steps start from the same pile.
 The 10 steps from 80 parts of issue #29 are measured outside the suite (benchmarks/bench_picks.py).
 """
 import json
-import signal
 import subprocess
 import sys
 
@@ -17,19 +16,12 @@ import numpy as np
 
 from datapipe import config as C
 from datapipe.io.exr import read_mask
+from small_runs import kill_after_scene, small_config
 
 
 def picks_config():
-    cfg = C.default_config()
-    cfg.scene.num_renders = 4
-    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1
-    cfg.camera.resolution = [64, 48]
-    cfg.render.samples = 1
-    cfg.render.threads = 2
-    cfg.structured_light.enabled = False
+    cfg = small_config(4, 1, (64, 48), instances=4)                # 3 entries x 4: 12 parts
     cfg.output.overview = False
-    for o in cfg.objects:
-        o.min_instances = o.max_instances = 4                      # 12 parts
     cfg.scene.picks = C.PicksConfig(per_step=3, order="top", until=3)   # 12 -> 9 -> 6 -> 3: 4 scenes
     return cfg
 
@@ -61,13 +53,7 @@ def test_pick_steps_settle_clean_and_resume_to_the_same_files(tmp_path):
             seen = set(np.unique(read_mask(full / d["name"] / r["files"]["mask"])).tolist())
             assert not {pile[n] for n in removed} & seen       # no removed part in the rendered mask
     # kill the second run once the pile's first pick step is complete, then resume
-    proc = subprocess.Popen(cmd + ["--out", str(part)], stderr=subprocess.PIPE, text=True)
-    for line in proc.stderr:
-        if "scene.0002" in line and "parts," in line:
-            proc.send_signal(signal.SIGKILL)
-            break
-    proc.wait(timeout=120)
-    assert proc.returncode == -signal.SIGKILL
+    kill_after_scene(cmd + ["--out", str(part)], "scene.0002", timeout=120)
     assert len(scene_docs(part)) < 4 or not scene_docs(part)[-1].get("complete")
     r = subprocess.run(cmd + ["--out", str(part), "--resume"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr

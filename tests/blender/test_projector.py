@@ -12,6 +12,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from blender_probes import light_world_pose  # noqa: E402
 from datapipe.config import Config  # noqa: E402
 from datapipe.core import projector as pj  # noqa: E402
 from datapipe.errors import DataPipeError  # noqa: E402
@@ -216,10 +217,10 @@ def test_light_pose_matches_math():
     proj.build(np.ones((2, 570, 912), np.float32))
     Twc = blender_camera_to_opencv(Twc_bl)
     expect = Twc @ pj.T_cam_proj(cfg)
-    assert np.allclose(proj.T_world_proj_blender(0), expect, atol=1e-6)        # composed
+    assert np.allclose(light_world_pose(proj, 0), expect, atol=1e-6)        # composed
     proj.make_view_layers()
     for i in range(2):
-        assert np.allclose(proj.T_world_proj_blender(i), expect, atol=1e-6)    # evaluated in sl_0i
+        assert np.allclose(light_world_pose(proj, i), expect, atol=1e-6)    # evaluated in sl_0i
         M = np.array(proj.lights[i].evaluated_get(proj.view_layers[i].depsgraph).matrix_world)
         assert np.allclose(np.linalg.norm(M[:3, :3], axis=0), 1.0, atol=1e-6)
     assert np.allclose(proj.P_proj(), pj.projector_matrix(cfg, Twc), atol=1e-6)

@@ -20,6 +20,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from blender_probes import file_output_input_names  # noqa: E402
 from datapipe.io import exr  # noqa: E402
 from datapipe.config import CameraPose, Config  # noqa: E402
 from datapipe.core import compat  # noqa: E402
@@ -215,7 +216,7 @@ def test_only_requested_outputs(factory_scene, tmp_path):
     assert out.rgb is None and out.normals is None and out.mask is None
     vl = scene.view_layers[NATIVE_LAYER]
     assert vl.use_pass_z and not vl.use_pass_normal and not vl.use_pass_object_index
-    assert compat.file_output_input_names(ren.file_output) == ["Depth"]
+    assert file_output_input_names(ren.file_output) == ["Depth"]
     assert list(exr.read_exr(tmp_path / "depth.exr")) == ["Z"]
     np.testing.assert_allclose(out.depth, 0.5, atol=1e-5)
 
@@ -240,7 +241,7 @@ def test_compositor_built_once_same_seed_same_pixels_rgb_is_srgb8(factory_scene,
     c = ren.render(tmp_path / "c", seed=12)
 
     assert sorted(n.name for n in ren.tree.nodes) == nodes and len(ren.tree.links) == links
-    assert sorted(compat.file_output_input_names(ren.file_output)) == ["Depth", "Image", "IndexOB", "Normal"]
+    assert sorted(file_output_input_names(ren.file_output)) == ["Depth", "Image", "IndexOB", "Normal"]
     for kind in ("rgb", "depth", "normals", "mask"):
         x, y = getattr(a, kind), getattr(b, kind)
         np.testing.assert_array_equal(x, y, err_msg=kind)

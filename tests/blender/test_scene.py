@@ -6,7 +6,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from datapipe.config import default_config  # noqa: E402
-from datapipe.core.scene import BlendScene, remove_unused_data, world_bounds  # noqa: E402
+from datapipe.core.scene import INSIDE_MARGIN, BlendScene, remove_unused_data, world_bounds  # noqa: E402
 
 TOL = 1e-6
 
@@ -152,14 +152,20 @@ def test_reopening_a_saved_run_rebuilds_without_duplicates(tmp_path):
 
 
 def test_inside_bin():
+    """The simulation's test of a settled part (core/simulation.py: over the footprint, else LEFT_BIN;
+    not under floor_z, else FELL_THROUGH; both within INSIDE_MARGIN)."""
     bs = BlendScene(_cfg()).setup()               # footprint x 0.1..0.5, y -0.32..-0.08, floor 0.42
-    assert bs.inside_bin([0.3, -0.2, 0.45])
-    assert bs.inside_bin([0.49, -0.09, 0.42])
-    assert not bs.inside_bin([0.52, -0.2, 0.45])          # beyond a wall
-    assert not bs.inside_bin([0.3, -0.35, 0.45])
-    assert not bs.inside_bin([0.3, -0.2, 0.40])           # under the floor
-    assert bs.inside_bin([0.3, -0.2, 0.418])              # within the default margin
-    assert not bs.inside_bin([0.3, -0.2, 0.418], margin=0.0)
+
+    def inside(p, margin=INSIDE_MARGIN):
+        return bs.inside_footprint(p, margin) and p[2] >= bs.floor_z - margin
+
+    assert inside([0.3, -0.2, 0.45])
+    assert inside([0.49, -0.09, 0.42])
+    assert not inside([0.52, -0.2, 0.45])          # beyond a wall
+    assert not inside([0.3, -0.35, 0.45])
+    assert not inside([0.3, -0.2, 0.40])           # under the floor
+    assert inside([0.3, -0.2, 0.418])              # within the default margin
+    assert not inside([0.3, -0.2, 0.418], margin=0.0)
 
 
 def test_apply_lighting_sets_key_light_and_ambient():

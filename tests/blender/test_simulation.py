@@ -194,7 +194,7 @@ def test_centre_of_mass_off_the_origin(tmp_path):
     (inst,) = om.populate(np.random.default_rng(5))
     res = sim.run([inst])
     assert res.kept == [inst] and res.settled
-    assert inst.obj.data == om.template(0).data               # back on the model-frame mesh
+    assert inst.obj.data == om.templates[0].obj.data               # back on the model-frame mesh
     w = world_vertices(inst)
     z = np.sort(w[:, 2])
     assert z[0] >= bs.floor_z - FLOOR_TOL

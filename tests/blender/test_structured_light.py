@@ -22,7 +22,6 @@ from datapipe.core import structured_light as SLM  # noqa: E402
 from datapipe.core.camera import BlendCamera  # noqa: E402
 from datapipe.engine.pipeline import Pipeline  # noqa: E402
 from datapipe.geometry import T_cam_proj, projector_intrinsics, projector_matrix  # noqa: E402
-from datapipe.sl.scanner import REASON_NAMES  # noqa: E402
 from datapipe.core.renderer import Renderer  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
 from datapipe.io.exr import read_depth, read_exr  # noqa: E402
@@ -266,7 +265,7 @@ def test_debug_output_and_annotations(tmp_path):
     ch = {c.split(".")[0]: v for c, v in dbg.items()}
     H, W = 120, 160
     reason = np.rint(ch["reason"]).astype(int)
-    assert reason.shape == (H, W) and set(np.unique(reason)) <= set(REASON_NAMES)
+    assert reason.shape == (H, W) and set(np.unique(reason)) <= {int(r) for r in sl.Reason}
     conf = ch["confidence"]                       # P(orders right): >= 1 - max_wrong where valid
     assert np.all(conf[reason == 0] >= 1 - 1e-3) and np.all((conf >= 0) & (conf <= 1))
     assert np.all(conf[reason == sl.Reason.NEIGHBOUR_ORDER] >= 1 - 1e-3 - sl.NEIGHBOUR_RISK)

@@ -6,6 +6,8 @@ measured in the written RGB images and compared with the drawn key power and col
 """
 import json
 import math
+import sys
+from pathlib import Path
 
 import bpy
 import cv2
@@ -13,29 +15,21 @@ import numpy as np
 import pytest
 
 from datapipe import config as C
-from datapipe.draws.camera_sampler import pose_parameters
 from datapipe.engine.pipeline import Pipeline
+
+from small_runs import maps_only, small_config
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from pose_checks import pose_parameters  # noqa: E402
 
 
 def variety_config():
-    cfg = C.default_config()
-    cfg.scene.num_renders = 8
-    cfg.scene.min_renders_per_scene, cfg.scene.max_renders_per_scene = 1, 1     # 8 scenes: 8 light draws
+    cfg = maps_only(small_config(8, 1, (48, 36), samples=4, instances=1))    # 8 scenes: 8 light draws
     cfg.scene.bin_size_scale, cfg.scene.bin_wall_scale = [0.8, 1.2], [0.6, 1.2]
-    cfg.camera.resolution = [48, 36]
     cfg.camera.sampler = C.CameraSamplerConfig(kind="bin_view", distance=[0.55, 0.85], tilt_deg=[0.0, 30.0],
                                                azimuth_deg=[0.0, 360.0], roll_deg=[-180.0, 180.0],
                                                target_jitter=0.03)
     cfg.lighting = C.LightingConfig(key_power=[10.0, 100.0], key_color_temperature=[2500.0, 9000.0],
                                     key_size=[0.5, 1.5], key_position_jitter=0.3, ambient=[0.0, 0.03])
-    cfg.render.samples = 4
-    cfg.render.threads = 2
-    cfg.render.outputs = ["rgb", "depth", "mask"]
-    cfg.structured_light.enabled = False
-    cfg.output.legacy_pickle = cfg.output.overview = False
-    cfg.simulation.max_frames = 60
-    for o in cfg.objects:
-        o.min_instances, o.max_instances = 1, 1
     return cfg
 
 

@@ -137,14 +137,18 @@ class Box:
     hi: tuple
     albedo: float = 1.0
 
-    def intersect(self, o, d):
+    def _slabs(self, o, d):
+        """Per axis, the ray parameters where o + t d enters and leaves the box's slab (NaN where the
+        ray runs in a slab's plane)."""
         lo, hi = np.asarray(self.lo, float), np.asarray(self.hi, float)
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / d
             t0 = (lo - o) * inv
             t1 = (hi - o) * inv
-        tmin = np.minimum(t0, t1)
-        tmax = np.maximum(t0, t1)
+        return np.minimum(t0, t1), np.maximum(t0, t1)
+
+    def intersect(self, o, d):
+        tmin, tmax = self._slabs(o, d)
         tmin = np.where(np.isnan(tmin), -np.inf, tmin)
         tmax = np.where(np.isnan(tmax), np.inf, tmax)
         tn = np.max(tmin, -1)
@@ -159,13 +163,9 @@ class Box:
 
     def segment_hits(self, o, d, smax):
         """True where the segment o + s d, s in (eps, smax*(1-1e-9)), passes through the box."""
-        lo, hi = np.asarray(self.lo, float), np.asarray(self.hi, float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / d
-            t0 = (lo - o) * inv
-            t1 = (hi - o) * inv
-        tmin = np.nan_to_num(np.minimum(t0, t1), nan=-np.inf)
-        tmax = np.nan_to_num(np.maximum(t0, t1), nan=np.inf)
+        tmin, tmax = self._slabs(o, d)
+        tmin = np.nan_to_num(tmin, nan=-np.inf)
+        tmax = np.nan_to_num(tmax, nan=np.inf)
         tn = np.max(tmin, -1)
         tf = np.min(tmax, -1)
         return (tn < tf) & (tn < smax * (1 - 1e-7)) & (tf > 1e-9)

@@ -112,15 +112,22 @@ def test_point_cloud_round_trip(rig, scan, tmp_path):
     assert (n[ok][:, 2] < 0).all()                              # every normal faces the camera
 
 
-def test_point_cloud_with_plyfile(rig, scan, tmp_path):
-    plyfile = pytest.importorskip("plyfile", reason="plyfile not installed (the numpy reader above still runs)")
+@pytest.fixture
+def scan_cloud(rig, scan, tmp_path):
+    """The scan's point cloud written as the pipeline writes it: (its path, its number of points, the
+    check of a reader's vertex records against the scan)."""
     cam, _ = rig
     res = scan.result
     H, W = res.depth.shape
     path = tmp_path / "point_cloud.ply"
     write_point_cloud(path, res.depth, cam.K, scan.gray(), res.confidence)
-    v = plyfile.PlyData.read(str(path))["vertex"].data
-    check_cloud(v, W, H, res.depth, cam.K, scan.gray(), res.confidence)
+    return path, W * H, lambda v: check_cloud(v, W, H, res.depth, cam.K, scan.gray(), res.confidence)
+
+
+def test_point_cloud_with_plyfile(scan_cloud):
+    plyfile = pytest.importorskip("plyfile", reason="plyfile not installed (the numpy reader above still runs)")
+    path, _, check = scan_cloud
+    check(plyfile.PlyData.read(str(path))["vertex"].data)
 
 
 def test_point_cloud_8bit_grey(tmp_path):
@@ -137,16 +144,12 @@ def test_point_cloud_8bit_grey(tmp_path):
     np.testing.assert_allclose(n[has], np.tile([0, 0, -1.0], (has.sum(), 1)), atol=1e-6)   # a fronto-parallel plane
 
 
-def test_point_cloud_with_trimesh(rig, scan, tmp_path):
+def test_point_cloud_with_trimesh(scan_cloud):
     trimesh = pytest.importorskip("trimesh", reason="trimesh not installed (the numpy reader above still runs)")
-    cam, _ = rig
-    res = scan.result
-    H, W = res.depth.shape
-    path = tmp_path / "point_cloud.ply"
-    write_point_cloud(path, res.depth, cam.K, scan.gray(), res.confidence)
+    path, n_points, check = scan_cloud
     cloud = trimesh.load(str(path))
-    assert isinstance(cloud, trimesh.PointCloud) and len(cloud.vertices) == W * H     # NaN points kept
-    check_cloud(cloud.metadata["_ply_raw"]["vertex"]["data"], W, H, res.depth, cam.K, scan.gray(), res.confidence)
+    assert isinstance(cloud, trimesh.PointCloud) and len(cloud.vertices) == n_points     # NaN points kept
+    check(cloud.metadata["_ply_raw"]["vertex"]["data"])
 
 
 def test_point_cloud_of_a_distorting_lens_projects_back_onto_its_pixels(tmp_path):

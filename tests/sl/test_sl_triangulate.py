@@ -1,7 +1,11 @@
 """Camera helpers and closed-form triangulation against analytic geometry."""
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+import datapipe
 import synth
 from datapipe.errors import DataPipeError
 from datapipe.geometry import intrinsics_from_sensor
@@ -16,7 +20,22 @@ def test_intrinsics_from_blender_camera(w, h, fit, f):
     K = intrinsics_from_blender_camera(50, 36, w, h, fit)
     np.testing.assert_allclose(K, [[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1]])
     # the deprecated sl name is the same function in behaviour, defaults included
-    np.testing.assert_array_equal(intrinsics_from_blender(50, 36, w, h, fit), K)
+    with pytest.warns(DeprecationWarning):
+        np.testing.assert_array_equal(intrinsics_from_blender(50, 36, w, h, fit), K)
+
+
+def test_the_deprecated_name_says_the_version_that_removes_it():
+    """scikit-image's rule: a deprecation names the release that removes it, and that release is still
+    ahead (when the package reaches it, this fails: remove the alias, its export and this test)."""
+    with pytest.warns(DeprecationWarning, match="intrinsics_from_blender_camera") as caught:
+        intrinsics_from_blender(50, 36, 640, 480)
+    assert caught[0].filename == __file__                      # the warning points at the caller's line
+    found = re.search(r"removed in DataPipe (\d+)\.(\d+)\.(\d+)", str(caught[0].message))
+    assert found, str(caught[0].message)
+    removed = tuple(int(v) for v in found.groups())
+    assert removed > tuple(int(v) for v in datapipe.__version__.split("."))
+    api = (Path(__file__).resolve().parents[2] / "docs" / "API.md").read_text()
+    assert re.search(r"`sl\.intrinsics_from_blender`.*\| " + re.escape(".".join(found.groups())) + r" \|", api)
 
 
 @pytest.mark.parametrize("w, h, fit, f", [
