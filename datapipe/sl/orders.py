@@ -50,91 +50,23 @@ from its own evidence, which pooled over hundreds of pixels is decisive.
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 from scipy.special import gammainccinv
 from scipy.stats import chi2
 
 from .confidence import phase_var_from_snr
+from .surfaces import LINK_MAX, surfaces
 
 __all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
 
 MAX_FINE_NOISE = 0.12    # cycles: finest-phase noise (estimated) of a pixel that may take part
-LINK_MAX = 0.25         # cycles: largest misfit of a link's finest-phase difference to the local gradient
 TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
 MIN_BLOCK = 32           # pixels in a block before it decides
-GRAD = 5                # pixels: window of the finest-phase gradient estimate
 HALF_MIN = 8            # pooled pixels a half window needs to speak
-LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
 DIM_FALSE_RATE = 1e-3   # a NO_LIGHT pixel joins when its 3 x 3 candidates pass the joint modulation test at this rate
 ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
 LOCAL = 15              # pixels: window whose pooled pixels must prefer the offset by themselves
 HALF = 7                # pixels: the window whose halves must not prefer another offset
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
-
-
-def _pairs(ok, W):
-    """Flat indices (a, b) of the horizontal and the vertical neighbour pairs of ``ok`` pixels (flat
-    bool of an image W wide), per direction."""
-    idx = np.flatnonzero(ok)
-    right = idx[(idx % W != W - 1)]
-    right = right[ok[right + 1]]
-    down = idx[idx + W < ok.size]
-    down = down[ok[down + W]]
-    return (right, right + 1), (down, down + W)
-
-
-def _links(ok, cf, shape):
-    """4-neighbour links among ``ok`` pixels whose finest-phase difference fits the local gradient
-    within ``LINK_MAX`` cycles: (a, b, step), flat indices and ``step = N_b - N_a`` (finest orders).
-
-    The gradient (cycles per pixel, per axis) at a pixel is the angle of the summed phasors of the
-    wrapped differences of the pairs in its ``GRAD`` x ``GRAD`` window (a surface's fringe gradient
-    varies slowly; one pair is too noisy). Work is done at the pairs only, not over the image."""
-    import cv2
-
-    H, W = shape
-    k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    pa, pb, ps = [], [], []
-    # the filters run over the pixels' bounding box plus the window's reach: the same sums, on less
-    # image (see _box)
-    rows, cols = np.flatnonzero(ok.reshape(H, W).any(1)), np.flatnonzero(ok.reshape(H, W).any(0))
-    r0, c0 = max(rows[0] - GRAD // 2, 0), max(cols[0] - GRAD // 2, 0)
-    h, w = min(rows[-1] + GRAD // 2 + 1, H) - r0, min(cols[-1] + GRAD // 2 + 1, W) - c0
-    z = np.zeros((h * w, 2), np.float32)         # phasors, real and imaginary part as two channels
-    for a, b in _pairs(ok, W):
-        d = cf[b] - cf[a]
-        ang = np.float32(2 * np.pi) * d
-        ra, ca = np.divmod(a, W)
-        la = (ra - r0) * w + (ca - c0)           # a and b in the box
-        lb = la + (b - a) // W * w + (b - a) % W
-        z[:] = 0
-        z[la, 0] = np.cos(ang)
-        z[la, 1] = np.sin(ang)
-        sz = cv2.boxFilter(z.reshape(h, w, 2), -1, **k).reshape(h * w, 2)   # one pass for both parts
-        # the pair's gradient: the mean of its two ends' (windows centred on a and on b)
-        g = (np.arctan2(sz[la, 1] + sz[lb, 1], sz[la, 0] + sz[lb, 0]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
-        t = g - d                                    # = N_b - N_a + noise on one smooth surface
-        n = np.rint(t)
-        keep = np.abs(t - n) <= LINK_MAX
-        pa.append(a[keep])
-        pb.append(b[keep])
-        ps.append(n[keep].astype(np.int64))
-    return np.concatenate(pa), np.concatenate(pb), np.concatenate(ps)
-
-
-def _tree_steps(pred, child, a, b, step, flat, W):
-    """Finest-order step of each tree edge ``pred -> child`` (local node numbers) from the links
-    (a, b, step): a link joins 4-neighbours, so its end ``b`` lies at ``a + 1`` or ``a + W`` in the
-    image; the edge's direction there picks the link, without a lookup table over all pairs."""
-    n = flat.size
-    right, down = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    across = flat[b] - flat[a] == 1
-    right[a[across]] = step[across]
-    down[a[~across]] = step[~across]
-    diff = flat[child] - flat[pred]
-    return np.select([diff == 1, diff == -1, diff == W],
-                     [right[pred], -right[child], down[pred]], -down[child])
 
 
 def _smoothed(cand, snr, shape):
@@ -165,33 +97,6 @@ def _box(flat, shape, reach):
     r0, c0 = max(int(r.min()) - reach, 0), max(int(c.min()) - reach, 0)
     h, w = min(int(r.max()) + reach + 1, H) - r0, min(int(c.max()) + reach + 1, W) - c0
     return (r - r0) * w + (c - c0), h, w
-
-
-def _relative_orders(n, a, b, step, flat, W):
-    """Components and relative finest orders of n nodes linked by (a, b) (local node numbers; ``flat``
-    their pixels' flat indices in an image ``W`` wide)."""
-    ncomp, comp = csgraph.connected_components(
-        sparse.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n)), directed=False)
-    # a virtual root joined to the first node of every component: one breadth-first tree for all
-    first = np.full(ncomp, -1, np.int64)
-    first[comp[::-1]] = np.arange(n)[::-1]
-    root = n
-    rows = np.concatenate([a, b, np.full(ncomp, root)])
-    cols = np.concatenate([b, a, first])
-    g = sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n + 1, n + 1))
-    _, pred = csgraph.breadth_first_order(g, root, directed=True, return_predecessors=True)
-    pred = pred.astype(np.int64)
-    pred[root] = root
-    acc = np.zeros(n + 1, np.int64)
-    child = np.flatnonzero(pred[:n] != root)
-    if child.size:
-        acc[child] = _tree_steps(pred[child], child, a, b, step, flat, W)
-    ptr = pred.copy()
-    while np.any(ptr[:n] != root):
-        acc = acc + acc[ptr]
-        ptr = ptr[ptr]
-    rel = acc[:n]
-    return comp, ncomp, rel, (rel[b] - rel[a]) != step
 
 
 def _local_support(flat, capped, mq, shape, shifts):
@@ -257,7 +162,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     var_c = [v[keep] for v in var_c]
     if cand.size < MIN_BLOCK:
         return empty
-    surf = _surfaces(cand, cyc[f], (H, W))
+    surf = surfaces(cand, cyc[f], (H, W))
     if surf is None:
         return empty
     comp, ncomp, rel, a, b = surf
@@ -335,37 +240,6 @@ def _precise_and_lit(cand, snr, dim, shape, f):
         lit = 0.5 * count * sum(qbar) > quantile[count.astype(np.intp)]
         keep &= ~dim | lit
     return keep, var_c
-
-
-def _surfaces(cand, cf, shape):
-    """Components of linked candidates and their relative finest orders; links that close a loop
-    whose order steps do not sum to zero (a slip of the finest phase, or a step) lose both ends,
-    ``LOOP_ROUNDS`` times; a component still inconsistent then is dropped (-1). Returns (comp,
-    ncomp, rel, a, b) over the candidates, or None without links."""
-    H, W = shape
-    n = cand.size
-    cf_full = np.zeros(H * W, np.float32)
-    cf_full[cand] = cf
-    local = np.zeros(H * W, np.int64)            # flat index -> candidate number (no binary searches)
-    local[cand] = np.arange(n)
-    alive = np.ones(n, bool)
-    for _ in range(LOOP_ROUNDS):
-        ok = np.zeros(H * W, bool)
-        ok[cand[alive]] = True
-        ga, gb, step = _links(ok, cf_full, (H, W))
-        if ga.size == 0:
-            return None
-        a, b = local[ga], local[gb]
-        comp, ncomp, rel, bad = _relative_orders(n, a, b, step, cand, W)
-        if not bad.any():
-            break
-        alive[a[bad]] = False
-        alive[b[bad]] = False
-    else:
-        comp = comp.copy()
-        comp[np.isin(comp, np.unique(comp[a[bad]]))] = -1
-    comp[~alive] = -1
-    return comp, ncomp, rel, a, b
 
 
 def _offset_costs(fine, cyc, var_c, per, chunk: int = 2048):
