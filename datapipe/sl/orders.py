@@ -105,7 +105,11 @@ def _local_support(flat, capped, mq, shape, shifts):
     (twice the log-likelihood ratio by which its neighbourhood prefers its block's offset), and the
     least of the same over the four halves of its ``HALF`` x ``HALF`` window that contain the pixel (top, bottom, left,
     right: at a depth step the half on the pixel's own side of it speaks for its own surface).
-    Only the offsets ``shifts`` (relative to m*) are tried: those some block cannot rule out by far."""
+    Only the offsets ``shifts`` (relative to m*) are tried: those some block cannot rule out by far.
+
+    The top half of a pixel's window is the bottom half of the pixel ``HALF // 2`` rows up (and the
+    left half the right half of the pixel as many columns left), so one filter gives both halves of
+    an axis, read at two places of an image with ``HALF // 2`` zero rows (columns) before it."""
     import cv2
 
     Kf, n = capped.shape
@@ -113,25 +117,32 @@ def _local_support(flat, capped, mq, shape, shifts):
     r, c = np.divmod(flat, W)
     r0, c0 = r.min(), c.min()
     h, w = r.max() - r0 + 1, c.max() - c0 + 1
-    rr, cc = r - r0, c - c0
+    k = HALF // 2
+    pv = (r - r0 + k) * w + (c - c0)                 # the pixels in the (h + k, w) image: k zero rows above
+    ph = (r - r0) * (w + k) + (c - c0 + k)           # in the (h, w + k) image: k zero columns left
+    border = cv2.BORDER_CONSTANT
+
+    def halves(img_v, img_h):
+        """Sums over the top, bottom, left and right halves of each pixel's HALF x HALF window."""
+        sv = cv2.boxFilter(img_v.reshape(h + k, w), -1, (HALF, k + 1), anchor=(k, 0), normalize=False,
+                           borderType=border).ravel()
+        sh = cv2.boxFilter(img_h.reshape(h, w + k), -1, (k + 1, HALF), anchor=(0, k), normalize=False,
+                           borderType=border).ravel()
+        return sv[pv - k * w], sv[pv], sh[ph - k], sh[ph]
+
+    img_v, img_h = np.zeros((h + k) * w, np.float32), np.zeros(h * (w + k), np.float32)
+    img_v[pv], img_h[ph] = 1, 1
+    enough = [s >= HALF_MIN for s in halves(img_v, img_h)]
     cols = np.arange(n)
     base = capped[mq, cols]
     worst = np.full(n, np.inf, np.float32)
     worst_half = np.full(n, np.inf, np.float32)
-    img = np.zeros((h, w), np.float32)
-    cnt = np.zeros((h, w), np.float32)
-    cnt[rr, cc] = 1
-    L, k = HALF, HALF // 2
-    halves = [((L, k + 1), (k, k)), ((L, k + 1), (k, 0)), ((k + 1, L), (k, k)), ((k + 1, L), (0, k))]
-    border = cv2.BORDER_CONSTANT
-    enough = [cv2.boxFilter(cnt, -1, size, anchor=a, normalize=False, borderType=border)[rr, cc] >= HALF_MIN
-              for size, a in halves]
     for d in shifts:
-        img[rr, cc] = capped[(mq + d) % Kf, cols] - base
-        s = cv2.boxFilter(img, -1, (LOCAL, LOCAL), normalize=False, borderType=border)
-        np.minimum(worst, s[rr, cc], out=worst)
-        for ((sw, sh), a), ok in zip(halves, enough):
-            s = cv2.boxFilter(img, -1, (sw, sh), anchor=a, normalize=False, borderType=border)[rr, cc]
+        diff = capped[(mq + d) % Kf, cols] - base
+        img_v[pv], img_h[ph] = diff, diff
+        s = cv2.boxFilter(img_v.reshape(h + k, w), -1, (LOCAL, LOCAL), normalize=False, borderType=border)
+        np.minimum(worst, s.ravel()[pv], out=worst)
+        for s, ok in zip(halves(img_v, img_h), enough):
             np.minimum(worst_half, np.where(ok, s, np.inf), out=worst_half)
     return worst, worst_half
 

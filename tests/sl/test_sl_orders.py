@@ -182,3 +182,37 @@ def test_local_loop_cutting_equals_a_full_rebuild(vortices):
     live = want[0] >= 0
     np.testing.assert_array_equal(got[2][live], want[2][live])
     assert sorted(zip(got[3].tolist(), got[4].tolist())) == sorted(zip(want[3].tolist(), want[4].tolist()))
+
+
+def test_local_support_is_the_window_sums():
+    """The local support (datapipe/sl/orders.py, ``_local_support``: both halves of an axis from one
+    filter) equals brute-force float64 sums over each pixel's LOCAL x LOCAL window and the four halves
+    of its HALF x HALF window (a half counted only with HALF_MIN pooled pixels in it), the least over
+    the offsets tried; sparse pixels, capped costs, pixels at the box's edges."""
+    from datapipe.sl import orders
+
+    rng = np.random.default_rng(5)
+    H, W = 40, 50
+    flat = np.flatnonzero(rng.random(H * W) < 0.6)
+    capped = np.minimum(rng.exponential(8.0, (64, flat.size)), orders.ROBUST_CAP).astype(np.float32)
+    mq = rng.integers(0, 64, flat.size)
+    shifts = [1, 7, 63]
+    full, half = orders._local_support(flat, capped, mq, (H, W), shifts)
+    r, c = np.divmod(flat, W)
+    L, k = orders.LOCAL // 2, orders.HALF // 2
+    cnt = np.zeros((H, W))
+    cnt[r, c] = 1
+    want_full = np.full(flat.size, np.inf)
+    want_half = np.full(flat.size, np.inf)
+    for d in shifts:
+        img = np.zeros((H, W))
+        img[r, c] = capped[(mq + d) % 64, np.arange(flat.size)].astype(np.float64) - capped[mq, np.arange(flat.size)]
+        for j, (y, x) in enumerate(zip(r, c)):
+            win = lambda a, y0, y1, x0, x1: a[max(y0, 0):y1 + 1, max(x0, 0):x1 + 1].sum()
+            want_full[j] = min(want_full[j], win(img, y - L, y + L, x - L, x + L))
+            for y0, y1, x0, x1 in ((y - k, y, x - k, x + k), (y, y + k, x - k, x + k),
+                                   (y - k, y + k, x - k, x), (y - k, y + k, x, x + k)):
+                if win(cnt, y0, y1, x0, x1) >= orders.HALF_MIN:
+                    want_half[j] = min(want_half[j], win(img, y0, y1, x0, x1))
+    np.testing.assert_allclose(full, want_full, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(half, want_half, rtol=1e-5, atol=1e-4)
