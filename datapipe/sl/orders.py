@@ -192,10 +192,11 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     sel, key = sel[by_block], key[by_block]
     binv = np.cumsum(np.r_[False, key[1:] != key[:-1]])      # block numbers 0, 1, ... in key order
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
-    cost = _offset_costs(fine, [c_[sel] for c_ in cyc], [v[sel] for v in var_c], per)
     own_max = chi2.isf(OWN_P, max(1, F - 1))
-    # below the cap a pixel's own test reads the same from the capped costs: cap in place
-    capped = np.minimum(cost, np.float32(ROBUST_CAP), out=cost if own_max < ROBUST_CAP else None)
+    sub_cyc, sub_var = [c_[sel] for c_ in cyc], [v[sel] for v in var_c]
+    capped = _offset_costs(fine, sub_cyc, sub_var, per, cap=ROBUST_CAP)
+    # a pixel's own test: below the cap it reads the same from the capped costs
+    cost = capped if own_max < ROBUST_CAP else _offset_costs(fine, sub_cyc, sub_var, per)
     blk = _block_posterior(capped, binv, max_wrong)
     mq = blk["best"][binv]
     acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= own_max)
@@ -253,15 +254,17 @@ def _precise_and_lit(cand, snr, dim, shape, f):
     return keep, var_c
 
 
-def _offset_costs(fine, cyc, var_c, per, chunk: int = 2048):
-    """(K_f, n) float32: ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2
-    v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest frequency.
+def _offset_costs(fine, cyc, var_c, per, cap=np.inf, chunk: int = 2048):
+    """(K_f, n) float32: ``min(chi2_q(m), cap)``, ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2
+    / (v_i + (K_i / K_f)^2 v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest
+    frequency.
 
     Computed ``chunk`` pixels at a time into one reused (K_f, chunk) buffer (it stays in the cache:
-    the same float32 operations as over the whole array, a third of the time)."""
+    the same float32 operations as over the whole array, a third of the time); the first term
+    written, not added to zeros, and the cap applied while the chunk is in the cache (the same
+    values, two passes over the (K_f, n) array fewer)."""
     f = int(np.argmax(per))
     m = np.arange(int(round(per[f])), dtype=np.float32)[:, None]
-    cost = np.zeros((m.size, fine.size), np.float32)
     terms = []
     for i in range(per.size):
         if i == f:
@@ -271,17 +274,25 @@ def _offset_costs(fine, cyc, var_c, per, chunk: int = 2048):
         t0 = ratio * fine - cyc[i]
         terms.append((np.float32(ratio) * m, (t0 - np.rint(t0)).astype(np.float32),
                       np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f])))
+    if not terms:
+        return np.zeros((m.size, fine.size), np.float32)
+    cost = np.empty((m.size, fine.size), np.float32)
     buf = np.empty((m.size, min(chunk, fine.size)), np.float32)
     rnd = np.empty_like(buf)
     for j0 in range(0, fine.size, chunk):
         j1 = min(fine.size, j0 + chunk)
         t, r, out = buf[:, :j1 - j0], rnd[:, :j1 - j0], cost[:, j0:j1]
-        for mk, frac, w in terms:
+        for first, (mk, frac, w) in zip((True,) + (False,) * len(terms), terms):
             np.add(mk, frac[None, j0:j1], out=t)
             t -= np.rint(t, out=r)
             t *= t
-            t *= w[None, j0:j1]
-            out += t
+            if first:
+                np.multiply(t, w[None, j0:j1], out=out)
+            else:
+                t *= w[None, j0:j1]
+                out += t
+        if cap < np.inf:
+            np.minimum(out, np.float32(cap), out=out)
     return cost
 
 
