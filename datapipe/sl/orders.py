@@ -214,8 +214,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     # move them a whole width)
     T = length / per[f]
     xr = (fine + mq) * T
-    med = _block_medians(xr, binv, blk["starts"], blk["size"])
-    xr -= np.floor((med[binv] + 0.5) / length) * length
+    xr -= _block_folds(xr, binv, blk["starts"], blk["size"], length)[binv] * length
     acc &= (xr >= -0.5) & (xr < length - 0.5)
     if x_sure is not None:
         acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, (H, W), 0.5 * T)
@@ -227,6 +226,24 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     mine = np.zeros(cand.size, bool)
     mine[sel[acc]] = True
     return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32)
+
+
+def _block_folds(x, binv, starts, size, length):
+    """Per block (its pixels contiguous: ``starts``, ``size``), ``floor((median + 0.5) / length)``:
+    how many projector widths to fold it back by. Where the block's least and largest x give the
+    same, so does the median between them; the medians themselves (:func:`_block_medians`) only for
+    the blocks that straddle a fold (few: a block lies inside the projector's range)."""
+    lo = np.floor((np.minimum.reduceat(x, starts) + 0.5) / length)
+    hi = np.floor((np.maximum.reduceat(x, starts) + 0.5) / length)
+    split = np.flatnonzero(lo != hi)
+    if split.size:
+        n = size[split]
+        first = np.repeat(starts[split] - np.r_[0, np.cumsum(n)[:-1]], n)
+        pix = first + np.arange(n.sum())                 # the split blocks' pixels, block by block
+        sub = np.repeat(np.arange(split.size), n)
+        med = _block_medians(x[pix], sub, np.r_[0, np.cumsum(n)[:-1]], n)
+        lo[split] = np.floor((med + 0.5) / length)
+    return lo
 
 
 def _block_medians(x, binv, starts, size):

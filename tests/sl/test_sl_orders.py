@@ -216,3 +216,23 @@ def test_local_support_is_the_window_sums():
                     want_half[j] = min(want_half[j], win(img, y0, y1, x0, x1))
     np.testing.assert_allclose(full, want_full, rtol=1e-5, atol=1e-4)
     np.testing.assert_allclose(half, want_half, rtol=1e-5, atol=1e-4)
+
+
+def test_block_folds_are_the_medians_folds():
+    """How far each block is folded back into the projector's range (``_block_folds``: from the
+    block's extremes, the median only where they disagree) equals ``floor((np.median + 0.5) /
+    length)`` per block: blocks inside the range, past either edge, and straddling an edge with
+    their median on either side of it."""
+    from datapipe.sl.orders import _block_folds
+
+    rng = np.random.default_rng(4)
+    length = 1280.0
+    centres = [600, -300, 1500, -0.5, 1279.5, 1279.4, 1279.6, 2559.5, 40]
+    size = np.array([33, 40, 64, 35, 36, 50, 51, 32, 1])
+    x = np.concatenate([rng.normal(c, 3.0 if c % 1 else 200.0, n) for c, n in zip(centres, size)])
+    binv = np.repeat(np.arange(size.size), size)
+    starts = np.r_[0, np.cumsum(size)[:-1]]
+    got = _block_folds(x, binv, starts, size, length)
+    want = [np.floor((np.median(x[binv == k]) + 0.5) / length) for k in range(size.size)]
+    np.testing.assert_array_equal(got, want)
+    assert len(set(want)) >= 3
