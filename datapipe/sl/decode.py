@@ -64,7 +64,8 @@ def _assemble(st: DecodeSetup, out: DecodeMaps) -> DecodeResult:
     reason = out.reason
     with np.errstate(invalid="ignore"):
         bad = np.greater(out.p_wrong, np.float32(st.max_wrong))      # NaN (no order) -> False
-    bad |= out.legacy_bad
+    if st.order_factor or st.max_order_error is not None:        # the legacy rules set it, nothing else
+        bad |= out.legacy_bad
     reason[bad] = Reason.BAD_ORDER
     reason[out.inconsistent] = Reason.INCONSISTENT
     valid = reason == 0
