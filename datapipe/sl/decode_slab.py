@@ -11,6 +11,7 @@ from .confidence import phase_var_from_snr, wrong_probability
 from .decode_result import Reason
 from .decode_setup import DecodeSetup
 from .gamma import correct_cycles
+from .phase import aligned_empty
 from .orders import MAX_FINE_NOISE as POOL_FINE_NOISE
 from .spatial import MAX_FINE_NOISE as SPATIAL_FINE_NOISE
 from .unwrap import unwrap_cycles
@@ -48,8 +49,8 @@ class DecodeMaps:
                    reason=np.zeros((H, W), np.uint8), order_error=np.empty((H, W), f32),
                    p_wrong=np.empty((H, W), f32), legacy_bad=np.zeros((H, W), bool),
                    inconsistent=np.zeros((H, W), bool), filled=np.zeros((H, W), bool),
-                   modulation=np.empty((F, H, W), f32), offset=np.empty((H, W), f32),
-                   wrapped=[np.empty((H, W), f32) for _ in range(F)])
+                   modulation=aligned_empty((F, H, W), f32), offset=np.empty((H, W), f32),
+                   wrapped=[aligned_empty((H, W), f32) for _ in range(F)])
 
 
 def _slab_var(st: DecodeSetup, a, r0, r1):
