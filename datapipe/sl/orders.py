@@ -24,7 +24,8 @@ costs next to nothing):
 2. Components of the link graph (:func:`scipy.sparse.csgraph.connected_components`); relative
    orders along a breadth-first tree (pointer jumping, log(depth) vectorised passes). A link that
    disagrees with the tree closes a loop whose steps do not sum to zero: its two ends leave and the
-   components are built again (``LOOP_ROUNDS`` times).
+   components are built again (``LOOP_ROUNDS`` times; what the cut touches only). Steps 1 and 2
+   live in :mod:`.surfaces`.
 3. Blocks = component x ``TILE`` x ``TILE`` tile, of at least ``MIN_BLOCK`` pixels. Per block and
    offset ``m`` (the finest frequency's ``K_f`` hypotheses; integer periods repeat after the width)
    the summed cost ``S_m = sum_q min(chi2_q(m), ROBUST_CAP)`` with ``chi2_q(m) = sum_{i != f}
