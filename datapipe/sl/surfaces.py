@@ -25,8 +25,8 @@ LINK_MAX = 0.25         # cycles: largest misfit of a link's finest-phase differ
 GRAD = 5                # pixels: window of the finest-phase gradient estimate
 LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
 # a cut pixel p removes the phasors anchored at p, p - 1 and p - W; a link (a, b), b = a + 1 or a + W,
-# reads the phasors anchored within GRAD // 2 of a and of b: it can change when a lies within
-# GRAD // 2 + 2 of p (one more for safety: the recomputation is cheap)
+# reads the phasors anchored within GRAD // 2 of a or of b, i.e. within GRAD // 2 + 1 of a: it can
+# change when a lies within GRAD // 2 + 2 of p (Chebyshev distance)
 CUT_REACH = GRAD // 2 + 2
 
 
@@ -85,8 +85,9 @@ def links(ok, cf, shape):
 
 def _links_near(ok, cf, shape, cut):
     """The links (as :func:`links`) whose first end lies within ``CUT_REACH`` of a ``cut`` pixel (flat
-    indices), computed in a box around the cut pixels: the phasors a link reads lie within
-    ``CUT_REACH + 2`` of them. Also returns the flat mask of those first ends' region."""
+    indices), computed in a box around the cut pixels: the pairs whose phasors such a link reads lie
+    within ``CUT_REACH + GRAD // 2 + 2`` of them (the box reaches further). Also returns the flat
+    mask of those first ends' region."""
     H, W = shape
     r, c = np.divmod(cut, W)
     grow = 2 * CUT_REACH + 2
