@@ -77,6 +77,23 @@ def consistency_limits(n_freq: int, d_min: float = 1.0):
             MIN_INCONSISTENCY ** 2, (MIN_INCONSISTENCY_LATTICE * d_min) ** 2)
 
 
+def _stage_variance(coef, var_c, v, tmp):
+    """``v = sum_j coef_j^2 var_c_j`` (the terms in order, the first written instead of added to 0)."""
+    T = v.dtype.type
+    first = True
+    for c, vc in zip(coef, var_c):
+        if not c:
+            continue
+        if first:
+            np.multiply(vc, T(c * c), out=v)
+            first = False
+        else:
+            np.multiply(vc, T(c * c), out=tmp)
+            v += tmp
+    if first:
+        v.fill(0)
+
+
 def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=None):
     """Union-bound probability that some stage rounded to a wrong order, and the INCONSISTENT mask
     (module doc). margins / residuals: per stage arrays (residual None: ``((1 - margin)/2)^2``);
@@ -103,10 +120,7 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=No
             np.copyto(v, vmax)
             lim, floor = lim_lattice, floor_lattice
         else:
-            v.fill(0)
-            for c, vc in zip(coef, var_c):
-                if c:
-                    v += T(c * c) * vc
+            _stage_variance(coef, var_c, v, q)
             lim, floor = lim1, floor1
         if res is None:                  # |d| = (1 - margin) / 2
             np.subtract(T(1), m, out=q)
@@ -114,7 +128,12 @@ def wrong_probability(margins, coefs, var_c, residuals=None, out=None, limits=No
             np.multiply(q, q, out=q)
         else:
             np.copyto(q, res)
-        inconsistent |= (q > v * T(lim)) & (q > T(floor))
+        # inconsistent: q > v lim and q > floor; the second is rare (a quarter order off), so the
+        # first is evaluated only there (the same comparisons, at a few pixels)
+        far = np.flatnonzero(np.greater(q, T(floor)))
+        if far.size:
+            qf, vf = q.reshape(-1)[far], v.reshape(-1)[far]
+            inconsistent.reshape(-1)[far[qf > vf * T(lim)]] = True
         # p += 1 / (1 + exp(m / 2v)); float32 exp overflows to inf for certain pixels -> 0
         np.multiply(v, T(2), out=v)
         np.divide(m, v, out=v)           # log-odds that the stage is right

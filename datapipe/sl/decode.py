@@ -48,7 +48,7 @@ import numpy as np
 
 from .decode_neighbours import neighbour_pass
 from .decode_result import NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason
-from .decode_setup import DecodeSetup, modulation_floor_factor, prepare_decode
+from .decode_setup import DecodeOptions, DecodeSetup, modulation_floor_factor, prepare_decode
 from .decode_slab import DecodeMaps, decode_slab
 from .noise import estimate_noise_sigma
 from .triangulate import Triangulator
@@ -65,7 +65,8 @@ def _assemble(st: DecodeSetup, out: DecodeMaps) -> DecodeResult:
     reason = out.reason
     with np.errstate(invalid="ignore"):
         bad = np.greater(out.p_wrong, np.float32(st.max_wrong))      # NaN (no order) -> False
-    bad |= out.legacy_bad
+    if st.order_factor or st.max_order_error is not None:        # the legacy rules set it, nothing else
+        bad |= out.legacy_bad
     reason[bad] = Reason.BAD_ORDER
     reason[out.inconsistent] = Reason.INCONSISTENT
     valid = reason == 0
@@ -134,10 +135,13 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
         (the images are linear), ``'fit'`` (a power law fitted to the stack, N >= 4), a 1-D table
         indexed by the raw integer value, or a callable ``linear = response(values)``.
     """
-    st = prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
-                        min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
-                        max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial, projector_gamma,
-                        response)
+    st = prepare_decode(images, DecodeOptions(
+        periods=periods, steps=steps, P_cam=P_cam, P_proj=P_proj, proj_size=proj_size, unwrap=unwrap,
+        noise_sigma=noise_sigma, saturation=saturation, min_modulation=min_modulation, min_contrast=min_contrast,
+        false_valid_rate=false_valid_rate, max_order_error=max_order_error, order_sigmas=order_sigmas,
+        max_wrong=max_wrong, max_depth_slope=max_depth_slope, shifts=shifts, axis=axis,
+        check_other_axis=check_other_axis, triangulator=triangulator, spatial=spatial,
+        projector_gamma=projector_gamma, response=response))
     H, W = st.shape
     out = DecodeMaps.allocate(H, W, len(st.plan.periods))
     st.tri.coefficients  # compute (or reuse) the per-pixel coefficients before the loop

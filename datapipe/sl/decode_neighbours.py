@@ -60,7 +60,6 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
         sig = np.full(idx.size, st.sigma_scalar)
     s = (sig * st.row_sigma).astype(np.float32)
     cyc = [out.wrapped[i].ravel()[idx] * np.float32(1 / (2 * np.pi)) for i in range(F)]
-    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]
     if st.plan.integer:
         snr = [np.square(out.modulation[i].ravel()[idx] / np.maximum(s, np.float32(1e-30))) for i in range(F)]
         def x_sure(q):
@@ -81,9 +80,10 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
             _apply(st, out, ia, xa, pa)
             dim[pos] = True                  # decided: not for the neighbour pass
     rest = ~dim
-    idx, cyc, var_c = idx[rest], [c[rest] for c in cyc], [v[rest] for v in var_c]
+    idx, cyc, s = idx[rest], [c[rest] for c in cyc], s[rest]
     if idx.size == 0 or not _any_supported(st, out, idx):
         return
+    var_c = [phase_var_cycles(out.modulation[i].ravel()[idx], s) for i in range(F)]   # per pixel: at those left
     # p_wrong is NaN where no order was decoded (NO_LIGHT, SATURATED, INVALID_INPUT): not good
     with np.errstate(invalid="ignore"):
         good = out.p_wrong <= np.float32(st.max_wrong)

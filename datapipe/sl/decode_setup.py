@@ -1,6 +1,7 @@
 """The decoder's input checks and setup: everything decided before the first pixel is touched
 (frames, phase kernel, triangulator, saturation, noise sigma and the modulation floor of
-:mod:`datapipe.sl.decode`'s module doc), gathered in a :class:`DecodeSetup`."""
+:mod:`datapipe.sl.decode`'s module doc), gathered in a :class:`DecodeSetup`, from the images and
+the named, typed :class:`DecodeOptions`."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ from .response import linearise
 from .triangulate import Triangulator
 from .unwrap import as_plan
 
-__all__ = ["DecodeSetup", "prepare_decode", "modulation_floor_factor"]
+__all__ = ["DecodeOptions", "DecodeSetup", "prepare_decode", "modulation_floor_factor"]
 
 
 def modulation_floor_factor(steps: int | np.ndarray = None, false_valid_rate: float = 1e-3, *,
@@ -212,57 +213,84 @@ def _noise_setup(st: DecodeSetup, noise_sigma, min_modulation, order_sigmas, shi
             st.order_floor = st.sigma_scalar * st.order_factor
 
 
-def prepare_decode(images, periods, steps, P_cam, P_proj, proj_size, unwrap, noise_sigma, saturation,
-                   min_modulation, min_contrast, false_valid_rate, max_order_error, order_sigmas, max_wrong,
-                   max_depth_slope, shifts, axis, check_other_axis, triangulator, spatial,
-                   projector_gamma, response=None) -> DecodeSetup:
+@dataclass(frozen=True)
+class DecodeOptions:
+    """:func:`datapipe.sl.decode.decode`'s arguments besides the images (their meaning: its doc),
+    by name and type; :func:`prepare_decode` checks them."""
+    periods: tuple
+    steps: int
+    P_cam: np.ndarray
+    P_proj: np.ndarray
+    proj_size: tuple
+    unwrap: str = "auto"
+    noise_sigma: float | np.ndarray | Callable | None = None
+    saturation: float | None = None
+    min_modulation: float | None = None
+    min_contrast: float = 0.05
+    false_valid_rate: float = 1e-3
+    max_order_error: float | None = None
+    order_sigmas: float | None = None
+    max_wrong: float = 1e-3
+    max_depth_slope: float | None = None
+    shifts: np.ndarray | None = None
+    axis: str = "x"
+    check_other_axis: bool = True
+    triangulator: Triangulator | None = None
+    spatial: bool = True
+    projector_gamma: float = 1.0
+    response: object = None             # None, 'fit', a 1-D table or a callable (.response)
+
+
+def _saturation_level(saturation, in_dtype):
+    """Samples >= this are excluded: the integer type's maximum by default, none for floats."""
+    if saturation is None:
+        return float(np.iinfo(in_dtype).max) if in_dtype.kind in "iu" else None
+    sat = float(saturation)
+    if np.isnan(sat):
+        raise bad_value("saturation", "is NaN", "pass the saturation level in image units or None")
+    return None if np.isinf(sat) else sat
+
+
+def prepare_decode(images, o: DecodeOptions) -> DecodeSetup:
     """Check :func:`datapipe.sl.decode.decode`'s arguments (an error names the field, before any work)
     and decide everything its steps need."""
-    steps = _check_steps(steps)
-    plan = as_plan(periods, unwrap)       # a method name, or the plan made once per run
+    steps = _check_steps(o.steps)
+    plan = as_plan(o.periods, o.unwrap)   # a method name, or the plan made once per run
     frames = _frames(images, len(plan.periods) * steps, plan.periods, steps)
     H, W = frames[0].shape
-    if shifts is not None:
-        shifts = np.asarray(shifts, dtype=np.float64).ravel()
+    if o.shifts is not None:
+        shifts = np.asarray(o.shifts, dtype=np.float64).ravel()
         if shifts.size != steps:
             raise bad_value("shifts", f"has {shifts.size} entries for steps={steps}", "give one shift per step")
     else:
         shifts = phase_shifts(steps)
     kernel = PhaseKernel(shifts)
-    tri = _check_triangulator(triangulator, P_cam, P_proj, W, H, proj_size, axis)
-    in_dtype = frames[0].dtype
-    if saturation is None:
-        sat = float(np.iinfo(in_dtype).max) if in_dtype.kind in "iu" else None
-    else:
-        sat = float(saturation)
-        if np.isnan(sat):
-            raise bad_value("saturation", "is NaN", "pass the saturation level in image units or None")
-        if np.isinf(sat):
-            sat = None
-    frames, sat, response_info = linearise(frames, response, steps, shifts, sat)
-    gamma = _check_positive("projector_gamma", projector_gamma, allow_none=False, upper=10.0)
-    false_valid_rate = _check_positive("false_valid_rate", false_valid_rate, upper=0.5)
+    tri = _check_triangulator(o.triangulator, o.P_cam, o.P_proj, W, H, o.proj_size, o.axis)
+    sat = _saturation_level(o.saturation, frames[0].dtype)
+    frames, sat, response_info = linearise(frames, o.response, steps, shifts, sat)
+    gamma = _check_positive("projector_gamma", o.projector_gamma, allow_none=False, upper=10.0)
+    false_valid_rate = _check_positive("false_valid_rate", o.false_valid_rate, upper=0.5)
     F = len(plan.periods)
     q2 = 2.0 * float(gammainccinv(F, false_valid_rate))
     st = DecodeSetup(plan=plan, frames=frames, steps=steps, kernel=kernel, tri=tri,
-                     wcoded=tri.proj_size[0] if axis == "x" else tri.proj_size[1],
+                     wcoded=tri.proj_size[0] if o.axis == "x" else tri.proj_size[1],
                      work=work_dtype_for([f.dtype for f in frames]),
                      is_float=any(f.dtype.kind == "f" for f in frames),
-                     sat=sat, min_contrast=_check_positive("min_contrast", min_contrast, strict=False),
-                     max_depth_slope=_check_positive("max_depth_slope", max_depth_slope),
-                     check_other_axis=bool(check_other_axis),
-                     max_wrong=_check_positive("max_wrong", max_wrong, allow_none=False, upper=1.0),
-                     max_order_error=_check_positive("max_order_error", max_order_error, upper=0.5),
-                     spatial=bool(spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
+                     sat=sat, min_contrast=_check_positive("min_contrast", o.min_contrast, strict=False),
+                     max_depth_slope=_check_positive("max_depth_slope", o.max_depth_slope),
+                     check_other_axis=bool(o.check_other_axis),
+                     max_wrong=_check_positive("max_wrong", o.max_wrong, allow_none=False, upper=1.0),
+                     max_order_error=_check_positive("max_order_error", o.max_order_error, upper=0.5),
+                     spatial=bool(o.spatial), gamma_lut=None if gamma == 1.0 else gamma_phase_lut(gamma, shifts),
                      factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
                      row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
     st.response = response_info
     st.consistency_limits = consistency_limits(F, plan.lattice.d_min if plan.lattice is not None else 1.0)
-    min_modulation = _check_positive("min_modulation", min_modulation, strict=False)
-    order_sigmas = _check_positive("order_sigmas", order_sigmas, strict=False)
-    if noise_sigma is not None:                      # the given noise's checks before the geometry's
-        _noise_setup(st, noise_sigma, min_modulation, order_sigmas, shifts)
+    min_modulation = _check_positive("min_modulation", o.min_modulation, strict=False)
+    order_sigmas = _check_positive("order_sigmas", o.order_sigmas, strict=False)
+    if o.noise_sigma is not None:                    # the given noise's checks before the geometry's
+        _noise_setup(st, o.noise_sigma, min_modulation, order_sigmas, shifts)
     _check_image_size(tri, W, H)
-    if noise_sigma is None:                          # the fit: the first work on the pixels
-        _noise_setup(st, noise_sigma, min_modulation, order_sigmas, shifts)
+    if o.noise_sigma is None:                        # the fit: the first work on the pixels
+        _noise_setup(st, o.noise_sigma, min_modulation, order_sigmas, shifts)
     return st

@@ -307,24 +307,19 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
 
     Without a tone curve (a linear camera) the statistic is what it was before issue #31, per pixel
     of the subsample: the N-step residuals of all frequencies plus the spread of their offsets
-    (``chi2(F (N - 3) + F - 1)``). With N >= 4 a probe on every 4th row and column of the subsample
-    tests for a tone curve (:func:`_tone_present`): it is a fixed function of the intensity, so its
-    harmonics alias into each frequency's residual as a smooth function of (A, B, phase) -- not
-    noise -- and into the offsets too. Where the probe finds one, the statistic is per pixel and
-    frequency instead: the residual with the tone curve's part regressed out
-    (:func:`_tone_free_rss`, features from the neighbours' phasors, :func:`_neighbour_phasors`),
-    ``chi2(N - 3)``, leaving out the samples whose neighbours do not pin their phase and the
-    offsets. With N = 3 nothing is left of the residual: a tone curve's 3rd harmonic aliases onto
-    the offsets; pass ``noise_sigma``, or linearise the images with ``response``, for such a camera."""
+    (``chi2(F (N - 3) + F - 1)``, :func:`_linear_statistic`). With N >= 4 a probe on every 4th row
+    and column of the subsample tests for a tone curve (:func:`_tone_present`): it is a fixed
+    function of the intensity, so its harmonics alias into each frequency's residual as a smooth
+    function of (A, B, phase) -- not noise -- and into the offsets too. Where the probe finds one,
+    the statistic is per pixel and frequency instead (:func:`_tone_statistic`). With N = 3 nothing
+    is left of the residual: a tone curve's 3rd harmonic aliases onto the offsets; pass
+    ``noise_sigma``, or linearise the images with ``response``, for such a camera."""
     steps = int(steps)
-    f = len(frames) // steps
     h, w = frames[0].shape
     s = max(1, int(np.ceil(np.sqrt(h * w / max_pixels))))
     sub = [np.asarray(fr[::s, ::s], dtype=np.float64).ravel() for fr in frames]
-    rows, cols = np.arange(0, h, s), np.arange(0, w, s)
-    if shifts is None:
-        shifts = phase_shifts(steps)
-    shifts = np.asarray(shifts, np.float64)
+    grid = (np.arange(0, h, s), np.arange(0, w, s))
+    shifts = np.asarray(phase_shifts(steps) if shifts is None else shifts, np.float64)
     kern = PhaseKernel(shifts)
     is_int = np.dtype(frames[0].dtype).kind in "iu"
     sat = saturation
@@ -338,47 +333,12 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
         return g
 
     good = ok(np.stack(sub))
-    offs = []
-    rss = np.zeros(sub[0].size)
-    for i in range(f):            # the former statistic, kept as it was where no tone curve is found
-        y = np.stack(sub[i * steps:(i + 1) * steps])
-        y = np.where(np.isfinite(y), y, 0.0)
-        acs = kern.coef @ y
-        rss += np.sum((y - kern.design @ acs) ** 2, axis=0)
-        offs.append(acs[0])
-    offs = np.stack(offs)
-    a = offs.mean(0)
-    dof = f * (steps - 3) + f - 1
-    if f > 1:            # offsets of the F frequencies: one mean, noise g sigma^2 each
-        g = float(np.sum(kern.coef[0] ** 2))
-        rss += np.sum((offs - a) ** 2, axis=0) / g
+    a, rss, dof = _linear_statistic(sub, kern, steps)
     a, rss = a[good], rss[good]
-    if steps > 3 and a.size and min(rows.size, cols.size) >= 3:
-        Qt = _residual_basis(kern).T                         # (N-3, N): orthogonal to the design
-        res = np.concatenate([np.einsum("jn,nk->kj", Qt, np.stack(sub[i * steps:(i + 1) * steps])[:, good])
-                              for i in range(f)])              # einsum: no BLAS threads for a (N-3) x N product
-        a_all = np.tile(a, f)
-        n = a.size
-        pos = np.cumsum(good) - 1                            # grid pixel -> its column among the good ones
-        pr = np.arange(1, rows.size, TONE_PROBE_STRIDE)    # from the 2nd row / column: all neighbours inside
-        pc = np.arange(1, cols.size, TONE_PROBE_STRIDE)
-        pr, pc = pr[rows[pr] + 1 < h], pc[cols[pc] + 1 < w]
-        pgrid = np.zeros((rows.size, cols.size), bool)
-        pgrid[np.ix_(pr, pc)] = True
-        sel = (pgrid.ravel() & good)[pgrid.ravel()]          # probe pixels among the coarse grid's
-        pnb = _neighbour_phasors(frames, kern, steps, rows[pr], cols[pc], ok)
-        pidx = pos[np.flatnonzero(pgrid.ravel() & good)]
-        probe = np.concatenate([i * n + pidx for i in range(f)])
-        pz = np.concatenate([z[:, sel] for z, _ in pnb], axis=1)
-        psp = np.concatenate([sp[sel] for _, sp in pnb])
-        pk = psp <= TONE_MAX_SPREAD
-        if _tone_present(res[probe[pk]], _tone_features(Qt, shifts, pz[:, pk]), a_all[probe[pk]]):
-            nbs = _neighbour_phasors(frames, kern, steps, rows, cols, ok)
-            z = np.concatenate([zz[:, good] for zz, _ in nbs], axis=1)
-            keep = np.concatenate([sp[good] for _, sp in nbs]) <= TONE_MAX_SPREAD
-            if np.count_nonzero(keep) >= MIN_BIN:            # one statistic per kept pixel and frequency
-                rss = _tone_free_rss(res[keep], _tone_features(Qt, shifts, z[:, keep]), a_all[keep])
-                a, dof = a_all[keep], steps - 3
+    if steps > 3 and a.size and min(grid[0].size, grid[1].size) >= 3:
+        tone = _tone_statistic(frames, sub, kern, steps, grid, good, a, ok)
+        if tone is not None:
+            a, rss, dof = tone
     eps = np.finfo(work_dtype_for([fr.dtype for fr in frames])).eps
     bright = float(np.percentile(np.abs(a), 99)) if a.size else 0.0
     floor = 16 * eps * bright                       # arithmetic rounding of the fit itself
@@ -387,6 +347,67 @@ def _statistics(frames, steps, shifts, saturation, max_pixels):
     elif dof == 0:
         floor = max(floor, 1e-3 * bright)
     return a, rss, dof, max(floor, 1e-12)
+
+
+def _linear_statistic(sub, kern, steps):
+    """The statistic of a linear camera (kept as it was before issue #31): per subsampled pixel the
+    mean offset A, the N-step residuals of all frequencies plus the spread of their offsets over
+    sigma^2, and its dof ``F (N - 3) + F - 1``."""
+    f = len(sub) // steps
+    offs = []
+    rss = np.zeros(sub[0].size)
+    for i in range(f):
+        y = np.stack(sub[i * steps:(i + 1) * steps])
+        y = np.where(np.isfinite(y), y, 0.0)
+        acs = kern.coef @ y
+        rss += np.sum((y - kern.design @ acs) ** 2, axis=0)
+        offs.append(acs[0])
+    offs = np.stack(offs)
+    a = offs.mean(0)
+    if f > 1:            # offsets of the F frequencies: one mean, noise g sigma^2 each
+        g = float(np.sum(kern.coef[0] ** 2))
+        rss += np.sum((offs - a) ** 2, axis=0) / g
+    return a, rss, f * (steps - 3) + f - 1
+
+
+def _tone_statistic(frames, sub, kern, steps, grid, good, a, ok):
+    """With a tone curve found by the probe (every ``TONE_PROBE_STRIDE``-th row and column of the
+    subsample ``grid``): per kept pixel and frequency the residual with the tone curve's part
+    regressed out (:func:`_tone_free_rss`, features from the neighbours' phasors,
+    :func:`_neighbour_phasors`), ``chi2(N - 3)``, leaving out the samples whose neighbours do not
+    pin their phase, and the offsets. Returns (A, statistic, dof), or None (no tone curve, or too
+    few pixels to fit it)."""
+    rows, cols = grid
+    h, w = frames[0].shape
+    f = len(sub) // steps
+    shifts = kern.shifts
+    Qt = _residual_basis(kern).T                         # (N-3, N): orthogonal to the design
+    res = np.concatenate([np.einsum("jn,nk->kj", Qt, np.stack(sub[i * steps:(i + 1) * steps])[:, good])
+                          for i in range(f)])              # einsum: no BLAS threads for a (N-3) x N product
+    a_all = np.tile(a, f)
+    n = a.size
+    pos = np.cumsum(good) - 1                            # grid pixel -> its column among the good ones
+    pr = np.arange(1, rows.size, TONE_PROBE_STRIDE)    # from the 2nd row / column: all neighbours inside
+    pc = np.arange(1, cols.size, TONE_PROBE_STRIDE)
+    pr, pc = pr[rows[pr] + 1 < h], pc[cols[pc] + 1 < w]
+    pgrid = np.zeros((rows.size, cols.size), bool)
+    pgrid[np.ix_(pr, pc)] = True
+    sel = (pgrid.ravel() & good)[pgrid.ravel()]          # probe pixels among the coarse grid's
+    pnb = _neighbour_phasors(frames, kern, steps, rows[pr], cols[pc], ok)
+    pidx = pos[np.flatnonzero(pgrid.ravel() & good)]
+    probe = np.concatenate([i * n + pidx for i in range(f)])
+    pz = np.concatenate([z[:, sel] for z, _ in pnb], axis=1)
+    psp = np.concatenate([sp[sel] for _, sp in pnb])
+    pk = psp <= TONE_MAX_SPREAD
+    if not _tone_present(res[probe[pk]], _tone_features(Qt, shifts, pz[:, pk]), a_all[probe[pk]]):
+        return None
+    nbs = _neighbour_phasors(frames, kern, steps, rows, cols, ok)
+    z = np.concatenate([zz[:, good] for zz, _ in nbs], axis=1)
+    keep = np.concatenate([sp[good] for _, sp in nbs]) <= TONE_MAX_SPREAD
+    if np.count_nonzero(keep) < MIN_BIN:                 # one statistic per kept pixel and frequency
+        return None
+    rss = _tone_free_rss(res[keep], _tone_features(Qt, shifts, z[:, keep]), a_all[keep])
+    return a_all[keep], rss, steps - 3
 
 
 def fit_noise_model(frames: Sequence[np.ndarray], steps: int, *, shifts=None, saturation=None,

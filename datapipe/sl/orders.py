@@ -24,7 +24,8 @@ costs next to nothing):
 2. Components of the link graph (:func:`scipy.sparse.csgraph.connected_components`); relative
    orders along a breadth-first tree (pointer jumping, log(depth) vectorised passes). A link that
    disagrees with the tree closes a loop whose steps do not sum to zero: its two ends leave and the
-   components are built again (``LOOP_ROUNDS`` times).
+   components are built again (``LOOP_ROUNDS`` times; what the cut touches only). Steps 1 and 2
+   live in :mod:`.surfaces`.
 3. Blocks = component x ``TILE`` x ``TILE`` tile, of at least ``MIN_BLOCK`` pixels. Per block and
    offset ``m`` (the finest frequency's ``K_f`` hypotheses; integer periods repeat after the width)
    the summed cost ``S_m = sum_q min(chi2_q(m), ROBUST_CAP)`` with ``chi2_q(m) = sum_{i != f}
@@ -50,91 +51,23 @@ from its own evidence, which pooled over hundreds of pixels is decisive.
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 from scipy.special import gammainccinv
 from scipy.stats import chi2
 
 from .confidence import phase_var_from_snr
+from .surfaces import LINK_MAX, surfaces
 
 __all__ = ["pooled_orders", "MAX_FINE_NOISE", "LINK_MAX", "TILE"]
 
 MAX_FINE_NOISE = 0.12    # cycles: finest-phase noise (estimated) of a pixel that may take part
-LINK_MAX = 0.25         # cycles: largest misfit of a link's finest-phase difference to the local gradient
 TILE = 32               # pixels: block size (a step inside a component shows as blocks that disagree)
 MIN_BLOCK = 32           # pixels in a block before it decides
-GRAD = 5                # pixels: window of the finest-phase gradient estimate
 HALF_MIN = 8            # pooled pixels a half window needs to speak
-LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
 DIM_FALSE_RATE = 1e-3   # a NO_LIGHT pixel joins when its 3 x 3 candidates pass the joint modulation test at this rate
 ROBUST_CAP = 25.0       # cap on one pixel's cost (a mixed pixel at an edge cannot outvote a patch)
 LOCAL = 15              # pixels: window whose pooled pixels must prefer the offset by themselves
 HALF = 7                # pixels: the window whose halves must not prefer another offset
 OWN_P = 1e-4            # a pixel's own frequencies may contradict the offset at most at this tail
-
-
-def _pairs(ok, W):
-    """Flat indices (a, b) of the horizontal and the vertical neighbour pairs of ``ok`` pixels (flat
-    bool of an image W wide), per direction."""
-    idx = np.flatnonzero(ok)
-    right = idx[(idx % W != W - 1)]
-    right = right[ok[right + 1]]
-    down = idx[idx + W < ok.size]
-    down = down[ok[down + W]]
-    return (right, right + 1), (down, down + W)
-
-
-def _links(ok, cf, shape):
-    """4-neighbour links among ``ok`` pixels whose finest-phase difference fits the local gradient
-    within ``LINK_MAX`` cycles: (a, b, step), flat indices and ``step = N_b - N_a`` (finest orders).
-
-    The gradient (cycles per pixel, per axis) at a pixel is the angle of the summed phasors of the
-    wrapped differences of the pairs in its ``GRAD`` x ``GRAD`` window (a surface's fringe gradient
-    varies slowly; one pair is too noisy). Work is done at the pairs only, not over the image."""
-    import cv2
-
-    H, W = shape
-    k = dict(ksize=(GRAD, GRAD), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    pa, pb, ps = [], [], []
-    # the filters run over the pixels' bounding box plus the window's reach: the same sums, on less
-    # image (see _box)
-    rows, cols = np.flatnonzero(ok.reshape(H, W).any(1)), np.flatnonzero(ok.reshape(H, W).any(0))
-    r0, c0 = max(rows[0] - GRAD // 2, 0), max(cols[0] - GRAD // 2, 0)
-    h, w = min(rows[-1] + GRAD // 2 + 1, H) - r0, min(cols[-1] + GRAD // 2 + 1, W) - c0
-    z = np.zeros((h * w, 2), np.float32)         # phasors, real and imaginary part as two channels
-    for a, b in _pairs(ok, W):
-        d = cf[b] - cf[a]
-        ang = np.float32(2 * np.pi) * d
-        ra, ca = np.divmod(a, W)
-        la = (ra - r0) * w + (ca - c0)           # a and b in the box
-        lb = la + (b - a) // W * w + (b - a) % W
-        z[:] = 0
-        z[la, 0] = np.cos(ang)
-        z[la, 1] = np.sin(ang)
-        sz = cv2.boxFilter(z.reshape(h, w, 2), -1, **k).reshape(h * w, 2)   # one pass for both parts
-        # the pair's gradient: the mean of its two ends' (windows centred on a and on b)
-        g = (np.arctan2(sz[la, 1] + sz[lb, 1], sz[la, 0] + sz[lb, 0]) * np.float32(1 / (2 * np.pi))).astype(np.float32)
-        t = g - d                                    # = N_b - N_a + noise on one smooth surface
-        n = np.rint(t)
-        keep = np.abs(t - n) <= LINK_MAX
-        pa.append(a[keep])
-        pb.append(b[keep])
-        ps.append(n[keep].astype(np.int64))
-    return np.concatenate(pa), np.concatenate(pb), np.concatenate(ps)
-
-
-def _tree_steps(pred, child, a, b, step, flat, W):
-    """Finest-order step of each tree edge ``pred -> child`` (local node numbers) from the links
-    (a, b, step): a link joins 4-neighbours, so its end ``b`` lies at ``a + 1`` or ``a + W`` in the
-    image; the edge's direction there picks the link, without a lookup table over all pairs."""
-    n = flat.size
-    right, down = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    across = flat[b] - flat[a] == 1
-    right[a[across]] = step[across]
-    down[a[~across]] = step[~across]
-    diff = flat[child] - flat[pred]
-    return np.select([diff == 1, diff == -1, diff == W],
-                     [right[pred], -right[child], down[pred]], -down[child])
 
 
 def _smoothed(cand, snr, shape):
@@ -167,40 +100,17 @@ def _box(flat, shape, reach):
     return (r - r0) * w + (c - c0), h, w
 
 
-def _relative_orders(n, a, b, step, flat, W):
-    """Components and relative finest orders of n nodes linked by (a, b) (local node numbers; ``flat``
-    their pixels' flat indices in an image ``W`` wide)."""
-    ncomp, comp = csgraph.connected_components(
-        sparse.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n)), directed=False)
-    # a virtual root joined to the first node of every component: one breadth-first tree for all
-    first = np.full(ncomp, -1, np.int64)
-    first[comp[::-1]] = np.arange(n)[::-1]
-    root = n
-    rows = np.concatenate([a, b, np.full(ncomp, root)])
-    cols = np.concatenate([b, a, first])
-    g = sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n + 1, n + 1))
-    _, pred = csgraph.breadth_first_order(g, root, directed=True, return_predecessors=True)
-    pred = pred.astype(np.int64)
-    pred[root] = root
-    acc = np.zeros(n + 1, np.int64)
-    child = np.flatnonzero(pred[:n] != root)
-    if child.size:
-        acc[child] = _tree_steps(pred[child], child, a, b, step, flat, W)
-    ptr = pred.copy()
-    while np.any(ptr[:n] != root):
-        acc = acc + acc[ptr]
-        ptr = ptr[ptr]
-    rel = acc[:n]
-    return comp, ncomp, rel, (rel[b] - rel[a]) != step
-
-
 def _local_support(flat, capped, mq, shape, shifts):
     """Per pixel: the least, over the other offsets d, of the summed cost difference
     ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window
     (twice the log-likelihood ratio by which its neighbourhood prefers its block's offset), and the
     least of the same over the four halves of its ``HALF`` x ``HALF`` window that contain the pixel (top, bottom, left,
     right: at a depth step the half on the pixel's own side of it speaks for its own surface).
-    Only the offsets ``shifts`` (relative to m*) are tried: those some block cannot rule out by far."""
+    Only the offsets ``shifts`` (relative to m*) are tried: those some block cannot rule out by far.
+
+    The top half of a pixel's window is the bottom half of the pixel ``HALF // 2`` rows up (and the
+    left half the right half of the pixel as many columns left), so one filter gives both halves of
+    an axis, read at two places of an image with ``HALF // 2`` zero rows (columns) before it."""
     import cv2
 
     Kf, n = capped.shape
@@ -208,25 +118,32 @@ def _local_support(flat, capped, mq, shape, shifts):
     r, c = np.divmod(flat, W)
     r0, c0 = r.min(), c.min()
     h, w = r.max() - r0 + 1, c.max() - c0 + 1
-    rr, cc = r - r0, c - c0
+    k = HALF // 2
+    pv = (r - r0 + k) * w + (c - c0)                 # the pixels in the (h + k, w) image: k zero rows above
+    ph = (r - r0) * (w + k) + (c - c0 + k)           # in the (h, w + k) image: k zero columns left
+    border = cv2.BORDER_CONSTANT
+
+    def halves(img_v, img_h):
+        """Sums over the top, bottom, left and right halves of each pixel's HALF x HALF window."""
+        sv = cv2.boxFilter(img_v.reshape(h + k, w), -1, (HALF, k + 1), anchor=(k, 0), normalize=False,
+                           borderType=border).ravel()
+        sh = cv2.boxFilter(img_h.reshape(h, w + k), -1, (k + 1, HALF), anchor=(0, k), normalize=False,
+                           borderType=border).ravel()
+        return sv[pv - k * w], sv[pv], sh[ph - k], sh[ph]
+
+    img_v, img_h = np.zeros((h + k) * w, np.float32), np.zeros(h * (w + k), np.float32)
+    img_v[pv], img_h[ph] = 1, 1
+    enough = [s >= HALF_MIN for s in halves(img_v, img_h)]
     cols = np.arange(n)
     base = capped[mq, cols]
     worst = np.full(n, np.inf, np.float32)
     worst_half = np.full(n, np.inf, np.float32)
-    img = np.zeros((h, w), np.float32)
-    cnt = np.zeros((h, w), np.float32)
-    cnt[rr, cc] = 1
-    L, k = HALF, HALF // 2
-    halves = [((L, k + 1), (k, k)), ((L, k + 1), (k, 0)), ((k + 1, L), (k, k)), ((k + 1, L), (0, k))]
-    border = cv2.BORDER_CONSTANT
-    enough = [cv2.boxFilter(cnt, -1, size, anchor=a, normalize=False, borderType=border)[rr, cc] >= HALF_MIN
-              for size, a in halves]
     for d in shifts:
-        img[rr, cc] = capped[(mq + d) % Kf, cols] - base
-        s = cv2.boxFilter(img, -1, (LOCAL, LOCAL), normalize=False, borderType=border)
-        np.minimum(worst, s[rr, cc], out=worst)
-        for ((sw, sh), a), ok in zip(halves, enough):
-            s = cv2.boxFilter(img, -1, (sw, sh), anchor=a, normalize=False, borderType=border)[rr, cc]
+        diff = capped[(mq + d) % Kf, cols] - base
+        img_v[pv], img_h[ph] = diff, diff
+        s = cv2.boxFilter(img_v.reshape(h + k, w), -1, (LOCAL, LOCAL), normalize=False, borderType=border)
+        np.minimum(worst, s.ravel()[pv], out=worst)
+        for s, ok in zip(halves(img_v, img_h), enough):
             np.minimum(worst_half, np.where(ok, s, np.inf), out=worst_half)
     return worst, worst_half
 
@@ -257,7 +174,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     var_c = [v[keep] for v in var_c]
     if cand.size < MIN_BLOCK:
         return empty
-    surf = _surfaces(cand, cyc[f], (H, W))
+    surf = surfaces(cand, cyc[f], (H, W))
     if surf is None:
         return empty
     comp, ncomp, rel, a, b = surf
@@ -276,10 +193,11 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     sel, key = sel[by_block], key[by_block]
     binv = np.cumsum(np.r_[False, key[1:] != key[:-1]])      # block numbers 0, 1, ... in key order
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
-    cost = _offset_costs(fine, [c_[sel] for c_ in cyc], [v[sel] for v in var_c], per)
     own_max = chi2.isf(OWN_P, max(1, F - 1))
-    # below the cap a pixel's own test reads the same from the capped costs: cap in place
-    capped = np.minimum(cost, np.float32(ROBUST_CAP), out=cost if own_max < ROBUST_CAP else None)
+    sub_cyc, sub_var = [c_[sel] for c_ in cyc], [v[sel] for v in var_c]
+    capped = _offset_costs(fine, sub_cyc, sub_var, per, cap=ROBUST_CAP)
+    # a pixel's own test: below the cap it reads the same from the capped costs
+    cost = capped if own_max < ROBUST_CAP else _offset_costs(fine, sub_cyc, sub_var, per)
     blk = _block_posterior(capped, binv, max_wrong)
     mq = blk["best"][binv]
     acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= own_max)
@@ -297,8 +215,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     # move them a whole width)
     T = length / per[f]
     xr = (fine + mq) * T
-    med = _block_medians(xr, binv, blk["starts"], blk["size"])
-    xr -= np.floor((med[binv] + 0.5) / length) * length
+    xr -= _block_folds(xr, binv, blk["starts"], blk["size"], length)[binv] * length
     acc &= (xr >= -0.5) & (xr < length - 0.5)
     if x_sure is not None:
         acc[acc] = _agrees_with_sure(cand[sel[acc]], xr[acc], x_sure, (H, W), 0.5 * T)
@@ -310,6 +227,24 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     mine = np.zeros(cand.size, bool)
     mine[sel[acc]] = True
     return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32)
+
+
+def _block_folds(x, binv, starts, size, length):
+    """Per block (its pixels contiguous: ``starts``, ``size``), ``floor((median + 0.5) / length)``:
+    how many projector widths to fold it back by. Where the block's least and largest x give the
+    same, so does the median between them; the medians themselves (:func:`_block_medians`) only for
+    the blocks that straddle a fold (few: a block lies inside the projector's range)."""
+    lo = np.floor((np.minimum.reduceat(x, starts) + 0.5) / length)
+    hi = np.floor((np.maximum.reduceat(x, starts) + 0.5) / length)
+    split = np.flatnonzero(lo != hi)
+    if split.size:
+        n = size[split]
+        first = np.repeat(starts[split] - np.r_[0, np.cumsum(n)[:-1]], n)
+        pix = first + np.arange(n.sum())                 # the split blocks' pixels, block by block
+        sub = np.repeat(np.arange(split.size), n)
+        med = _block_medians(x[pix], sub, np.r_[0, np.cumsum(n)[:-1]], n)
+        lo[split] = np.floor((med + 0.5) / length)
+    return lo
 
 
 def _block_medians(x, binv, starts, size):
@@ -337,46 +272,17 @@ def _precise_and_lit(cand, snr, dim, shape, f):
     return keep, var_c
 
 
-def _surfaces(cand, cf, shape):
-    """Components of linked candidates and their relative finest orders; links that close a loop
-    whose order steps do not sum to zero (a slip of the finest phase, or a step) lose both ends,
-    ``LOOP_ROUNDS`` times; a component still inconsistent then is dropped (-1). Returns (comp,
-    ncomp, rel, a, b) over the candidates, or None without links."""
-    H, W = shape
-    n = cand.size
-    cf_full = np.zeros(H * W, np.float32)
-    cf_full[cand] = cf
-    local = np.zeros(H * W, np.int64)            # flat index -> candidate number (no binary searches)
-    local[cand] = np.arange(n)
-    alive = np.ones(n, bool)
-    for _ in range(LOOP_ROUNDS):
-        ok = np.zeros(H * W, bool)
-        ok[cand[alive]] = True
-        ga, gb, step = _links(ok, cf_full, (H, W))
-        if ga.size == 0:
-            return None
-        a, b = local[ga], local[gb]
-        comp, ncomp, rel, bad = _relative_orders(n, a, b, step, cand, W)
-        if not bad.any():
-            break
-        alive[a[bad]] = False
-        alive[b[bad]] = False
-    else:
-        comp = comp.copy()
-        comp[np.isin(comp, np.unique(comp[a[bad]]))] = -1
-    comp[~alive] = -1
-    return comp, ncomp, rel, a, b
-
-
-def _offset_costs(fine, cyc, var_c, per, chunk: int = 2048):
-    """(K_f, n) float32: ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2
-    v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest frequency.
+def _offset_costs(fine, cyc, var_c, per, cap=np.inf, chunk: int = 2048):
+    """(K_f, n) float32: ``min(chi2_q(m), cap)``, ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2
+    / (v_i + (K_i / K_f)^2 v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest
+    frequency.
 
     Computed ``chunk`` pixels at a time into one reused (K_f, chunk) buffer (it stays in the cache:
-    the same float32 operations as over the whole array, a third of the time)."""
+    the same float32 operations as over the whole array, a third of the time); the first term
+    written, not added to zeros, and the cap applied while the chunk is in the cache (the same
+    values, two passes over the (K_f, n) array fewer)."""
     f = int(np.argmax(per))
     m = np.arange(int(round(per[f])), dtype=np.float32)[:, None]
-    cost = np.zeros((m.size, fine.size), np.float32)
     terms = []
     for i in range(per.size):
         if i == f:
@@ -386,17 +292,25 @@ def _offset_costs(fine, cyc, var_c, per, chunk: int = 2048):
         t0 = ratio * fine - cyc[i]
         terms.append((np.float32(ratio) * m, (t0 - np.rint(t0)).astype(np.float32),
                       np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f])))
+    if not terms:
+        return np.zeros((m.size, fine.size), np.float32)
+    cost = np.empty((m.size, fine.size), np.float32)
     buf = np.empty((m.size, min(chunk, fine.size)), np.float32)
     rnd = np.empty_like(buf)
     for j0 in range(0, fine.size, chunk):
         j1 = min(fine.size, j0 + chunk)
         t, r, out = buf[:, :j1 - j0], rnd[:, :j1 - j0], cost[:, j0:j1]
-        for mk, frac, w in terms:
+        for first, (mk, frac, w) in zip((True,) + (False,) * len(terms), terms):
             np.add(mk, frac[None, j0:j1], out=t)
             t -= np.rint(t, out=r)
             t *= t
-            t *= w[None, j0:j1]
-            out += t
+            if first:
+                np.multiply(t, w[None, j0:j1], out=out)
+            else:
+                t *= w[None, j0:j1]
+                out += t
+        if cap < np.inf:
+            np.minimum(out, np.float32(cap), out=out)
     return cost
 
 

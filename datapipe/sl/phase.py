@@ -187,10 +187,7 @@ class PhaseKernel:
         work = np.dtype(work_dtype)
         wt = work.type
         shape = frames[0].shape
-        a = np.empty(shape, work)
-        c = np.empty(shape, work)
-        s = np.empty(shape, work)
-        tmp = np.empty(shape, work)
+        a, c, s, tmp = (aligned_empty(shape, work) for _ in range(4))
         if _direct_ok(frames, work):          # read the integer samples once, no float copy of them
             for row, dst in ((self.row_a, a), (self.row_c, c), (self.row_s, s)):
                 row.direct(frames, dst, tmp)
@@ -253,11 +250,30 @@ class PhaseKernel:
         return flag
 
 
+ALIGN = 64    # bytes: OpenCV's magnitude (its IPP kernel) rounds some results differently by the output's
+             # alignment: 2-3 of 65 536 values 1 ulp apart at offsets of 20 or 40 bytes from a 64-byte
+             # boundary (OpenCV 4.11 with IPP 2021.12); the decoder's maps are allocated on a boundary,
+             # so one stack gives one result, whatever memory the allocator hands out
+
+
+def aligned_empty(shape, dtype) -> np.ndarray:
+    """An uninitialised C-contiguous array whose data start on an ``ALIGN``-byte boundary."""
+    dt = np.dtype(dtype)
+    n = int(np.prod(shape))
+    raw = np.empty(n * dt.itemsize + ALIGN, np.uint8)
+    start = -raw.ctypes.data % ALIGN
+    return raw[start:start + n * dt.itemsize].view(dt).reshape(shape)
+
+
 def _magnitude(c, s, out):
-    """sqrt(c^2 + s^2) into out; cv2.magnitude (one pass) for contiguous float32/64 arrays."""
+    """sqrt(c^2 + s^2) into out; cv2.magnitude (one pass) for contiguous float32/64 arrays, computed
+    on an ``ALIGN``-byte boundary (into a scratch array and copied when ``out`` is not on one)."""
     if _cv2 is not None and c.ndim == 2 and c.flags.c_contiguous and s.flags.c_contiguous \
             and out.flags.c_contiguous and out.dtype == c.dtype:
-        return _cv2.magnitude(c, s, out)
+        if out.ctypes.data % ALIGN == 0:
+            return _cv2.magnitude(c, s, out)
+        np.copyto(out, _cv2.magnitude(c, s, aligned_empty(out.shape, out.dtype)))
+        return out
     np.multiply(c, c, out=out)
     out += s * s
     return np.sqrt(out, out=out)

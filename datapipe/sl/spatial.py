@@ -170,9 +170,7 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     for o in offs:
         active |= np.isfinite(xg[p_all + o])
     frontier = np.flatnonzero(active)
-    chi_max = chi2.isf(1e-4, max(1, len(per) - 1))
-    chi_sp = chi2.isf(SPATIAL_P, 1)
-    own_min = 2.0 * np.log(1.0 / max_wrong)          # likelihood ratio 1 / max_wrong
+    score = _Scorer(per, L, cyc, var_c, max_wrong)
     w = per * per
     keep = w >= weights_min * w.sum()
     out_idx, out_x, out_p = [], [], []
@@ -181,33 +179,81 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         frontier = frontier[:0]
         if sel.size == 0:
             break
-        pp = p_all[sel]
-        P = _predictions(xg, pp, Wp)           # float32 throughout: x to 1e-4 px, enough for orders
-        xh, avail = _nan_median(P)
-        has = avail >= min_support
-        if not has.any():
+        voted = _vote(xg, p_all[sel], Wp, cyc[f][sel], T, min_support)
+        if voted is None:
             continue
-        sel, pp, P, avail, xh = sel[has], pp[has], P[:, has], avail[has], xh[has]
-        # each prediction votes for the fine order it implies for this pixel's own fine phase
-        cf_all = cyc[f][sel]
-        with np.errstate(invalid="ignore"):
-            votes = np.divide(P, T)              # in place below: (12, n) temporaries cost more than the math
-            votes -= cf_all
-            np.rint(votes, out=votes)
-            agree = votes == np.rint(xh / T - cf_all)
-            dev2 = np.fmax(P, _LOW, out=votes)    # NaN -> finite, so that x 0 below gives 0
-            dev2 -= xh
-            np.multiply(dev2, dev2, out=dev2)
-            dev2 *= agree                         # only the agreeing predictions count
-        n_agree = _count_rows(agree)
-        spread = np.sqrt(np.sum(dev2, 0) / np.maximum(n_agree, 1))
-        ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail) & (var_c[f][sel] <= MAX_FINE_NOISE ** 2)
-        through = _through(P, SAME_SURFACE * T)
+        has, xh, spread, ok, through = voted
+        sel = sel[has]
+        ok &= var_c[f][sel] <= MAX_FINE_NOISE ** 2
         if not ok.any():
             continue
-        sel, pp, xh, spread, through = sel[ok], pp[ok], xh[ok], spread[ok], through[ok]
-        cf = cyc[f][sel]
-        vf = var_c[f][sel]
+        sel, xh, spread, through = sel[ok], xh[ok], spread[ok], through[ok]
+        acc, xbest, p = score(sel, xh, spread, through)
+        if not acc.any():
+            continue
+        sel_a = sel[acc]
+        xnew = _combine_from_fine(xbest[acc], [cyc[i][sel_a] for i in range(len(per))], per, L, keep)
+        pa = p_all[sel_a]
+        xg[pa] = xnew
+        todo[sel_a] = False
+        j = slot[(pa[:, None] + offs[None, :]).ravel()]    # the candidates next to the accepted ones
+        mark[j[j >= 0]] = True
+        frontier = np.flatnonzero(mark)
+        mark[frontier] = False
+        out_idx.append(idx_all[sel_a])
+        out_x.append(xnew)
+        out_p.append(p[acc])
+    if not out_idx:
+        e = np.zeros(0)
+        return np.zeros(0, np.int64), e, e
+    return np.concatenate(out_idx), np.concatenate(out_x), np.concatenate(out_p)
+
+
+def _vote(xg, pp, Wp, cf_all, T, min_support):
+    """The neighbours' vote at padded pixels pp (own finest phase ``cf_all``, cycles): which have at
+    least ``min_support`` predictions (``has``), and for those the median prediction ``x_hat``, the
+    spread of the predictions that vote for its order, whether enough of them do (``ok``), and
+    whether the pixel lies on the surface of both sides along some axis (``through``). None when
+    no pixel has the support."""
+    P = _predictions(xg, pp, Wp)           # float32 throughout: x to 1e-4 px, enough for orders
+    xh, avail = _nan_median(P)
+    has = avail >= min_support
+    if not has.any():
+        return None
+    P, avail, xh, cf_all = P[:, has], avail[has], xh[has], cf_all[has]
+    # each prediction votes for the fine order it implies for this pixel's own fine phase
+    with np.errstate(invalid="ignore"):
+        votes = np.divide(P, T)              # in place below: (12, n) temporaries cost more than the math
+        votes -= cf_all
+        np.rint(votes, out=votes)
+        agree = votes == np.rint(xh / T - cf_all)
+        dev2 = np.fmax(P, _LOW, out=votes)    # NaN -> finite, so that x 0 below gives 0
+        dev2 -= xh
+        np.multiply(dev2, dev2, out=dev2)
+        dev2 *= agree                         # only the agreeing predictions count
+    n_agree = _count_rows(agree)
+    spread = np.sqrt(np.sum(dev2, 0) / np.maximum(n_agree, 1))
+    ok = (n_agree >= min_support) & (4 * n_agree >= 3 * avail)
+    return has, xh, spread, ok, _through(P, SAME_SURFACE * T)
+
+
+class _Scorer:
+    """Scores the three finest orders nearest the neighbours' prediction ``x_hat`` of candidates
+    (module doc): spatial term + temporal term, the posterior of the best, and the acceptance tests."""
+
+    def __init__(self, per, L, cyc, var_c, max_wrong):
+        self.per, self.L, self.cyc, self.var_c, self.max_wrong = per, L, cyc, var_c, max_wrong
+        self.f = int(np.argmax(per))
+        self.T = L / per[self.f]
+        self.chi_max = chi2.isf(1e-4, max(1, len(per) - 1))
+        self.chi_sp = chi2.isf(SPATIAL_P, 1)
+        self.own_min = 2.0 * np.log(1.0 / max_wrong)          # likelihood ratio 1 / max_wrong
+
+    def __call__(self, sel, xh, spread, through):
+        """(accepted mask, best coordinate, p_wrong) of candidates ``sel``."""
+        per, f, T, L = self.per, self.f, self.T, self.L
+        cf = self.cyc[f][sel]
+        vf = self.var_c[f][sel]
         var_sp = spread ** 2 + (0.05 * T) ** 2 + vf * T * T
         n0 = np.rint(xh / T - cf)
         scores, temps, spat, xs = [], [], [], []
@@ -217,8 +263,8 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
             for i, k in enumerate(per):
                 if i == f:
                     continue
-                v = var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf
-                temp += _wrapd(k * xn / L - cyc[i][sel]) ** 2 / v
+                v = self.var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf
+                temp += _wrapd(k * xn / L - self.cyc[i][sel]) ** 2 / v
             sp = (xn - xh) ** 2 / var_sp
             scores.append(sp + temp)
             temps.append(temp)
@@ -236,28 +282,9 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         # off the same-surface axis (extrapolation from one side): the pixel's own frequencies alone
         # must rule out the orders next to the chosen one (a step of ~ a whole period looks smooth)
         own = np.min(np.where(np.arange(3)[:, None] == b[None, :], np.inf, Tm), 0) - tb
-        acc = (p <= max_wrong) & (tb <= chi_max) & (np.stack(spat)[b, cols] <= chi_sp) \
-            & (through | (own >= own_min))
-        if not acc.any():
-            continue
-        xbest = np.stack(xs)[b, cols][acc]
-        sel_a = sel[acc]
-        xnew = _combine_from_fine(xbest, [cyc[i][sel_a] for i in range(len(per))],
-                                  per, L, keep)
-        pa = pp[acc]
-        xg[pa] = xnew
-        todo[sel_a] = False
-        j = slot[(pa[:, None] + offs[None, :]).ravel()]    # the candidates next to the accepted ones
-        mark[j[j >= 0]] = True
-        frontier = np.flatnonzero(mark)
-        mark[frontier] = False
-        out_idx.append(idx_all[sel_a])
-        out_x.append(xnew)
-        out_p.append(p[acc])
-    if not out_idx:
-        e = np.zeros(0)
-        return np.zeros(0, np.int64), e, e
-    return np.concatenate(out_idx), np.concatenate(out_x), np.concatenate(out_p)
+        acc = (p <= self.max_wrong) & (tb <= self.chi_max) & (np.stack(spat)[b, cols] <= self.chi_sp) \
+            & (through | (own >= self.own_min))
+        return acc, np.stack(xs)[b, cols], p
 
 
 def _combine_from_fine(xbest, cyc, per, L, keep):

@@ -263,6 +263,58 @@ def unwrap_phase(wrapped_list, periods, method: str = "auto", *, proj_width=None
     return unwrap_cycles(cyc, plan, proj_width)
 
 
+class _Stages:
+    """The rounding stages of one unwrap, on arrays of one shape and dtype: the order error (largest
+    distance of a rounded value from its integer), the margins and residuals per stage (module doc),
+    and two scratch arrays reused by every stage."""
+
+    def __init__(self, shape, dt, L, centre):
+        self.T = dt.type
+        self.L, self.centre = L, centre
+        self.tmp = np.empty(shape, dt)
+        self.kk = np.empty(shape, dt)
+        self.err = None
+        self.margins, self.residuals = [], []
+
+    def stage(self, x_prev, k, c, out):
+        """Round the order of phase ``c`` (cycles, k periods) from estimate x_prev -> out (pixels)."""
+        T, tmp, kk = self.T, self.tmp, self.kk
+        per_px = self.L / k
+        np.multiply(x_prev, T(k / self.L), out=tmp)
+        np.subtract(tmp, c, out=tmp)
+        np.rint(tmp, out=kk)
+        np.subtract(tmp, kk, out=tmp)
+        np.abs(tmp, out=tmp)
+        if self.err is None:
+            self.err = tmp.copy()
+        else:
+            np.maximum(self.err, tmp, out=self.err)
+        self.margins.append(np.subtract(T(1), np.multiply(tmp, T(2))))
+        self.residuals.append(None)
+        np.multiply(kk, T(per_px), out=out)
+        np.multiply(c, T(per_px), out=tmp)
+        np.add(out, tmp, out=out)
+        return out
+
+    def fold(self, x, length):
+        """Bring x (within one length of it) into [centre - length/2, centre + length/2)."""
+        T = self.T
+        lo, hi = T(self.centre - 0.5 * length), T(self.centre + 0.5 * length)
+        np.subtract(x, T(length), out=x, where=np.greater_equal(x, hi))
+        np.add(x, T(length), out=x, where=np.less(x, lo))
+        return x
+
+    def wrap_into(self, x, length):
+        """Bring any x into the range (floor based)."""
+        T, tmp = self.T, self.tmp
+        np.subtract(x, T(self.centre - 0.5 * length), out=tmp)
+        np.multiply(tmp, T(1.0 / length), out=tmp)
+        np.floor(tmp, out=tmp)
+        np.multiply(tmp, T(length), out=tmp)
+        np.subtract(x, tmp, out=x)
+        return x
+
+
 def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
     """:func:`unwrap_phase` on phases given in cycles (``phi / 2pi``) in ``[0, 1]``."""
     per = plan.periods
@@ -271,93 +323,57 @@ def unwrap_cycles(cyc, plan: UnwrapPlan, proj_width=None) -> UnwrapResult:
     dt = cyc[0].dtype
     T = dt.type
     shape = cyc[0].shape
-    err = None
-    margins = []
-    residuals = []
-    tmp = np.empty(shape, dt)
-    kk = np.empty(shape, dt)
-
-    def stage(x_prev, k, c, out):
-        """Round the order of phase ``c`` (cycles, k periods) from estimate x_prev -> out (pixels)."""
-        nonlocal err
-        per_px = L / k
-        np.multiply(x_prev, T(k / L), out=tmp)
-        np.subtract(tmp, c, out=tmp)
-        np.rint(tmp, out=kk)
-        np.subtract(tmp, kk, out=tmp)
-        np.abs(tmp, out=tmp)
-        if err is None:
-            err = tmp.copy()
-        else:
-            np.maximum(err, tmp, out=err)
-        margins.append(np.subtract(T(1), np.multiply(tmp, T(2))))
-        residuals.append(None)
-        np.multiply(kk, T(per_px), out=out)
-        np.multiply(c, T(per_px), out=tmp)
-        np.add(out, tmp, out=out)
-        return out
-
-    def fold(x, length):
-        """Bring x (within one length of it) into [centre - length/2, centre + length/2)."""
-        lo, hi = T(centre - 0.5 * length), T(centre + 0.5 * length)
-        np.subtract(x, T(length), out=x, where=np.greater_equal(x, hi))
-        np.add(x, T(length), out=x, where=np.less(x, lo))
-        return x
-
-    def wrap_into(x, length):
-        """Bring any x into the range (floor based)."""
-        np.subtract(x, T(centre - 0.5 * length), out=tmp)
-        np.multiply(tmp, T(1.0 / length), out=tmp)
-        np.floor(tmp, out=tmp)
-        np.multiply(tmp, T(length), out=tmp)
-        np.subtract(x, tmp, out=x)
-        return x
-
+    st = _Stages(shape, dt, L, centre)
     xs: dict[int, np.ndarray] = {}
     if plan.method == "multi-frequency":
         i0 = plan.order[0]
         k0 = per[i0]
         x = np.multiply(cyc[i0], T(L / k0))
-        fold(x, L / k0)          # cycles are in [0, 1], so one fold suffices
+        st.fold(x, L / k0)          # cycles are in [0, 1], so one fold suffices
         xs[i0] = x
         prev = x
         for i in plan.order[1:]:
-            prev = stage(prev, per[i], cyc[i], np.empty(shape, dt))
+            prev = st.stage(prev, per[i], cyc[i], np.empty(shape, dt))
             xs[i] = prev
     elif plan.method == "number-theoretic":
-        err = _lattice_stage(cyc, plan, L, centre, xs, margins, residuals)
+        st.err = _lattice_stage(cyc, plan, L, centre, xs, st.margins, st.residuals)
     else:
-        levels = plan.levels
-
-        def node_cycles(coeff):
-            out = np.zeros(shape, dt)
-            for j, cj in enumerate(coeff):
-                if cj:
-                    out += T(cj) * cyc[plan.order[j]]
-            return out
-
-        ktop, ctop = levels[-1][0]
-        est = node_cycles(ctop) * T(L / ktop)
-        wrap_into(est, L / ktop)
-        for li in range(len(levels) - 2, -1, -1):
-            nodes = levels[li]
-            ests = []
-            for j, (k, coeff) in enumerate(nodes):
-                c = cyc[plan.order[j]] if li == 0 else node_cycles(coeff)
-                xj = stage(est, k, c, np.empty(shape, dt))
-                if li == 0:
-                    xs[plan.order[j]] = xj
-                ests.append((k * k / float(np.sum(np.asarray(coeff) ** 2)), xj))
-            est = _combine(ests, tmp)
-    if err is None:
-        err = np.zeros(shape, dt)
+        _heterodyne(cyc, plan, st, xs)
+    err = st.err if st.err is not None else np.zeros(shape, dt)
     # K^2-weighted combination of the original frequencies
-    coord = _combine([(k * k, xs[i]) for i, k in enumerate(per)], tmp, min_fraction=0.01)
+    coord = _combine([(k * k, xs[i]) for i, k in enumerate(per)], st.tmp, min_fraction=0.01)
     if plan.integer:
-        fold(coord, L)
+        st.fold(coord, L)
     phase = np.multiply(coord, T(TWO_PI * max(per) / L))
     return UnwrapResult(phase=phase, x=coord, order_error=err, method=plan.method, periods=per,
-                        margins=margins, residuals=residuals)
+                        margins=st.margins, residuals=st.residuals)
+
+
+def _heterodyne(cyc, plan, st: _Stages, xs):
+    """The heterodyne chain (:func:`_chain`) from its top level down; the original frequencies'
+    coordinates go into ``xs``."""
+    levels, T, L = plan.levels, st.T, st.L
+    shape, dt = cyc[0].shape, cyc[0].dtype
+
+    def node_cycles(coeff):
+        out = np.zeros(shape, dt)
+        for j, cj in enumerate(coeff):
+            if cj:
+                out += T(cj) * cyc[plan.order[j]]
+        return out
+
+    ktop, ctop = levels[-1][0]
+    est = node_cycles(ctop) * T(L / ktop)
+    st.wrap_into(est, L / ktop)
+    for li in range(len(levels) - 2, -1, -1):
+        ests = []
+        for j, (k, coeff) in enumerate(levels[li]):
+            c = cyc[plan.order[j]] if li == 0 else node_cycles(coeff)
+            xj = st.stage(est, k, c, np.empty(shape, dt))
+            if li == 0:
+                xs[plan.order[j]] = xj
+            ests.append((k * k / float(np.sum(np.asarray(coeff) ** 2)), xj))
+        est = _combine(ests, st.tmp)
 
 
 def _lattice_stage(cyc, plan, L, centre, xs, margins, residuals):

@@ -61,3 +61,23 @@ def test_the_images_own_camera_matrix_decodes():
     r = synth.render(synth.plane_scene(), small, proj, PERIODS, STEPS)
     res = decode(r.images, **decode_kw(small, proj))
     assert res.valid.mean() > 0.9 and np.nanmax(np.abs(res.depth - r.depth)[res.valid]) < 1e-4
+
+
+def test_decode_options_defaults_are_decodes():
+    """``decode``'s keyword defaults and the ``DecodeOptions`` it hands to ``prepare_decode`` are one
+    set of defaults: every option of decode's signature (besides the images and ``slab_pixels``, a
+    loop setting) is a field of the same default, and no field is missing from the signature."""
+    import dataclasses
+    import inspect
+
+    from datapipe.sl.decode_setup import DecodeOptions
+
+    params = {k: v.default for k, v in inspect.signature(decode).parameters.items()
+              if k not in ("images", "slab_pixels")}
+    fields = {f.name: f.default for f in dataclasses.fields(DecodeOptions)}
+    assert set(params) == set(fields)
+    for name, default in params.items():
+        if default is inspect.Parameter.empty:
+            assert fields[name] is dataclasses.MISSING, name
+        else:
+            assert fields[name] == default, name
