@@ -24,7 +24,7 @@ from pathlib import Path
 
 from harness import RESULTS, ROOT, Stopwatch, md_table, on_path, parser, write_rows_csv
 
-on_path(tests=True)
+on_path("tests")
 
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402

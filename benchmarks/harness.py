@@ -12,12 +12,14 @@ from __future__ import annotations
 import argparse
 import csv
 import gc
+import json
 import os
 import platform
 import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,13 +27,16 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
+# where the reports go; BENCH_RESULTS points a smoke run (tests, a --quick check) elsewhere, so the
+# kept results are not overwritten by a smaller run
+RESULTS = Path(os.environ.get("BENCH_RESULTS") or ROOT / "benchmarks" / "results")
 
 
-def on_path(*, tests: bool = False) -> None:
-    """Put the repository (and tests/, for the shared scenes and parts) first on sys.path, so a
-    script run from anywhere imports this checkout's datapipe."""
-    for p in ([ROOT / "tests"] if tests else []) + [ROOT]:
+def on_path(*subdirs: str) -> None:
+    """Put the repository and its `subdirs` (e.g. "tests", "tests/sl": the scenes and parts the tests
+    share with the benchmarks) first on sys.path, so a script run from anywhere imports this
+    checkout's datapipe."""
+    for p in [ROOT / d for d in subdirs] + [ROOT]:
         if str(p) not in sys.path:
             sys.path.insert(0, str(p))
 
@@ -94,6 +99,13 @@ def timed(fn, repeat: int = 1, warmup: bool = False) -> tuple[object, Timing]:
         t.wall.append(s.wall_s)
         t.cpu.append(s.cpu_s)
     return out, t
+
+
+def clocked(fn) -> tuple[object, float, float]:
+    """One call of `fn()`: (its result, wall seconds, process CPU seconds)."""
+    with Stopwatch() as t:
+        out = fn()
+    return out, t.wall_s, t.cpu_s
 
 
 def round_robin(fns: dict, repeat: int) -> dict[str, Timing]:
@@ -166,6 +178,15 @@ def md_table(header: list[str], rows: list[list]) -> list[str]:
     """Markdown table lines: the header, its rule, one line per row (cells as given, str()-ed)."""
     return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + [
         "| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+
+
+def column_table(rows: list[dict], cols: list[tuple[str, str]]) -> str:
+    """A Markdown table of `rows` over `cols` = [(key, format)], as one string; a non-finite float
+    is "-"."""
+    def cell(f, v):
+        return "-" if isinstance(v, float) and not np.isfinite(v) else f.format(v)
+    head = "| " + " | ".join(c for c, _ in cols) + " |\n|" + "---|" * len(cols) + "\n"
+    return head + "".join("| " + " | ".join(cell(f, r[c]) for c, f in cols) + " |\n" for r in rows)
 
 
 def write_with_notes(path: Path, lines: list[str]) -> None:
@@ -248,3 +269,24 @@ def parser(doc: str | None, quick: str | None = "the smallest run (about a minut
     if quick is not None:
         ap.add_argument("--quick", action="store_true", help=quick)
     return ap
+
+
+def sweep_parser(doc: str | None, cache_name: str, quick: str | None = "the smallest sweep (a smoke test)"):
+    """The parser of a sweep whose renders are cached (resumable): `--quick`, `--cache DIR`
+    (default <tmp>/<cache_name>), `--report-only` (the report from the cache, no Blender) and
+    `--out DIR` (default benchmarks/results)."""
+    ap = parser(doc, quick)
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / cache_name,
+                    help="folder for rendered stacks and timings (resumable)")
+    ap.add_argument("--report-only", action="store_true", help="the report from the cached renders, no Blender")
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    return ap
+
+
+def cached_renders(a, cases, render_all, log) -> dict:
+    """The per-render timings of a sweep: read from the cache with --report-only, else rendered
+    (`render_all(cases, cache, log)` renders what the cache lacks and returns them all)."""
+    a.cache.mkdir(parents=True, exist_ok=True)
+    if a.report_only:
+        return json.loads((a.cache / "renders.json").read_text())
+    return render_all(cases, a.cache, log)

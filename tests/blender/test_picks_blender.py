@@ -12,21 +12,20 @@ import json
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from datapipe import config as C
 from datapipe.io.exr import read_mask
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from cli_runs import kill_at_scene, small_config  # noqa: E402
+
 
 def picks_config():
-    cfg = C.default_config()
-    cfg.scene.num_renders = 4
-    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1
-    cfg.camera.resolution = [64, 48]
-    cfg.render.samples = 1
+    cfg = small_config(4, (64, 48))
     cfg.render.threads = 2
-    cfg.structured_light.enabled = False
     cfg.output.overview = False
     for o in cfg.objects:
         o.min_instances = o.max_instances = 4                      # 12 parts
@@ -61,13 +60,7 @@ def test_pick_steps_settle_clean_and_resume_to_the_same_files(tmp_path):
             seen = set(np.unique(read_mask(full / d["name"] / r["files"]["mask"])).tolist())
             assert not {pile[n] for n in removed} & seen       # no removed part in the rendered mask
     # kill the second run once the pile's first pick step is complete, then resume
-    proc = subprocess.Popen(cmd + ["--out", str(part)], stderr=subprocess.PIPE, text=True)
-    for line in proc.stderr:
-        if "scene.0002" in line and "parts," in line:
-            proc.send_signal(signal.SIGKILL)
-            break
-    proc.wait(timeout=120)
-    assert proc.returncode == -signal.SIGKILL
+    assert kill_at_scene(cmd + ["--out", str(part)], "scene.0002", 120) == -signal.SIGKILL
     assert len(scene_docs(part)) < 4 or not scene_docs(part)[-1].get("complete")
     r = subprocess.run(cmd + ["--out", str(part), "--resume"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
