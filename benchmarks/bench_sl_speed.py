@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT / "tests" / "sl"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import synth  # noqa: E402
-from report_util import write_rows_csv, write_with_notes  # noqa: E402
+from harness import write_rows_csv, write_with_notes  # noqa: E402
 from datapipe import sl  # noqa: E402
 decode_mod = importlib.import_module("datapipe.sl.decode")   # the module (datapipe.sl.decode is also the function)
 from datapipe.sl.decode_neighbours import neighbour_pass  # noqa: E402
