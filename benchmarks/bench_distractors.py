@@ -85,14 +85,14 @@ def run_preset(a, out: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = parser(__doc__, quick="--res 160 120 --views 1")
+    ap = parser(__doc__, quick="--views 1")
     ap.add_argument("--res", type=int, nargs=2, default=[320, 240])
     ap.add_argument("--views", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
     if a.quick:
-        a.res, a.views = [160, 120], 1
+        a.views = 1
     with tempfile.TemporaryDirectory() as tmp:
         out = a.out or Path(tmp) / "run"
         run_preset(a, out)

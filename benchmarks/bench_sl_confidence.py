@@ -18,7 +18,6 @@ the bound 1 - c, log-log: calibrated points lie on or below the diagonal).
 """
 from __future__ import annotations
 
-import os
 
 import cv2
 import numpy as np

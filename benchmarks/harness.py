@@ -5,7 +5,9 @@ appended), the frame of a log-scaled plot (OpenCV: the environment has no plotti
 command-line conventions (`--quick` for the run that finishes in about a minute).
 
 A benchmark script imports it as `from harness import ...` (scripts run as `python benchmarks/x.py`,
-so benchmarks/ is on the path); `harness.on_path()` adds the repository and tests/ for their imports.
+so benchmarks/ is on the path); `on_path("tests")` puts the repository (and tests/, whose scenes and
+parts the benchmarks share) before the rest. `BENCH_RESULTS=DIR` sends every report to DIR instead
+of benchmarks/results/, so a `--quick` check leaves the kept results as they are.
 """
 from __future__ import annotations
 

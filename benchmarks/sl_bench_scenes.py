@@ -90,7 +90,7 @@ def render_cases(cases, cache: Path, log=print) -> dict:
                          "fringe_s": fringe_s, "images": int(rad.shape[0]), "sharp_glossy": world.sl.sharp_glossy,
                          "row_periods": list(ROW_PERIODS), "product_rows": rows}
             meta_path.write_text(json.dumps(meta, indent=1))
-            log(f"  {key}: native {t1 - t0:.1f} s, fringes {fringe_s:.1f} s")
+            log(f"  {key}: native {native_s:.1f} s, fringes {fringe_s:.1f} s")
     return meta
 
 
@@ -109,7 +109,7 @@ def dark_step_stack(cam_size=(640, 480), seed: int = 0):
     boxes with 0.13 m and 0.25 m steps, two spheres, projector shadows, a floor patch of albedo
     0.015 beside the tall box and that box (top) of albedo 0.04; periods (1, 8, 64) x 4; read +
     shot noise, 8-bit. Returns (images, render truth, camera, projector); `images` uint8."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sl"))
+    on_path("tests/sl")
     import synth
 
     cam, proj = synth.make_rig(cam_size=cam_size, proj_size=(912, 570), baseline=0.15, distance=1.0)
