@@ -136,8 +136,8 @@ def _observations(results: dict) -> list[str]:
 
 
 def main():
-    ap = parser(__doc__, quick="--renders 2 --res 320 240 (the default 160x120 is refused by the gate: the finest
-                                fringe would be 2.5 camera px)")
+    # quick at 320x240: the default 160x120 is refused by the gate (the finest fringe 2.5 camera px)
+    ap = parser(__doc__, quick="--renders 2 --res 320 240")
     ap.add_argument("--renders", type=int, default=20)
     ap.add_argument("--res", type=int, nargs=2, default=[160, 120])
     ap.add_argument("--out", default=None, help="keep the runs here (default: a temporary folder)")
