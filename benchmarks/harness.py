@@ -2,7 +2,8 @@
 and median, a child process's CPU and peak memory), the machine line of a report, result tables
 (rows of dicts as Markdown and CSV under benchmarks/results/, the hand-written `<stem>_notes.md`
 appended), the frame of a log-scaled plot (OpenCV: the environment has no plotting library) and the
-command-line conventions (`--quick` for the run that finishes in about a minute).
+command-line conventions (`--quick`: each script's smallest run, a smoke test; benchmarks/README.md
+gives each one's measured time).
 
 A benchmark script imports it as `from harness import ...` (scripts run as `python benchmarks/x.py`,
 so benchmarks/ is on the path); `on_path("tests")` puts the repository (and tests/, whose scenes and
@@ -264,7 +265,7 @@ def log_x_frame(size: tuple[int, int], margin: int, x_range, y_range, x_ticks):
 
 
 # -- command line ----------------------------------------------------------------------------------
-def parser(doc: str | None, quick: str | None = "the smallest run (about a minute): a smoke test") -> argparse.ArgumentParser:
+def parser(doc: str | None, quick: str | None = "the smallest run (a smoke test)") -> argparse.ArgumentParser:
     """An ArgumentParser described by the first line of the script's docstring, with `--quick`
     (unless `quick` is None)."""
     ap = argparse.ArgumentParser(description=(doc or "").strip().splitlines()[0] if doc else None)
