@@ -10,19 +10,17 @@ depth; hidden where something lies more than 1 mm in front) and (b) the official
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+import numpy as np
 
-import numpy as np  # noqa: E402
+from harness import ROOT, on_path, parser, run_child
 
+on_path("tests")
 import bop_toolkit_check as btc  # noqa: E402
 from datapipe.io.bop import export_bop  # noqa: E402
 from datapipe.io.exr import read_depth, read_mask  # noqa: E402
@@ -30,25 +28,46 @@ from datapipe.io.exr import read_depth, read_mask  # noqa: E402
 OCCLUDER_M = 0.001
 
 
-def _obj_mesh(path: Path):
-    v, f = [], []
-    for line in path.read_text().splitlines():
-        t = line.split()
-        if t and t[0] == "v":
-            v.append([float(x) for x in t[1:4]])
-        elif t and t[0] == "f":
-            idx = [int(x.split("/")[0]) - 1 for x in t[1:]]
-            f += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
-    return np.array(v), np.array(f)
+def independent_count(out: Path, scene: dict) -> str:
+    """Each annotated part's visible pixels counted again from its mesh file and pose against the
+    rendered depth, compared with its px_count_visib; and the pixels distractors hide."""
+    meshes = {o["obj_id"]: btc.obj_mesh(Path(o["filename"])) for o in scene["objects"]}
+    diffs, occluded_by_clutter = [], 0
+    for r, rec in enumerate(scene["renders"]):
+        rdir = out / "scene.0001" / f"render.{r + 1:04d}"
+        depth = read_depth(rdir / "depth.exr").astype(np.float64)
+        mask = read_mask(rdir / "mask.exr")
+        assert set(np.unique(mask)) <= {0} | {o["mask_index"] for o in rec["objects"]}
+        for o in rec["objects"]:
+            V, F = meshes[o["obj_id"]]
+            full, vis = btc.visible_part(V, F, np.array(rec["K"]), np.array(o["T_cam_obj"]), depth, OCCLUDER_M)
+            if not full.any():
+                continue
+            occluded_by_clutter += int((full & ~vis & (mask == 0)).sum())
+            diffs.append(abs(o["px_count_visib"] - int(vis.sum())))
+    return (f"independent count: {len(diffs)} instances, visible px differing by max {max(diffs)} / mean "
+            f"{np.mean(diffs):.2f} px; {occluded_by_clutter} px of annotated parts hidden by distractors")
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--res", type=int, nargs=2, default=[320, 240])
-    ap.add_argument("--views", type=int, default=2)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=None)
-    a = ap.parse_args(argv)
+def ground_truth_counts(out: Path, bop: Path, scene: dict) -> str:
+    """Parts, distractors and annotations in scene.json and every BOP ground truth file."""
+    sim = scene["simulation"]
+    names = [o["name"] for o in scene["objects"]]
+    chunk = bop / "train_pbr" / "000000"
+    gt = json.loads((chunk / "scene_gt.json").read_text())
+    info = json.loads((chunk / "scene_gt_info.json").read_text())
+    coco = json.loads((chunk / "scene_gt_coco.json").read_text())
+    clutter = [n for n in names if n.startswith("clutter_")]
+    return (f"{sim['parts']} parts in the bin ({sim.get('distractors')} distractors), {len(sim['removed'])} lost, "
+            f"{len(sim['interpenetrating_pairs'])} interpenetrating pairs; scene.json objects {len(names)} "
+            f"(distractors among them: {len(clutter)}); scene_gt {sum(len(v) for v in gt.values())}, scene_gt_info "
+            f"{sum(len(v) for v in info.values())}, COCO {len(coco['annotations'])} annotations, obj_ids "
+            f"{sorted({g['obj_id'] for v in gt.values() for g in v})}; models "
+            f"{sorted(p.name for p in (bop / 'models').glob('*.ply'))}")
+
+
+def run_preset(a, out: Path) -> None:
+    """distractors.json at --res with --views renders of one scene, through the CLI."""
     preset = ROOT / "datapipe" / "presets" / "distractors.json"
     d = json.loads(preset.read_text())
     d["camera"]["resolution"] = a.res
@@ -57,57 +76,39 @@ def main(argv=None) -> int:
     for o in d["objects"]:
         if o.get("filepath"):
             o["filepath"] = str((preset.parent / o["filepath"]).resolve())
+    out.parent.mkdir(parents=True, exist_ok=True)
+    (out.parent / "preset.json").write_text(json.dumps(d))
+    child = run_child([sys.executable, "-m", "datapipe", "run", str(out.parent / "preset.json"), "--out", str(out),
+                       "--force", "--quiet"], env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    if child.returncode:
+        raise RuntimeError(f"datapipe run of distractors.json failed (exit {child.returncode})")
+
+
+def main(argv=None) -> int:
+    ap = parser(__doc__, quick="--views 1")
+    ap.add_argument("--res", type=int, nargs=2, default=[320, 240])
+    ap.add_argument("--views", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=None)
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.views = 1
     with tempfile.TemporaryDirectory() as tmp:
         out = a.out or Path(tmp) / "run"
-        out.parent.mkdir(parents=True, exist_ok=True)
-        (out.parent / "preset.json").write_text(json.dumps(d))
-        subprocess.run([sys.executable, "-m", "datapipe", "run", str(out.parent / "preset.json"), "--out", str(out),
-                        "--force", "--quiet"], check=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        run_preset(a, out)
         bop = out.parent / "bop"
         export_bop(out, bop)
         scene = json.loads((out / "scene.0001" / "scene.json").read_text())
-        sim = scene["simulation"]
-        names = [o["name"] for o in scene["objects"]]
-        chunk = bop / "train_pbr" / "000000"
-        gt = json.loads((chunk / "scene_gt.json").read_text())
-        info = json.loads((chunk / "scene_gt_info.json").read_text())
-        coco = json.loads((chunk / "scene_gt_coco.json").read_text())
-        clutter = [n for n in names if n.startswith("clutter_")]
-        print(f"{sim['parts']} parts in the bin ({sim.get('distractors')} distractors), {len(sim['removed'])} lost, "
-              f"{len(sim['interpenetrating_pairs'])} interpenetrating pairs; scene.json objects {len(names)} "
-              f"(distractors among them: {len(clutter)}); scene_gt {sum(len(v) for v in gt.values())}, scene_gt_info "
-              f"{sum(len(v) for v in info.values())}, COCO {len(coco['annotations'])} annotations, obj_ids "
-              f"{sorted({g['obj_id'] for v in gt.values() for g in v})}; models {sorted(p.name for p in (bop / 'models').glob('*.ply'))}")
-        meshes = {o["obj_id"]: _obj_mesh(Path(o["filename"])) for o in scene["objects"]}
-        diffs, occluded_by_clutter, n = [], 0, 0
-        for r, rec in enumerate(scene["renders"]):
-            rdir = out / "scene.0001" / f"render.{r + 1:04d}"
-            depth = np.nan_to_num(read_depth(rdir / "depth.exr").astype(np.float64), nan=np.inf)
-            mask = read_mask(rdir / "mask.exr")
-            K = np.array(rec["K"])
-            W, H = rec["resolution"]
-            assert set(np.unique(mask)) <= {0} | {o["mask_index"] for o in rec["objects"]}
-            for o in rec["objects"]:
-                V, F = meshes[o["obj_id"]]
-                T = np.array(o["T_cam_obj"])
-                own = btc.model_depth(V, F, K, T[:3, :3], T[:3, 3], W, H)
-                full = own > 0
-                if not full.any():
-                    continue
-                vis = full & ~(depth < own - OCCLUDER_M)
-                occluded_by_clutter += int((full & ~vis & (mask == 0)).sum())
-                diffs.append(abs(o["px_count_visib"] - int(vis.sum())))
-                n += 1
-        print(f"independent count: {n} instances, visible px differing by max {max(diffs)} / mean "
-              f"{np.mean(diffs):.2f} px; {occluded_by_clutter} px of annotated parts hidden by distractors")
+        print(ground_truth_counts(out, bop, scene))
+        print(independent_count(out, scene))
         if btc.toolkit() is None:
             print("bop_toolkit: not importable, its check was not run")
-        else:
-            for delta in (btc.DELTA_MM, 1.0):
-                s = btc.check(bop, delta_mm=delta)
-                print(f"bop_toolkit at {delta:g} mm: {s['gt_info_equal']}/{s['instances']} scene_gt_info entries "
-                      f"equal, {s['visib_px_differing']} of {s['visib_px']} visible px differ "
-                      f"({s['toolkit_only_px']} visible to the toolkit only)")
+            return 0
+        for delta in (btc.DELTA_MM, 1.0):
+            s = btc.check(bop, delta_mm=delta)
+            print(f"bop_toolkit at {delta:g} mm: {s['gt_info_equal']}/{s['instances']} scene_gt_info entries "
+                  f"equal, {s['visib_px_differing']} of {s['visib_px']} visible px differ "
+                  f"({s['toolkit_only_px']} visible to the toolkit only)")
     return 0
 
 

@@ -16,23 +16,19 @@ Writes benchmarks/results/sl_fringe_modes.md, .csv and sl_fringe_modes.png.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from harness import (ROOT, Stopwatch, cached_renders, clocked, column_table, log_x_frame, on_path, sweep_parser,
+                     write_rows_csv, write_with_notes)
 
-from bench_sl_render import RES, SEED, build_world, cache_native_render, metrics, timed  # noqa: E402
-from report_util import log_x_frame, write_rows_csv, write_with_notes  # noqa: E402
+on_path()
+from bench_sl_render import RES, SEED, metrics, open_worlds  # noqa: E402
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.config.plan import FringePlan  # noqa: E402
@@ -61,20 +57,10 @@ def plan(quick: bool):
 def render_all(cases, cache: Path, log):
     meta_path = cache / "renders.json"
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
-    groups: dict = {}
+    todo_by_world: dict = {}
     for c in cases:
-        groups.setdefault(c[:2], []).append(c)
-    for (scene_kind, res), cs in groups.items():
-        nkey = f"native_{scene_kind}_{res}"
-        todo = [c for c in cs if key(*c) not in meta]
-        if not todo and nkey in meta:
-            continue
-        tmp = Path(tempfile.mkdtemp(prefix="fmbench_"))
-        log(f"building {scene_kind} {res}")
-        cfg, bscene, camera, renderer, T = build_world(scene_kind, RES[res], tmp)
-        if nkey not in meta:
-            wall, cpu = cache_native_render(renderer, camera, T, cfg, tmp, cache, nkey, meta, meta_path)
-            log(f"  native: {wall:.1f} s wall, {cpu:.1f} CPU s")
+        todo_by_world.setdefault(c[:2], []).extend([c] if key(*c) not in meta else [])
+    for todo, tmp, (cfg, bscene, camera, renderer, T) in open_worlds(todo_by_world, meta, cache, log, "fmbench_"):
         for variant, (mode, dseed, min_gain) in VARIANTS.items():
             mcs = [c for c in todo if c[2] == variant]
             if not mcs:
@@ -89,7 +75,7 @@ def render_all(cases, cache: Path, log):
                 slc.set_samples(c[3])
                 runs = []
                 for _ in range(1 if mode == "render" else 2):      # the long render mode: one call
-                    (stack, _), wall, cpu = timed(lambda: slc.render_fringes(tmp / "fringes", SEED + dseed, T))
+                    (stack, _), wall, cpu = clocked(lambda: slc.render_fringes(tmp / "fringes", SEED + dseed, T))
                     runs.append((cpu, wall))
                 cpu, wall = min(runs)
                 np.savez_compressed(cache / f"{key(*c)}.npz", rad=stack)
@@ -112,7 +98,7 @@ def decode_all(cases, meta, cache: Path):
         scanner = sl.Scanner.from_config(cfg)
         rad = np.load(cache / f"{key(*c)}.npz")["rad"]
         scanner.scan(rad, SEED, nat["K"], nat["T"])         # warm the triangulation cache
-        scan, dec_s, _ = timed(lambda: scanner.scan(rad, SEED, nat["K"], nat["T"]))
+        scan, dec_s, _ = clocked(lambda: scanner.scan(rad, SEED, nat["K"], nat["T"]))
         m = metrics(scan.result, scan, nat["depth"])
         r, n = meta[key(*c)], meta[f"native_{scene_kind}_{res}"]
         rows.append({"scene": scene_kind, "res": "x".join(map(str, RES[res])), "mode": variant, "samples": samples,
@@ -175,8 +161,7 @@ COLS = [("scene", "{}"), ("res", "{}"), ("mode", "{}"), ("samples", "{}"), ("fri
 
 
 def table(rows, cols=COLS) -> str:
-    head = "| " + " | ".join(c for c, _ in cols) + " |\n|" + "---|" * len(cols) + "\n"
-    return head + "".join("| " + " | ".join(f.format(r[c]) for c, f in cols) + " |\n" for r in rows)
+    return column_table(rows, cols)
 
 
 def compare(rows):
@@ -268,28 +253,20 @@ def report(rows, demo, out_dir: Path, elapsed: float):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "datapipe_fringe_modes")
-    ap.add_argument("--report-only", action="store_true")
+    ap = sweep_parser(__doc__, "datapipe_fringe_modes", quick="the 320x240 bin only")
     ap.add_argument("--no-demo", action="store_true")
     ap.add_argument("--demo-render", action="store_true", help="also a demo run in render mode (slow)")
-    ap.add_argument("--out", type=Path, default=RESULTS)
     a = ap.parse_args(argv)
-    a.cache.mkdir(parents=True, exist_ok=True)
     log = lambda s: print(s, flush=True)  # noqa: E731
-    t0 = time.perf_counter()
+    clock = Stopwatch().start()
     cases = plan(a.quick)
-    if a.report_only:
-        meta = json.loads((a.cache / "renders.json").read_text())
-    else:
-        meta = render_all(cases, a.cache, log)
+    meta = cached_renders(a, cases, render_all, log)
     rows = decode_all(cases, meta, a.cache)
     demo_path = a.cache / "demo.json"
     if not a.no_demo and not a.report_only:
         demo_path.write_text(json.dumps(demo_runs(log, a.demo_render)))
     demo = json.loads(demo_path.read_text()) if demo_path.is_file() else []
-    report(rows, demo, a.out, time.perf_counter() - t0)
+    report(rows, demo, a.out, clock.stop().wall_s)
     for d in compare(rows):
         log(str(d))
 

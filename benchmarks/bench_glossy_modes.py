@@ -30,24 +30,17 @@ Writes benchmarks/results/sl_glossy_modes.md and sl_glossy_modes.csv.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from harness import RESULTS, clocked, on_path, parser, write_rows_csv, write_with_notes
 
+on_path()
 import sl_bench_scenes as S  # noqa: E402
-from report_util import write_rows_csv, write_with_notes  # noqa: E402
-
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 
@@ -84,9 +77,8 @@ def key(size, material, height, variant):
 
 
 def cpu(fn):
-    c0, t0 = time.process_time(), time.perf_counter()
-    out = fn()
-    return out, time.process_time() - c0, time.perf_counter() - t0
+    out, wall, cpu_s = clocked(fn)
+    return out, cpu_s, wall
 
 
 def render_group(size, material, heights, variants, cache: Path, meta: dict, meta_path: Path, log):
@@ -253,8 +245,7 @@ def report(rows, render_wall: float):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
+    ap = parser(__doc__, quick="steel at 0.8 m only")
     ap.add_argument("--sizes", default="320", help="comma list of 320, 640, 1280")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "datapipe_bench_glossy")
     ap.add_argument("--report-only", action="store_true")

@@ -16,19 +16,15 @@ physics.md; `--cases "A|B"` runs only the cases whose label contains one of thes
 """
 from __future__ import annotations
 
-import argparse
-import csv
 import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+from harness import RESULTS, ROOT, Stopwatch, md_table, on_path, parser, write_rows_csv
+
+on_path("tests")
 
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
@@ -84,14 +80,13 @@ def cases(parts: dict[str, str], quick: bool):
         yield label, entries, SCENES.get(label, n_scenes), None
 
 
-def run_case(label, entries, n_scenes, writer):
+def run_case(label, entries, n_scenes):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cfg = default_config()
     cfg.objects = entries
     bs = BlendScene(cfg).setup()
-    t0 = time.perf_counter()
-    om = ObjectManager(cfg, bs).load_sources()
-    load_s = time.perf_counter() - t0
+    with Stopwatch() as load:
+        om = ObjectManager(cfg, bs).load_sources()
     sim = Simulation(cfg, bs)
     rows = []
     for s in range(n_scenes):
@@ -106,8 +101,7 @@ def run_case(label, entries, n_scenes, writer):
                      "sim_s": round(res.seconds, 3)})
         om.clear()
         print(label, rows[-1], flush=True)
-        writer.writerow(rows[-1])
-    return rows, load_s
+    return rows, load.wall_s
 
 
 def restitution_case():
@@ -237,11 +231,10 @@ def dense_drop(n_parts: int, seed: int) -> dict:
     bs = BlendScene(cfg).setup()
     om = ObjectManager(cfg, bs).load_sources()
     sim = Simulation(cfg, bs)
-    c0 = time.process_time()
-    res, _ = drop_scene(om, sim, scene_rng(seed, 0), 1234)
-    cpu = time.process_time() - c0
+    with Stopwatch() as t:
+        res, _ = drop_scene(om, sim, scene_rng(seed, 0), 1234)
     c = res.check
-    row = {"parts": n_parts, "seed": seed, "cpu_s": round(cpu, 2), "kept": len(res.kept), "lost": len(res.removed),
+    row = {"parts": n_parts, "seed": seed, "cpu_s": round(t.cpu_s, 2), "kept": len(res.kept), "lost": len(res.removed),
            "pairs": len(c.pairs), "max_depth_mm": round(c.max_depth * 1000, 2), "below_floor": len(c.below_floor),
            "floating": len(c.floating), "frames": res.frames, "stages": res.stages, "settled": res.settled,
            "unsettled": len(res.unsettled), "substeps": res.plan.substeps}
@@ -254,13 +247,13 @@ def drop_section(rows: list[dict]) -> list[str]:
          "`bench_physics.py --drop-only`: the `bin_picking.json` pile (steel pegs, nuts, brackets in equal "
          "shares, no `scene.fill`), dropped in stages by `drop_scene`; `CPU s` is `time.process_time` of the "
          "whole drop (stages, freezing, the independent check). Checks as above (pairs deeper than 0.5 mm, "
-         "below the floor, floating > 2 mm).", "",
-         "| parts | seed | CPU s | lost | pairs > 0.5 mm | max depth mm | below floor | floating > 2 mm | frames | "
-         "stages | settled | unsettled | substeps |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    L += [f"| {r['parts']} | {r['seed']} | {r['cpu_s']:.2f} | {r['lost']} | {r['pairs']} | {r['max_depth_mm']:.2f} | "
-          f"{r['below_floor']} | {r['floating']} | {r['frames']} | {r['stages']} | {r['settled']} | {r['unsettled']} | "
-          f"{r['substeps']} |" for r in rows]
-    return L
+         "below the floor, floating > 2 mm).", ""]
+    return L + md_table(
+        ["parts", "seed", "CPU s", "lost", "pairs > 0.5 mm", "max depth mm", "below floor", "floating > 2 mm",
+         "frames", "stages", "settled", "unsettled", "substeps"],
+        [[r["parts"], r["seed"], f"{r['cpu_s']:.2f}", r["lost"], r["pairs"], f"{r['max_depth_mm']:.2f}",
+          r["below_floor"], r["floating"], r["frames"], r["stages"], r["settled"], r["unsettled"], r["substeps"]]
+         for r in rows])
 
 
 def replace_drop_section(rows: list[dict]) -> None:
@@ -278,8 +271,7 @@ def replace_drop_section(rows: list[dict]) -> None:
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
+    ap = parser(__doc__, quick="1 scene per case, 1 demo scene (several minutes: Blender drops)")
     ap.add_argument("--baseline", help="another checkout (e.g. main before this change) to time the demo with")
     ap.add_argument("--drop-only", action="store_true", help="only the drop cost against parts (replaces its section)")
     ap.add_argument("--cases", help="only the cases whose label contains this")
@@ -288,27 +280,27 @@ def main():
     if args.drop_only:
         replace_drop_section([dense_drop(n, s) for n in DROP_PARTS for s in DROP_SEEDS])
         return
-    t_start = time.perf_counter()
+    total = Stopwatch().start()
     rows = []
     csv_path = RESULTS / "physics.csv" if not args.cases else Path(tempfile.gettempdir()) / "physics_cases.csv"
-    with tempfile.TemporaryDirectory() as tmp, open(csv_path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, COLUMNS)
-        w.writeheader()
+    with tempfile.TemporaryDirectory() as tmp:
         parts = physics_parts.write_all(tmp)
         loads = {}
         for label, entries, n, _ in cases(parts, args.quick):
             if args.cases and not any(c in label for c in args.cases.split("|")):
                 continue
-            r, loads[label] = run_case(label, entries, n, w)
+            r, loads[label] = run_case(label, entries, n)
             rows += r
         before = before_cases(args.baseline, parts, 1) if args.baseline else []
+    write_rows_csv(csv_path, rows, COLUMNS)
     if args.cases:                      # a subset: printed above, physics.md keeps the full run
         print("\n".join(_table(rows)[1]))
         return
     rest = restitution_case()
     base = baseline_demo(args.baseline, 3 if not args.quick else 1) if args.baseline else None
     drops = [] if args.cases else [dense_drop(n, s) for n in DROP_PARTS for s in DROP_SEEDS]
-    write_md(rows, loads, rest, base, time.perf_counter() - t_start, before, drops)
+    total.stop()
+    write_md(rows, loads, rest, base, total.wall_s, before, drops)
 
 
 def _table(rows, loads=None):

@@ -7,18 +7,13 @@ own process (bpy is one per process) so the numbers do not leak between cases.
 """
 from __future__ import annotations
 
-import argparse
-import csv
 import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
+from harness import RESULTS, ROOT, Stopwatch, parser, write_rows_csv
 
 CASE_SCRIPT = r"""
 import json, sys, time, resource
@@ -58,13 +53,13 @@ print("RESULT" + json.dumps({"stats": rec["stats"], "scenes": rows, "wall": time
 def run_case(name, **spec):
     with tempfile.TemporaryDirectory() as d:
         spec["out"] = str(Path(d) / "out")
-        t0 = time.perf_counter()
-        r = subprocess.run([sys.executable, "-c", CASE_SCRIPT, json.dumps(spec)], capture_output=True, text=True,
-                           cwd=ROOT)
+        with Stopwatch() as t:
+            r = subprocess.run([sys.executable, "-c", CASE_SCRIPT, json.dumps(spec)], capture_output=True, text=True,
+                               cwd=ROOT)
         if r.returncode != 0:
             raise SystemExit(f"case {name} failed:\n{r.stderr[-3000:]}")
         res = json.loads(r.stdout.split("RESULT", 1)[1])
-        res["process_wall"] = time.perf_counter() - t0
+        res["process_wall"] = t.wall_s
         res["name"], res["spec"] = name, spec
         return res
 
@@ -94,9 +89,7 @@ def plot_memory(rows, path):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="smaller cases (for a smoke run)")
-    args = ap.parse_args()
+    args = parser(__doc__, quick="smaller cases (for a smoke run)").parse_args()
     q = args.quick
     cases = [
         run_case("demo (320x240, 32 spp)", renders=4, per_scene=2, res=[320, 240], samples=32, parts=[3, 3, 2]),
@@ -137,10 +130,7 @@ def main():
     lines += ["", f"RSS growth from scene 2 to scene {len(mem)}: {growth:+.1f} MB; peak RSS "
               f"{cases[-1]['peak_rss_mb']:.0f} MB.", "", "![memory](pipeline_memory.png)"]
     (RESULTS / "pipeline.md").write_text("\n".join(lines) + "\n")
-    with open(RESULTS / "pipeline.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(csv_rows[0]))
-        w.writeheader()
-        w.writerows(csv_rows)
+    write_rows_csv(RESULTS / "pipeline.csv", csv_rows)
     plot_memory(mem, RESULTS / "pipeline_memory.png")
     print("\n".join(lines))
 

@@ -21,23 +21,17 @@ production.png; with `--gpu` (Cycles on the GPU, where there is one) production_
 """
 from __future__ import annotations
 
-import argparse
-import csv
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from report_util import log_x_frame, write_with_notes  # noqa: E402
+from harness import (RESULTS, ROOT, append_row_csv, log_x_frame, machine, parser, read_rows_csv, run_child,
+                     write_with_notes)
 
 BASE_PRESET = ROOT / "datapipe" / "presets" / "bin_picking.json"
 DEVICE = "zivid2plus_m60"
@@ -119,16 +113,12 @@ def run_cell(cell: tuple, args) -> dict:
         pf.write_text(json.dumps(preset(res, parts, material, mode, args.samples, args.seed, args.gpu), indent=1))
         cmd = [sys.executable, "-m", "datapipe", "run", str(pf), "--out", str(out), "--quiet"]
         load0 = os.getloadavg()
-        t0 = time.perf_counter()
         with open(Path(d) / "stderr.txt", "w") as err:
-            proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err,
-                                    env={**os.environ, "PYTHONPATH": str(ROOT)})
-            _, status, usage = os.wait4(proc.pid, 0)
-        proc.returncode = os.waitstatus_to_exitcode(status)
-        wall = time.perf_counter() - t0
+            child = run_child(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
         load1 = os.getloadavg()
-        if proc.returncode != 0:
-            raise RuntimeError(f"cell {cell_key(*cell)} failed (exit {proc.returncode}):\n"
+        if child.returncode != 0:
+            raise RuntimeError(f"cell {cell_key(*cell)} failed (exit {child.returncode}):\n"
                                f"{(Path(d) / 'stderr.txt').read_text()[-3000:]}")
         rec = json.loads((out / "run.json").read_text())
         scene = json.loads(next(out.glob("scene.*/scene.json")).read_text())
@@ -142,8 +132,8 @@ def run_cell(cell: tuple, args) -> dict:
            "sl_valid": round(float(sl.get("valid_fraction", float("nan"))), 4),
            "samples": rec["config"]["render"]["samples"], "sl_samples": rec["config"]["structured_light"]["samples"],
            "sim_frames": scene["simulation"].get("frames"), "sim_stages": scene["simulation"].get("stages"),
-           "process_wall_s": round(wall, 2), "process_cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
-           "peak_rss_mib": round(usage.ru_maxrss / 1024, 1),
+           "process_wall_s": round(child.wall_s, 2), "process_cpu_s": round(child.cpu_s, 2),
+           "peak_rss_mib": round(child.peak_rss_mib, 1),
            "load_before": round(load0[0], 2), "load_after": round(load1[0], 2)}
     for k in ("setup", *STAGES):
         v = steps.get(k, {})
@@ -155,30 +145,6 @@ def run_cell(cell: tuple, args) -> dict:
     row["overhead_cpu_s"] = round(row["process_cpu_s"] - row["render_cpu_total_s"], 2)
     row["overhead_wall_s"] = round(row["process_wall_s"] - row["render_wall_total_s"], 2)
     return row
-
-
-def read_rows(path: Path) -> list[dict]:
-    if not path.is_file():
-        return []
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for r in rows:
-        for k, v in r.items():
-            try:
-                r[k] = float(v) if any(c in v for c in ".en") else int(v)
-            except (TypeError, ValueError):
-                pass
-    return rows
-
-
-def append_row(path: Path, row: dict) -> None:
-    """Add one cell to the CSV (rewritten with the union of the columns when they differ)."""
-    rows = read_rows(path)
-    fields = list(dict.fromkeys([*(rows[0].keys() if rows else ()), *row.keys()]))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields, restval="")
-        w.writeheader()
-        w.writerows([*rows, row])
 
 
 # -- scaling ---------------------------------------------------------------------------------------
@@ -236,21 +202,6 @@ def extrapolate_full(rows: list[dict], pix_slopes: dict) -> list[dict]:
 
 
 # -- report ----------------------------------------------------------------------------------------
-def machine() -> str:
-    model = ""
-    try:
-        model = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), "")
-    except OSError:
-        pass
-    mem = ""
-    try:
-        kb = int(next(ln.split()[1] for ln in open("/proc/meminfo") if ln.startswith("MemTotal")))
-        mem = f", {kb / 2 ** 20:.0f} GiB RAM"
-    except (OSError, StopIteration, ValueError):
-        pass
-    return f"{platform.system()} {platform.machine()}, {os.cpu_count()} logical CPUs ({model}){mem}"
-
-
 def shared_drop_cpu(r: dict, renders_per_scene: float = 2.0) -> float:
     """CPU seconds per render when a scene's drop is shared by `renders_per_scene` renders."""
     scene = sum(r[f"{s}_cpu_s"] for s in SCENE_STAGES)
@@ -379,8 +330,7 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="640x480 complete plus 4 larger cells (~70 min on 2 shared cores)")
+    ap = parser(__doc__, quick="640x480 complete plus 4 larger cells (~70 min on 2 shared cores)")
     ap.add_argument("--cells", nargs="+", help="explicit cells RES:PARTS:MATERIAL:MODE (RES WxH or 'full')")
     ap.add_argument("--samples", type=int, default=None, help="native Cycles samples (default: the preset's)")
     ap.add_argument("--seed", type=int, default=0)
@@ -395,7 +345,7 @@ def main(argv=None) -> int:
     csv_path = RESULTS / f"{stem}.csv"
     if not args.report:
         cells = [parse_cell(c) for c in args.cells] if args.cells else (quick_grid() if args.quick else full_grid())
-        done = {r["cell"] for r in read_rows(csv_path)} if args.resume else set()
+        done = {r["cell"] for r in read_rows_csv(csv_path)} if args.resume else set()
         if not args.resume and csv_path.is_file():
             csv_path.unlink()
         for cell in cells:
@@ -403,11 +353,11 @@ def main(argv=None) -> int:
                 continue
             print(f"cell {cell_key(*cell)} (load {os.getloadavg()[0]:.1f}) ...", file=sys.stderr, flush=True)
             row = {**run_cell(cell, args), "command": command}
-            append_row(csv_path, row)
-            write_report(read_rows(csv_path), command, stem, args.gpu)     # what is measured so far
+            append_row_csv(csv_path, row)
+            write_report(read_rows_csv(csv_path), command, stem, args.gpu)     # what is measured so far
             print(f"  {row['render_cpu_total_s']:.0f} CPU s per render, {row['process_wall_s']:.0f} s wall, "
                   f"{row['peak_rss_mib'] / 1024:.2f} GiB", file=sys.stderr, flush=True)
-    rows = read_rows(csv_path)
+    rows = read_rows_csv(csv_path)
     write_report(rows, command, stem, args.gpu)
     plot(rows, RESULTS / f"{stem}.png")
     return 0

@@ -8,17 +8,15 @@ benchmarks/results/ray.md.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from harness import RESULTS, ROOT, Stopwatch, md_table, on_path, parser
 
+on_path()
 from datapipe import config as C  # noqa: E402
 from datapipe.engine import distributed  # noqa: E402
 
@@ -37,30 +35,32 @@ def preset(tmp: Path, renders: int, threads: int) -> Path:
 
 
 def main():
-    ap = argparse.ArgumentParser()
+    ap = parser(__doc__, quick="--renders 2")
     ap.add_argument("--renders", type=int, default=6)
     args = ap.parse_args()
+    if args.quick:
+        args.renders = 2
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "datapipe", "run", str(preset(tmp, args.renders, 2)),
-                        "--out", str(tmp / "one"), "--quiet"], check=True, cwd=ROOT)
-        one = time.perf_counter() - t0
+        with Stopwatch() as t:
+            subprocess.run([sys.executable, "-m", "datapipe", "run", str(preset(tmp, args.renders, 2)),
+                            "--out", str(tmp / "one"), "--quiet"], check=True, cwd=ROOT)
+        one = t.wall_s
 
         merge_s = {}
         real_merge = distributed.merge_shards
 
         def timed_merge(*a, **kw):
-            t = time.perf_counter()
-            try:
-                return real_merge(*a, **kw)
-            finally:
-                merge_s["s"] = time.perf_counter() - t
+            with Stopwatch() as t:
+                try:
+                    return real_merge(*a, **kw)
+                finally:
+                    merge_s["s"] = t.stop().wall_s
         distributed.merge_shards = timed_merge
-        t0 = time.perf_counter()
-        summary = distributed.run_distributed(preset(tmp, args.renders, 1), tmp / "ray", num_shards=2,
-                                              extra_args=["--quiet"], log=lambda m: None)
-        ray_s = time.perf_counter() - t0
+        with Stopwatch() as t:
+            summary = distributed.run_distributed(preset(tmp, args.renders, 1), tmp / "ray", num_shards=2,
+                                                  extra_args=["--quiet"], log=lambda m: None)
+        ray_s = t.wall_s
         same = [json.loads(p.read_text()) for p in sorted((tmp / "one").glob("scene.*/scene.json"))] == \
                [json.loads(p.read_text()) for p in sorted((tmp / "ray").glob("scene.*/scene.json"))]
 
@@ -69,16 +69,18 @@ def main():
         "# One process versus a local Ray run (2 workers)", "",
         f"Demo preset, {n} renders (1 per scene) at 320x240, 16 samples, structured light off, same seed; "
         "this 2-core machine (shared, noisy: compare within the table).", "",
-        "| run | wall s | renders/min | note |", "|---|---|---|---|",
-        f"| one process, Cycles 2 threads | {one:.1f} | {60 * n / one:.1f} | |",
-        f"| Ray, 2 shards x Cycles 1 thread | {ray_s:.1f} | {60 * n / ray_s:.1f} | includes Ray start-up and the merge |",
+        *md_table(["run", "wall s", "renders/min", "note"],
+                  [["one process, Cycles 2 threads", f"{one:.1f}", f"{60 * n / one:.1f}", ""],
+                   ["Ray, 2 shards x Cycles 1 thread", f"{ray_s:.1f}", f"{60 * n / ray_s:.1f}",
+                    "includes Ray start-up and the merge"]]),
         "", f"- speed-up: {one / ray_s:.2f}x; merge of {summary['scenes']} scenes: {merge_s.get('s', float('nan')):.2f} s",
         f"- annotations identical to the one-process run: {same}",
         "- On one 2-core machine Ray can only win what one process leaves idle (scene set-up, simulation and "
         "file writing, which a second process overlaps with rendering); its value is fanning out over "
         "machines, where throughput grows with the number of nodes.",
     ]
-    out = ROOT / "benchmarks" / "results" / "ray.md"
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    out = RESULTS / "ray.md"
     out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -20,22 +20,16 @@ Writes benchmarks/results/rgb_quality.md, rgb_quality.csv and rgb_quality.png.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from harness import Stopwatch, cached_renders, clocked, log_x_frame, on_path, sweep_parser, write_rows_csv, write_with_notes
 
-from bench_sl_render import build_world, timed  # noqa: E402
-from report_util import log_x_frame, write_rows_csv, write_with_notes  # noqa: E402
+on_path()
+from bench_sl_render import build_world  # noqa: E402
 from datapipe import config as C  # noqa: E402
 
 SEED, REF_SEED, REF_SAMPLES = 1234, 99, 1024
@@ -80,7 +74,7 @@ def render_all(cases, cache: Path, log):
     rd.border_min_x, rd.border_max_x, rd.border_min_y, rd.border_max_y = BORDER
     if "reference" not in meta:
         apply(renderer, {"samples": REF_SAMPLES, "adaptive": 0.0, "denoise": False})
-        out, wall, cpu = timed(lambda: renderer.render(tmp / "ref", REF_SEED))
+        out, wall, cpu = clocked(lambda: renderer.render(tmp / "ref", REF_SEED))
         np.save(cache / "reference.npy", out.rgb)
         meta["reference"] = {"wall": wall, "cpu": cpu, "shape": list(out.rgb.shape)}
         meta_path.write_text(json.dumps(meta, indent=1))
@@ -89,7 +83,7 @@ def render_all(cases, cache: Path, log):
         apply(renderer, c)
         runs = []
         for _ in range(2):
-            out, wall, cpu = timed(lambda: renderer.render(tmp / "c", SEED))
+            out, wall, cpu = clocked(lambda: renderer.render(tmp / "c", SEED))
             runs.append((cpu, wall))
         cpu, wall = min(runs)
         np.save(cache / f"{key(c)}.npy", out.rgb)
@@ -104,7 +98,7 @@ def render_all(cases, cache: Path, log):
             times = []
             for pose in range(3):
                 camera.set_pose(pose)
-                _, wall, cpu = timed(lambda: renderer.render(tmp / "p", SEED))
+                _, wall, cpu = clocked(lambda: renderer.render(tmp / "p", SEED))
                 times.append(cpu)
             res[str(pd)] = times
             log(f"  persistent data {pd}: {times}")
@@ -234,19 +228,13 @@ def report(rows, meta, out_dir: Path, elapsed: float):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "datapipe_rgb_quality")
-    ap.add_argument("--report-only", action="store_true")
-    ap.add_argument("--out", type=Path, default=RESULTS)
-    a = ap.parse_args(argv)
-    a.cache.mkdir(parents=True, exist_ok=True)
+    a = sweep_parser(__doc__, "datapipe_rgb_quality", quick="samples 8 and 32 only").parse_args(argv)
     log = lambda s: print(s, flush=True)  # noqa: E731
-    t0 = time.perf_counter()
+    clock = Stopwatch().start()
     cases = plan(a.quick)
-    meta = json.loads((a.cache / "renders.json").read_text()) if a.report_only else render_all(cases, a.cache, log)
+    meta = cached_renders(a, cases, render_all, log)
     rows = evaluate(cases, meta, a.cache)
-    report(rows, meta, a.out, time.perf_counter() - t0)
+    report(rows, meta, a.out, clock.stop().wall_s)
     for r in pareto(rows):
         log(f"pareto: {label(r)} {r['cpu_s']:.2f} CPU s {r['psnr_db']:.2f} dB")
 

@@ -17,48 +17,29 @@ at 1920x1080 on that scene: benchmarks/results/sl_coverage_curves.md, .csv and .
 """
 from __future__ import annotations
 
-import argparse
-import csv
 import gc
-import os
-import platform
 import sys
-import time
 import tracemalloc
-from pathlib import Path
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
-sys.path.insert(0, os.path.join(ROOT, "tests", "sl"))
-sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+from harness import RESULTS, Stopwatch, machine, on_path, parser, round_robin, timed, write_rows_csv, write_with_notes
 
+on_path("tests/sl")
 import synth  # noqa: E402
-from report_util import write_with_notes  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.sl import Triangulator  # noqa: E402
 from datapipe.sl.metrics import effective_period, theoretical_phase_sigma  # noqa: E402
-
-RESULTS = os.path.join(ROOT, "benchmarks", "results")
-TWO_PI = 2 * np.pi
+from sl_decoder_coverage import TWO_PI, coverage_main, opencv_psp  # noqa: E402
 
 
-def timeit(fn, repeat=5, cpu=False):
-    """Best and median wall time (ms); with cpu=True also the best process CPU time (ms), which
-    other jobs on this shared 2-core machine do not inflate."""
-    fn()
-    ts, cs = [], []
-    for _ in range(repeat):
-        gc.collect()
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-        cs.append(time.process_time() - c0)
-    out = (min(ts) * 1e3, float(np.median(ts)) * 1e3)
-    return out + (min(cs) * 1e3,) if cpu else out
+def best_ms(fn, repeat: int) -> tuple[float, float, float]:
+    """Best and median wall ms and best process CPU ms of `fn` after one warm-up call: the best is the
+    figure other jobs on this shared 2-core machine inflate least."""
+    _, t = timed(fn, repeat=repeat, warmup=True)
+    return t.best_wall_s * 1e3, t.wall_s * 1e3, t.best_cpu_s * 1e3
 
 
 def peak_memory(fn):
@@ -106,39 +87,14 @@ def naive_decode(images, periods, P_cam, P_proj, Wp, T_world_cam):
 
 
 # ----------------------------------------------------------------------------------------------
-def opencv_psp(images_u8, K, proj_size):
-    p = cv2.structured_light.SinusoidalPattern.Params()
-    p.width, p.height = proj_size
-    p.nbrOfPeriods = K
-    p.methodId = cv2.structured_light.PSP
-    return cv2.structured_light.SinusoidalPattern.create(p)
-
-
 def run_opencv(images_u8, K, proj_size, cam_size):
-    pat = opencv_psp(images_u8, K, proj_size)
+    pat = opencv_psp(K, proj_size)
     frames = list(images_u8)
-    t0 = time.perf_counter()
-    wrapped, mask = pat.computePhaseMap(frames)
-    t1 = time.perf_counter()
-    unwrapped = pat.unwrapPhaseMap(wrapped, cam_size, shadowMask=mask)
-    t2 = time.perf_counter()
-    return wrapped, mask, unwrapped, (t1 - t0) * 1e3, (t2 - t1) * 1e3
-
-
-def side_by_side(fns: dict, repeat: int) -> dict:
-    """Best wall and CPU ms of each callable, run in turns (round robin) so that the load of this
-    shared machine falls on all of them alike."""
-    best = {k: [np.inf, np.inf] for k in fns}
-    for f in fns.values():
-        f()
-    for _ in range(repeat):
-        for k, f in fns.items():
-            gc.collect()
-            c0, t0 = time.process_time(), time.perf_counter()
-            f()
-            t, c = (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3
-            best[k] = [min(best[k][0], t), min(best[k][1], c)]
-    return best
+    with Stopwatch() as t_phase:
+        wrapped, mask = pat.computePhaseMap(frames)
+    with Stopwatch() as t_unwrap:
+        unwrapped = pat.unwrapPhaseMap(wrapped, cam_size, shadowMask=mask)
+    return wrapped, mask, unwrapped, t_phase.wall_s * 1e3, t_unwrap.wall_s * 1e3
 
 
 def dark_step_rows(rep: int) -> list[dict]:
@@ -155,7 +111,7 @@ def dark_step_rows(rep: int) -> list[dict]:
                 gt = synth.render(synth.dark_step_scene(), cam, proj, periods, steps)
                 stack = synth.sensor_stack(gt, seed=0)
                 kw = dict(periods=periods, steps=steps, P_cam=cam.P, P_proj=proj.P, proj_size=proj.size)
-                t = side_by_side({"d": lambda: sl.decode(stack, **kw)}, max(2, rep // 2))["d"]
+                t = round_robin({"d": lambda: sl.decode(stack, **kw)}, max(2, rep // 2))["d"]
                 res = sl.decode(stack, **kw)
                 wrong = res.valid & ~(np.abs(res.proj_x - gt.proj_x) < 1280 / max(periods) / 2)
                 top = gt.albedo == 0.04
@@ -165,7 +121,8 @@ def dark_step_rows(rep: int) -> list[dict]:
                                 dark_top_wrong=float(wrong[top].mean()),
                                 wrong_conf_0999=int(np.sum(wrong & (res.confidence >= 0.999))),
                                 filled=int(np.sum(res.reason == sl.Reason.NEIGHBOUR_ORDER)),
-                                shadow_valid=float(res.valid[gt.shadow].mean()), best_ms=t[0], cpu_ms=t[1]))
+                                shadow_valid=float(res.valid[gt.shadow].mean()), best_ms=t.best_wall_s * 1e3,
+                                cpu_ms=t.best_cpu_s * 1e3))
                 print(out[-1], flush=True)
     return out
 
@@ -223,389 +180,176 @@ def draw_plot(path, series, theory, title):
 
 
 # ----------------------------------------------------------------------------------------------
-def dark_patch_albedo(shape):
-    """Albedo 0.6 with patches 0.05-0.15 and a ramp 0.05 -> 0.6 over the left fifth (issue #10's scene)."""
-    H, W = shape
-    a = np.full(shape, 0.6)
-    a[:, :W // 5] = np.linspace(0.05, 0.6, H)[:, None]
-    for fy, fx, v in [(0.08, 0.28, 0.05), (0.08, 0.55, 0.08), (0.55, 0.28, 0.1), (0.55, 0.55, 0.15),
-                      (0.3, 0.8, 0.05)]:
-        a[int(fy * H):int((fy + 0.3) * H), int(fx * W):int((fx + 0.15) * W)] = v
-    return a
+@dataclass
+class BoxScene:
+    """The standard scene: box on a plane, 1920x1080 camera 1 m above it, 1280x800 projector,
+    analytic ground truth; the industrial sensor (12-bit) and its 8-bit variant."""
+    cam: object
+    proj: object
+    gt: object
+    cam_size: tuple = (1920, 1080)
+    proj_size: tuple = (1280, 800)
+    sensor: object = None
+    sensor8: object = None
+
+    @property
+    def Wp(self) -> int:
+        return self.proj_size[0]
+
+    def images(self, periods, steps, model=None, seed=0, exposure=1.0):
+        rad = synth.fringes(self.gt, periods, steps, self.Wp) * exposure
+        return (model or self.sensor).apply(rad, seed)
 
 
-def dark_stack(gt, alb, periods, steps, Wp, noise=0.01, seed=0):
-    """uint8 stack: pattern (a = b = 0.5) x albedo, full scale 255, Gaussian noise `noise` of full
-    scale, rounded. Returns (stack, noise sigma in DN incl. quantisation)."""
-    rad = synth.fringes(gt, periods, steps, Wp) * alb
-    rng = np.random.default_rng(seed)
-    dn = np.clip(np.rint(rad * 255.0 + rng.normal(0, noise * 255.0, rad.shape)), 0, 255).astype(np.uint8)
-    return dn, float(np.sqrt((noise * 255.0) ** 2 + 1 / 12))
-
-
-def draw_curve(path, curves, points, title):
-    """Correct coverage (y, linear) vs wrong orders among valid (x, log) with cv2 primitives."""
-    Wd, Hd = 1300, 720
-    img = np.full((Hd, Wd, 3), 255, np.uint8)
-    L, R, T, B = 90, 430, 70, 80
-    lx0, lx1 = -6.0, 0.0
-    allc = [c for pts in curves.values() for _, c in pts] + [c for _, c, _ in points.values()]
-    y0 = max(0.0, np.floor(min(allc) * 10) / 10)
-
-    def px(w, c):
-        X = L + (np.log10(max(w, 10 ** lx0)) - lx0) / (lx1 - lx0) * (Wd - L - R)
-        Y = Hd - B - (c - y0) / (1.0 - y0) * (Hd - T - B)
-        return int(round(X)), int(round(Y))
-
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    cv2.rectangle(img, (L, T), (Wd - R, Hd - B), (0, 0, 0), 1)
-    for e in range(int(lx0), int(lx1) + 1):
-        X, _ = px(10.0 ** e, y0)
-        cv2.line(img, (X, T), (X, Hd - B), (220, 220, 220), 1)
-        cv2.putText(img, f"1e{e}" if e > lx0 else "<=1e-6", (X - 20, Hd - B + 22), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    for c in np.arange(y0, 1.0001, 0.05):
-        _, Y = px(1e-3, c)
-        cv2.line(img, (L, Y), (Wd - R, Y), (220, 220, 220), 1)
-        cv2.putText(img, f"{c:.2f}", (L - 50, Y + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, "wrong orders / valid pixels", (L + 250, Hd - 30), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, "correct / lit", (10, T - 20), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, title, (L, 30), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    colours = [(230, 150, 150), (200, 40, 20), (150, 230, 150), (20, 140, 20), (150, 150, 240), (30, 30, 200),
-               (230, 150, 230), (150, 20, 150), (0, 120, 230), (0, 0, 0), (120, 120, 120)]
-    ly = T + 10
-    for i, (label, pts) in enumerate(list(curves.items()) + [(k, [(w, c)]) for k, (w, c, _) in points.items()]):
-        col = colours[i % len(colours)]
-        for a, b in zip(pts[:-1], pts[1:]):
-            cv2.line(img, px(*a), px(*b), col, 1, cv2.LINE_AA)
-        for p in pts:
-            cv2.circle(img, px(*p), 4, col, -1, cv2.LINE_AA)
-        cv2.circle(img, (Wd - R + 20, ly), 4, col, -1, cv2.LINE_AA)
-        cv2.putText(img, label, (Wd - R + 32, ly + 5), font, 0.42, (0, 0, 0), 1, cv2.LINE_AA)
-        ly += 24
-    cv2.imwrite(path, img)
-
-
-def coverage_main(rep=3):
-    """Coverage / wrong-order curves on the dark-patch scene (module doc)."""
-    cam_size, proj_size = (640, 360), (1280, 800)
-    Wp = proj_size[0]
-    cam, proj = synth.make_rig(cam_size=cam_size, proj_size=proj_size)
-    gt = synth.render(synth.box_scene(), cam, proj, (1,), 3)
-    alb = dark_patch_albedo(gt.depth.shape)
-    lit = gt.lit
-    rows, curves, points, lines = [], {}, {}, []
-    sweeps = (1e-9, 1e-6, 1e-4, 1e-3, 1e-2, 0.05, 0.2, 0.5, 1.0)
-
-    def judge(x, valid, half):
-        right = np.abs(x - gt.proj_x) < half
-        return float(np.mean((valid & right)[lit])), float(np.sum(valid & ~right) / max(1, valid.sum()))
-
-    for periods, label in (((1, 16), "2 x 4 hierarchical (1, 16)"), ((16, 15), "2 x 4 (16, 15)"),
-                           ((1, 8, 64), "3 x 4 hierarchical (1, 8, 64)"), ((13, 7), "2 x 4 coprime (13, 7)")):
-        dn, sig = dark_stack(gt, alb, periods, 4, Wp)
-        kw = dict(periods=periods, steps=4, P_cam=cam.P, P_proj=proj.P, proj_size=proj_size, noise_sigma=sig)
-        half = Wp / max(periods) / 2
-        base = sl.decode(dn, **kw, max_wrong=1.0, spatial=False)
-        ux = sl.unwrap_phase(base.wrapped, periods, proj_width=Wp).x
-        oracle = float(np.mean((np.abs(ux - gt.proj_x) < half)[lit]))
-        for spatial in (False, True):
-            name = f"{label}, {'own + neighbours' if spatial else 'own frequencies only'}"
-            pts = []
-            for mw in sweeps:
-                res = sl.decode(dn, **kw, max_wrong=mw, spatial=spatial)
-                cov, wr = judge(res.proj_x, res.valid, half)
-                pts.append((wr, cov))
-                rows.append(dict(set=label, decoder="ours", spatial=spatial, max_wrong=mw, correct_of_lit=cov,
-                                 wrong_of_valid=wr, oracle=oracle))
-            curves[name] = sorted(pts)
-        legacy = sl.decode(dn, **kw, order_sigmas=5.0, max_order_error=0.25, spatial=False,
-                           min_modulation=None)
-        cov, wr = judge(legacy.proj_x, legacy.valid, half)
-        rows.append(dict(set=label, decoder="former rules (5 sigma floor + max_order_error 0.25)",
-                         correct_of_lit=cov, wrong_of_valid=wr, oracle=oracle))
-        dflt = sl.decode(dn, **kw)
-        dcov, dwr = judge(dflt.proj_x, dflt.valid, half)
-        lines.append(f"| {label} | {oracle:.4f} | {dcov:.4f} | {dwr:.1e} | {cov:.4f} | {wr:.1e} |")
-        if periods == (1, 16):
-            points["oracle (1, 16)"] = (1e-6, oracle, None)
-            points["former rules (1, 16)"] = (max(wr, 1e-6), cov, None)
-    # OpenCV PSP (3 images of K = 16) + its spatial unwrapping, mask = our modulation threshold
-    K = 16
-    u8, sig = dark_stack(gt, alb, (K,), 3, Wp, seed=3)
-    pat = opencv_psp(u8, K, proj_size)
-    wrapped, _ = pat.computePhaseMap(list(u8))
-    mod = sl.phase_shift(u8).modulation
-    s = sig * np.sqrt(2 / 3)
-    gphi = TWO_PI * K * gt.proj_x / Wp
-    pts = []
-    for t in (1, 2, 3, 4, 6, 8, 12):
-        mask = (mod > t * s).astype(np.uint8) * 255
-        unw = pat.unwrapPhaseMap(wrapped, cam_size, shadowMask=mask)
-        v = (mask > 0)
-        d = unw - gphi
-        off = np.nanmedian(d[v & lit])
-        right = np.abs(d - off) < np.pi
-        cov = float(np.mean((v & right)[lit]))
-        wr = float(np.sum(v & ~right) / max(1, v.sum()))
-        pts.append((wr, cov))
-        rows.append(dict(set=f"OpenCV PSP K={K} (3 images)", decoder="opencv", threshold_sigmas=t,
-                         correct_of_lit=cov, wrong_of_valid=wr))
-    curves[f"OpenCV PSP K={K} + unwrapPhaseMap"] = sorted(pts)
-    # speed on the same scene at 1920x1080 (2 x 4 hierarchical and (16, 15))
-    camL, projL = synth.make_rig(cam_size=(1920, 1080), proj_size=proj_size)
-    gtL = synth.render(synth.box_scene(), camL, projL, (1,), 3)
-    albL = dark_patch_albedo(gtL.depth.shape)
-    speed = []
-    sensor = sl.SensorModel.preset("industrial")
-    for periods, scene in (((1, 16), "dark"), ((16, 15), "dark"), ((1, 16), "plain"), ((16, 15), "plain")):
-        if scene == "dark":
-            dn, sig = dark_stack(gtL, albL, periods, 4, Wp)
-        else:        # the standard benchmark's images: industrial sensor, uint16, no dark patches
-            dn, sat = sensor.apply(synth.fringes(gtL, periods, 4, Wp), 0)
-            sig = sensor.noise_sigma
-        kw = dict(periods=periods, steps=4, P_cam=camL.P, P_proj=projL.P, proj_size=proj_size, noise_sigma=sig)
-        sl.decode(dn, **kw)
-        for spatial in (True, False):
-            t_best, t_med, c_best = timeit(lambda: sl.decode(dn, **kw, spatial=spatial), repeat=rep, cpu=True)
-            res = sl.decode(dn, **kw, spatial=spatial)
-            cov, wr = (lambda h: (float(np.mean((res.valid & (np.abs(res.proj_x - gtL.proj_x) < h))[gtL.lit])),
-                                  0.0))(Wp / max(periods) / 2)
-            speed.append(f"| {scene} | {periods} | {'yes' if spatial else 'no'} | {t_best:.0f} | {t_med:.0f} | "
-                         f"{c_best:.0f} | {cov:.4f} |")
-            rows.append(dict(set=str(periods), decoder="ours 1920x1080 dark scene", spatial=spatial,
-                             best_ms=t_best, median_ms=t_med, cpu_ms=c_best, correct_of_lit=cov))
-    _write_coverage(rows, curves, points, lines, speed, rep)
-
-
-def _write_coverage(rows, curves, points, lines, speed, rep):
-    draw_curve(os.path.join(RESULTS, "sl_coverage_curves.png"), curves, points,
-               "dark-patch box scene, 1% noise, uint8: correct coverage vs wrong orders")
-    keys = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    with open(os.path.join(RESULTS, "sl_coverage_curves.csv"), "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    md = [
-        "# Decoder coverage vs wrong orders (issue #10)",
-        "",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared), numpy "
-        f"{np.__version__}, OpenCV {cv2.__version__}. Scene: box 0.2 x 0.2 x 0.15 m on a plane (depth step, "
-        "projector shadow), albedo 0.6 with five patches of 0.05-0.15 and a ramp 0.05 -> 0.6, camera 640x360 at 1 m, "
-        "projector 1280x800, baseline 0.15 m; uint8 stacks, Gaussian noise 1% of full scale (2.55 DN) + "
-        "rounding; the decoder gets the noise sigma. Judged against the ray-cast truth: correct = valid and within "
-        "half a finest period; wrong = valid and not.",
-        "",
-        "## Default decision vs oracle and the former rules",
-        "",
-        "Oracle: the same wrapped phases unwrapped with no mask at all (what a per-pixel decision could keep at "
-        "best). Default: `max_wrong=1e-3` with the neighbour pass. Former: `order_sigmas=5, max_order_error=0.25` "
-        "(and no neighbours; the modulation floor is the new joint one in both).",
-        "",
-        "| periods x 4 | oracle correct / lit | default correct / lit | default wrong / valid | former correct / lit | former wrong / valid |",
-        "|---|---|---|---|---|---|",
-    ] + lines + [
-        "",
-        "## Curves (sl_coverage_curves.png, sl_coverage_curves.csv)",
-        "",
-        "Ours: `max_wrong` swept over 1e-9 .. 1 (the decoder's probability that an order is wrong, "
-        "`1 - DecodeResult.confidence`), with and without the neighbour pass. OpenCV: `SinusoidalPattern` PSP on "
-        "the 3 images of K = 16 (its design: exactly 3 steps), `unwrapPhaseMap` with a shadow mask from a "
-        "modulation threshold of 1..12 noise sigmas (its own mask, mean > 10, ignores modulation); its "
-        "unwrapping is relative, so errors are counted after removing the median offset. `fringes` 2.1 was not "
-        "run here (needs numpy 2 and a 22 s numba compile); the issue's measurement on this kind of scene: 72-88% "
-        "of lit pixels right with 12-28% wrong among its valid pixels, 1.2 / 1.5 s per 1080p decode.",
-        "",
-        "| curve | points (wrong / valid, correct / lit) |",
-        "|---|---|",
-    ]
-    for name, pts in curves.items():
-        md.append(f"| {name} | " + ", ".join(f"({w:.1e}, {c:.3f})" for w, c in pts) + " |")
-    md += [
-        "",
-        f"## Speed at 1920x1080 (best of {rep}; CPU = process time)",
-        "",
-        "dark: the dark-patch scene above at 1920x1080 (uint8, 1% noise); plain: the standard benchmark's box "
-        "scene through the `industrial` sensor (uint16), where every order is sure and the neighbour pass is "
-        "skipped. The neighbour pass grows one pixel per pass into uncertain regions, so its cost follows their "
-        "size; `decode(spatial=False)` leaves it out.",
-        "",
-        "| scene | periods x 4 | neighbour pass | best ms | median ms | CPU ms | correct / lit |",
-        "|---|---|---|---|---|---|---|",
-    ] + speed + [""]
-    write_with_notes(Path(RESULTS) / "sl_coverage_curves.md", md)
-    print("\n".join(md))
-
-
-# ----------------------------------------------------------------------------------------------
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="smaller sweep, fewer repeats")
-    ap.add_argument("--coverage", action="store_true", help="only the coverage / wrong-order curves")
-    args = ap.parse_args()
-    rep = 3 if args.quick else 7
-    os.makedirs(RESULTS, exist_ok=True)
-    if args.coverage:
-        coverage_main(rep)
-        return
-    rows = []          # csv rows
-    lines = []         # markdown
-
+def box_scene() -> BoxScene:
     cam_size, proj_size = (1920, 1080), (1280, 800)
-    Wp = proj_size[0]
     cam, proj = synth.make_rig(cam_size=cam_size, proj_size=proj_size)
-    t0 = time.perf_counter()
-    gt = synth.render(synth.box_scene(), cam, proj, (1,), 3)
-    print(f"ground truth ray cast: {time.perf_counter() - t0:.1f} s", flush=True)
-    lit = gt.lit
-    sensor = sl.SensorModel.preset("industrial")
-    sensor8 = sl.SensorModel.preset("industrial_8bit")
-    jump = np.nanmax(np.abs(np.diff(gt.proj_x, axis=1)))
+    with Stopwatch() as t:
+        gt = synth.render(synth.box_scene(), cam, proj, (1,), 3)
+    print(f"ground truth ray cast: {t.wall_s:.1f} s", flush=True)
+    return BoxScene(cam, proj, gt, cam_size, proj_size, sl.SensorModel.preset("industrial"),
+                    sl.SensorModel.preset("industrial_8bit"))
 
-    def images(periods, steps, model=sensor, seed=0, exposure=1.0):
-        rad = synth.fringes(gt, periods, steps, Wp) * exposure
-        return model.apply(rad, seed)
 
-    # ---------------- our decoder: speed & memory -----------------------------------------
+def speed_rows(sc: BoxScene, rep: int) -> list[dict]:
+    """Our decoder's speed, memory and accuracy per configuration and input dtype."""
     speed = []
     configs = [((1, 16), 4, "2 x 4 hierarchical"), ((16, 15), 4, "2 x 4 heterodyne"),
                ((1, 8, 64), 4, "3 x 4 hierarchical"), ((1, 8, 64), 3, "3 x 3 hierarchical")]
     for periods, steps, label in configs:
-        dn, sat = images(periods, steps)
+        dn, sat = sc.images(periods, steps)
         for dtype_label, stack in (("uint16", dn), ("float32", dn.astype(np.float32))):
-            kw = dict(periods=periods, steps=steps, P_cam=cam.P, P_proj=proj.P, proj_size=proj_size,
-                      saturation=sat, noise_sigma=sensor.noise_sigma)
+            kw = dict(periods=periods, steps=steps, P_cam=sc.cam.P, P_proj=sc.proj.P, proj_size=sc.proj_size,
+                      saturation=sat, noise_sigma=sc.sensor.noise_sigma)
 
             def first():
                 Triangulator.clear_cache()
                 return sl.decode(stack, **kw)
 
-            t_first, _, c_first = timeit(first, repeat=rep, cpu=True)
+            t_first, _, c_first = best_ms(first, rep)
             Triangulator.clear_cache()
             sl.decode(stack, **kw)
-            t_cached, t_med, c_cached = timeit(lambda: sl.decode(stack, **kw), repeat=rep, cpu=True)
-            t_default, _, c_default = timeit(lambda: sl.decode(stack, **{**kw, "noise_sigma": None}), repeat=rep,
-                                             cpu=True)
+            t_cached, t_med, c_cached = best_ms(lambda: sl.decode(stack, **kw), rep)
+            t_default, _, c_default = best_ms(lambda: sl.decode(stack, **{**kw, "noise_sigma": None}), rep)
             Triangulator.clear_cache()
             mem_first = peak_memory(lambda: sl.decode(stack, **kw))
             mem_cached = peak_memory(lambda: sl.decode(stack, **kw))
             res = sl.decode(stack, **kw)
-            st = sl.depth_error_stats(res.depth, gt.depth, res.valid, lit=lit, shadow=gt.shadow)
-            oe = order_error_fraction(res.proj_x, gt.proj_x, res.valid, Wp / max(periods))
-            row = dict(kind="ours", config=label, images=len(periods) * steps, dtype=dtype_label,
-                       first_ms=t_first, cached_ms=t_cached, cached_median_ms=t_med, first_cpu_ms=c_first,
-                       cached_cpu_ms=c_cached, default_noise_ms=t_default, default_noise_cpu_ms=c_default,
-                       peak_mem_first_x=mem_first / stack.nbytes, peak_mem_cached_x=mem_cached / stack.nbytes,
-                       stack_mb=stack.nbytes / 1e6, rmse_mm=st["rmse"] * 1e3, median_abs_mm=st["median_abs"] * 1e3,
-                       p99_mm=st["p99"] * 1e3, decoded_fraction=st["decoded_fraction"],
-                       false_valid_shadow=st["false_valid_shadow"], order_error_fraction=oe)
-            speed.append(row)
-            rows.append(row)
+            st = sl.depth_error_stats(res.depth, sc.gt.depth, res.valid, lit=sc.gt.lit, shadow=sc.gt.shadow)
+            oe = order_error_fraction(res.proj_x, sc.gt.proj_x, res.valid, sc.Wp / max(periods))
+            speed.append(dict(
+                kind="ours", config=label, images=len(periods) * steps, dtype=dtype_label,
+                first_ms=t_first, cached_ms=t_cached, cached_median_ms=t_med, first_cpu_ms=c_first,
+                cached_cpu_ms=c_cached, default_noise_ms=t_default, default_noise_cpu_ms=c_default,
+                peak_mem_first_x=mem_first / stack.nbytes, peak_mem_cached_x=mem_cached / stack.nbytes,
+                stack_mb=stack.nbytes / 1e6, rmse_mm=st["rmse"] * 1e3, median_abs_mm=st["median_abs"] * 1e3,
+                p99_mm=st["p99"] * 1e3, decoded_fraction=st["decoded_fraction"],
+                false_valid_shadow=st["false_valid_shadow"], order_error_fraction=oe))
             print(f"ours {label} {dtype_label}: first {t_first:.0f} ms, cached {t_cached:.0f} ms "
                   f"(median {t_med:.0f}), mem {mem_first / stack.nbytes:.2f}x/{mem_cached / stack.nbytes:.2f}x, "
                   f"rmse {st['rmse'] * 1e3:.3f} mm, order errors {oe:.2e}", flush=True)
+    return speed
 
-    # ---------------- OpenCV PSP + spatial unwrap vs ours, 8-bit -------------------------------
-    K = 16
-    cv_rows = []
-    for noise_label, model, exposure in (("8-bit sensor", sensor8, 1.0),):
-        u8_6, sat8 = images((1, K), 3, model=model, seed=1, exposure=exposure)
-        u8_3 = u8_6[3:]      # the very same K-period images
-        cv2.setNumThreads(cv2.getNumberOfCPUs())
-        wr, mask, unw, t_ph, t_un = run_opencv(u8_3, K, proj_size, cam_size)
-        ts_ph, ts_un = [t_ph], [t_un]
-        for _ in range(rep - 1):
-            _, _, _, a, b = run_opencv(u8_3, K, proj_size, cam_size)
-            ts_ph.append(a)
-            ts_un.append(b)
-        t_ph, t_un = min(ts_ph), min(ts_un)
-        gphi = TWO_PI * K * gt.proj_x / Wp
-        v = lit & (mask > 0)
-        cv_wr_rms = float(np.sqrt(np.mean(wrap(wr - gphi)[v] ** 2)))
-        off = np.median((unw - gphi)[v])
-        resid = (unw - gphi - off)
-        cv_order = float(np.mean(np.abs(resid[v]) > np.pi))
-        cv_valid_lit = float(np.mean(mask[lit] > 0))
-        cv_false_shadow = float(np.mean(mask[gt.shadow] > 0)) if gt.shadow.any() else float("nan")
-        # ours: phase stage on the same 3 images
-        t_ours_ph, _ = timeit(lambda: sl.phase_shift(u8_3), repeat=rep)
-        ph = sl.phase_shift(u8_3)
-        our_wr_rms = float(np.sqrt(np.mean(wrap(ph.phase - gphi)[lit] ** 2)))
-        # the issue's comparison: a complete (1, K) x 4 decode (2 frequencies x 4 steps, 8-bit) against
-        # OpenCV's phase + unwrap, in turns in the same run, wall and CPU (OpenCV uses every core)
-        u8_8, sat8_4 = images((1, K), 4, model=model, seed=1, exposure=exposure)
-        kw4 = dict(periods=(1, K), steps=4, P_cam=cam.P, P_proj=proj.P, proj_size=proj_size, saturation=sat8_4)
-        vs = side_by_side({"opencv": lambda: run_opencv(u8_3, K, proj_size, cam_size),
-                           "ours, sensor noise": lambda: sl.decode(u8_8, **kw4, noise_sigma=model.noise_sigma),
-                           "ours, defaults": lambda: sl.decode(u8_8, **kw4)}, rep)
-        for k, (tw, tc) in vs.items():
-            rows.append(dict(kind="vs_opencv", config=k, images=3 if k == "opencv" else 8, best_ms=tw, cpu_ms=tc))
-        # ours: full decode of (1, K) x 3 (6 images: absolute, with triangulation and masks)
-        kw = dict(periods=(1, K), steps=3, P_cam=cam.P, P_proj=proj.P, proj_size=proj_size,
-                  saturation=sat8, noise_sigma=model.noise_sigma)
-        Triangulator.clear_cache()
-        t_full_first, _ = timeit(lambda: (Triangulator.clear_cache(), sl.decode(u8_6, **kw)), repeat=max(2, rep - 2))
-        sl.decode(u8_6, **kw)
-        t_full, _ = timeit(lambda: sl.decode(u8_6, **kw), repeat=rep)
-        res = sl.decode(u8_6, **kw)
-        ours_abs_rms = float(np.sqrt(np.mean((res.phase - gphi)[res.valid] ** 2)))
-        ours_order = order_error_fraction(res.proj_x, gt.proj_x, res.valid, Wp / K)
-        st = sl.depth_error_stats(res.depth, gt.depth, res.valid, lit=lit, shadow=gt.shadow)
-        cv_rows = [
-            dict(kind="opencv", config=f"PSP K={K} + unwrapPhaseMap (3 img)", images=3, phase_ms=t_ph,
-                 unwrap_ms=t_un, total_ms=t_ph + t_un, phase_rms_rad=cv_wr_rms, order_error_fraction=cv_order,
-                 decoded_fraction=cv_valid_lit, false_valid_shadow=cv_false_shadow),
-            dict(kind="ours", config="phase_shift only, same 3 img", images=3, phase_ms=t_ours_ph,
-                 total_ms=t_ours_ph, phase_rms_rad=our_wr_rms),
-            dict(kind="ours", config=f"decode (1,{K}) x 3 (6 img, absolute + depth)", images=6,
-                 total_ms=t_full, first_ms=t_full_first, phase_rms_rad=ours_abs_rms,
-                 order_error_fraction=ours_order, decoded_fraction=st["decoded_fraction"],
-                 false_valid_shadow=st["false_valid_shadow"], rmse_mm=st["rmse"] * 1e3),
-        ]
-        rows += cv_rows
-        for r in cv_rows:
-            print(r, flush=True)
 
-    dark_rows = dark_step_rows(rep)
-    rows += dark_rows
+K_CV = 16           # OpenCV's PSP: 3 images of K periods
 
-    # ---------------- naive per-pixel loop (original DataPipe) ------------------------------
+
+def opencv_phase_rows(sc: BoxScene, u8_3, rep: int) -> list[dict]:
+    """OpenCV's PSP + spatial unwrapping against our phase stage, on the same 3 8-bit images."""
+    K, gt = K_CV, sc.gt
+    cv2.setNumThreads(cv2.getNumberOfCPUs())
+    runs = [run_opencv(u8_3, K, sc.proj_size, sc.cam_size) for _ in range(rep)]
+    wr, mask, unw = runs[0][:3]
+    t_ph, t_un = min(r[3] for r in runs), min(r[4] for r in runs)
+    gphi = TWO_PI * K * gt.proj_x / sc.Wp
+    v = gt.lit & (mask > 0)
+    off = np.median((unw - gphi)[v])
+    t_ours_ph = best_ms(lambda: sl.phase_shift(u8_3), rep)[0]
+    ph = sl.phase_shift(u8_3)
+    return [
+        dict(kind="opencv", config=f"PSP K={K} + unwrapPhaseMap (3 img)", images=3, phase_ms=t_ph,
+             unwrap_ms=t_un, total_ms=t_ph + t_un, phase_rms_rad=float(np.sqrt(np.mean(wrap(wr - gphi)[v] ** 2))),
+             order_error_fraction=float(np.mean(np.abs((unw - gphi - off)[v]) > np.pi)),
+             decoded_fraction=float(np.mean(mask[gt.lit] > 0)),
+             false_valid_shadow=float(np.mean(mask[gt.shadow] > 0)) if gt.shadow.any() else float("nan")),
+        dict(kind="ours", config="phase_shift only, same 3 img", images=3, phase_ms=t_ours_ph,
+             total_ms=t_ours_ph, phase_rms_rad=float(np.sqrt(np.mean(wrap(ph.phase - gphi)[gt.lit] ** 2)))),
+    ]
+
+
+def opencv_rows(sc: BoxScene, rep: int) -> tuple[list[dict], dict]:
+    """Against OpenCV on 8-bit images: phase stage, a complete (1, K) x 3 decode, and (1, K) x 4 side
+    by side with OpenCV (in turns, wall and CPU: OpenCV uses every core). Returns (the three
+    comparison rows, {method: (best wall ms, best CPU ms)})."""
+    K, model = K_CV, sc.sensor8
+    u8_6, sat8 = sc.images((1, K), 3, model=model, seed=1)
+    u8_3 = u8_6[3:]      # the very same K-period images
+    rows = opencv_phase_rows(sc, u8_3, rep)
+    u8_8, sat8_4 = sc.images((1, K), 4, model=model, seed=1)
+    kw4 = dict(periods=(1, K), steps=4, P_cam=sc.cam.P, P_proj=sc.proj.P, proj_size=sc.proj_size, saturation=sat8_4)
+    vs = round_robin({"opencv": lambda: run_opencv(u8_3, K, sc.proj_size, sc.cam_size),
+                      "ours, sensor noise": lambda: sl.decode(u8_8, **kw4, noise_sigma=model.noise_sigma),
+                      "ours, defaults": lambda: sl.decode(u8_8, **kw4)}, rep)
+    vs = {k: (t.best_wall_s * 1e3, t.best_cpu_s * 1e3) for k, t in vs.items()}
+    # ours: full decode of (1, K) x 3 (6 images: absolute, with triangulation and masks)
+    kw = dict(periods=(1, K), steps=3, P_cam=sc.cam.P, P_proj=sc.proj.P, proj_size=sc.proj_size,
+              saturation=sat8, noise_sigma=model.noise_sigma)
+    Triangulator.clear_cache()
+    t_full_first = best_ms(lambda: (Triangulator.clear_cache(), sl.decode(u8_6, **kw)), max(2, rep - 2))[0]
+    sl.decode(u8_6, **kw)
+    t_full = best_ms(lambda: sl.decode(u8_6, **kw), rep)[0]
+    res = sl.decode(u8_6, **kw)
+    gphi = TWO_PI * K * sc.gt.proj_x / sc.Wp
+    st = sl.depth_error_stats(res.depth, sc.gt.depth, res.valid, lit=sc.gt.lit, shadow=sc.gt.shadow)
+    rows.append(dict(kind="ours", config=f"decode (1,{K}) x 3 (6 img, absolute + depth)", images=6,
+                     total_ms=t_full, first_ms=t_full_first,
+                     phase_rms_rad=float(np.sqrt(np.mean((res.phase - gphi)[res.valid] ** 2))),
+                     order_error_fraction=order_error_fraction(res.proj_x, sc.gt.proj_x, res.valid, sc.Wp / K),
+                     decoded_fraction=st["decoded_fraction"], false_valid_shadow=st["false_valid_shadow"],
+                     rmse_mm=st["rmse"] * 1e3))
+    for r in rows:
+        print(r, flush=True)
+    return rows, vs
+
+
+def naive_rows(sc: BoxScene, rep: int) -> list[dict]:
+    """The original's per-pixel Python loop on a crop, scaled to the frame, against our decode."""
     crop = (slice(500, 532), slice(900, 948))
-    dn6, _ = images((8, 7), 3, seed=2)
+    dn6, _ = sc.images((8, 7), 3, seed=2)
     sub = dn6[:, crop[0], crop[1]].astype(np.float64)
-    # P_cam for the crop: shift the principal point
-    Kc = cam.K.copy()
+    Kc = sc.cam.K.copy()            # P_cam for the crop: shift the principal point
     Kc[0, 2] -= crop[1].start
     Kc[1, 2] -= crop[0].start
-    P_crop = Kc @ np.linalg.inv(cam.T)[:3]
-    t0 = time.perf_counter()
-    nd = naive_decode(sub, (8, 7), P_crop, proj.P, Wp, cam.T)
-    t_naive = (time.perf_counter() - t0) * 1e3
+    P_crop = Kc @ np.linalg.inv(sc.cam.T)[:3]
+    with Stopwatch() as t:
+        nd = naive_decode(sub, (8, 7), P_crop, sc.proj.P, sc.Wp, sc.cam.T)
+    t_naive = t.wall_s * 1e3
     npx = sub.shape[1] * sub.shape[2]
-    t_naive_full = t_naive * (cam_size[0] * cam_size[1]) / npx
-    naive_err = np.nanmax(np.abs(nd - gt.depth[crop])) * 1e3
-    kw = dict(periods=(8, 7), steps=3, P_cam=cam.P, P_proj=proj.P, proj_size=proj_size,
-              saturation=sensor.saturation_level, noise_sigma=sensor.noise_sigma)
+    t_naive_full = t_naive * (sc.cam_size[0] * sc.cam_size[1]) / npx
+    kw = dict(periods=(8, 7), steps=3, P_cam=sc.cam.P, P_proj=sc.proj.P, proj_size=sc.proj_size,
+              saturation=sc.sensor.saturation_level, noise_sigma=sc.sensor.noise_sigma)
     sl.decode(dn6, **kw)
-    t_ours6, _ = timeit(lambda: sl.decode(dn6, **kw), repeat=rep)
-    rows.append(dict(kind="naive", config="per-pixel Python loop, (8,7) x 3 heterodyne + 3x3 solve",
-                     images=6, crop_px=npx, crop_ms=t_naive, total_ms=t_naive_full, max_err_mm=naive_err))
-    rows.append(dict(kind="ours", config="decode (8,7) x 3 heterodyne, same images", images=6, total_ms=t_ours6))
+    t_ours6 = best_ms(lambda: sl.decode(dn6, **kw), rep)[0]
     print(f"naive: {t_naive:.0f} ms for {npx} px -> {t_naive_full / 1e3:.0f} s full frame", flush=True)
+    return [dict(kind="naive", config="per-pixel Python loop, (8,7) x 3 heterodyne + 3x3 solve", images=6,
+                 crop_px=npx, crop_ms=t_naive, total_ms=t_naive_full,
+                 max_err_mm=np.nanmax(np.abs(nd - sc.gt.depth[crop])) * 1e3),
+            dict(kind="ours", config="decode (8,7) x 3 heterodyne, same images", images=6, total_ms=t_ours6)]
 
-    # ---------------- error vs number of images and noise ----------------------------------
+
+def sweep_rows(proj_size, quick: bool) -> list[dict]:
+    """Depth error against the number of images and the noise on a plane, with the theory; draws
+    sl_error_vs_images.png."""
+    Wp = proj_size[0]
     cam_s, proj_s = synth.make_rig(cam_size=(480, 360), proj_size=proj_size)
     gps = synth.render(synth.plane_scene(), cam_s, proj_s, (1,), 3)
     slope = synth.depth_slope(cam_s, proj_s, gps.depth)
     per = (1, 8, 64)
     teff = effective_period(Wp, (8, 64))
-    steps_list = (3, 4, 6, 8) if args.quick else (3, 4, 5, 6, 8, 10)
-    sigmas = (0.005, 0.01, 0.02, 0.04)
-    series, theory = {}, {}
+    steps_list = (3, 4, 6, 8) if quick else (3, 4, 5, 6, 8, 10)
+    rows, series, theory = [], {}, {}
     rng_seed = 100
-    for sigma in sigmas:
+    for sigma in (0.005, 0.01, 0.02, 0.04):
         label = f"noise {sigma * 100:g}% (B = 50%)"
         series[label], theory[label] = [], []
         for n in steps_list:
@@ -625,32 +369,21 @@ def main():
             rows.append(dict(kind="sweep", config=f"(1,8,64) x {n}", images=3 * n, noise=sigma, rmse_mm=rmse * 1e3,
                              theory_mm=th * 1e3, ratio=rmse / th, decoded_fraction=float(res.valid[gps.lit].mean()),
                              order_error_fraction=oe))
-    draw_plot(os.path.join(RESULTS, "sl_error_vs_images.png"), series, theory,
+    draw_plot(str(RESULTS / "sl_error_vs_images.png"), series, theory,
               "datapipe.sl: depth error vs images, periods (1,8,64), plane at ~1 m, b = 0.15 m")
+    return rows
 
-    # ---------------- write results ------------------------------------------------------------
-    keys = []
-    for r in rows:
-        for k in r:
-            if k not in keys:
-                keys.append(k)
-    with open(os.path.join(RESULTS, "sl_decoder.csv"), "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
-    def f(v, fmt="{:.1f}"):
-        return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else fmt.format(v)
-
-    cvr, ourph, ourfull = cv_rows
-    lines += [
+# ----------------------------------------------------------------------------------------------
+def _speed_section(sc: BoxScene, rep: int, speed: list[dict]) -> list[str]:
+    jump = np.nanmax(np.abs(np.diff(sc.gt.proj_x, axis=1)))
+    L = [
         "# datapipe.sl decoder benchmark",
         "",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared), "
-        f"numpy {np.__version__}, OpenCV {cv2.__version__}. Times: best of {rep} runs (median in the CSV).",
-        f"Scene: box 0.2 x 0.2 x 0.15 m on a plane, camera {cam_size[0]}x{cam_size[1]} at 1 m, projector "
-        f"{proj_size[0]}x{proj_size[1]}, baseline 0.15 m; the box edge moves the projector coordinate by up to "
+        f"Machine: {machine()}, numpy {np.__version__}, OpenCV {cv2.__version__}. Times: best of {rep} runs "
+        "(median in the CSV).",
+        f"Scene: box 0.2 x 0.2 x 0.15 m on a plane, camera {sc.cam_size[0]}x{sc.cam_size[1]} at 1 m, projector "
+        f"{sc.proj_size[0]}x{sc.proj_size[1]}, baseline 0.15 m; the box edge moves the projector coordinate by up to "
         f"{jump:.0f} px. Noise: `industrial` sensor (12-bit, 10 ke-, 5 e-). Ground truth: analytic ray casting.",
         "",
         "## Full decode (phase + unwrap + triangulate + masks), 1920x1080",
@@ -659,10 +392,10 @@ def main():
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in speed:
-        lines.append(f"| {r['config']} | {r['images']} | {r['dtype']} | {r['first_ms']:.0f} ({r['first_cpu_ms']:.0f}) | "
-                     f"{r['cached_ms']:.0f} ({r['cached_cpu_ms']:.0f}) | {r['peak_mem_first_x']:.2f}x, {r['peak_mem_cached_x']:.2f}x | "
-                     f"{r['rmse_mm']:.3f} | {r['decoded_fraction']:.4f} | {r['order_error_fraction']:.0e} |")
-    lines += [
+        L.append(f"| {r['config']} | {r['images']} | {r['dtype']} | {r['first_ms']:.0f} ({r['first_cpu_ms']:.0f}) | "
+                 f"{r['cached_ms']:.0f} ({r['cached_cpu_ms']:.0f}) | {r['peak_mem_first_x']:.2f}x, {r['peak_mem_cached_x']:.2f}x | "
+                 f"{r['rmse_mm']:.3f} | {r['decoded_fraction']:.4f} | {r['order_error_fraction']:.0e} |")
+    return L + [
         "",
         "Targets: 2 x 4 at 1920x1080 <= 150 ms and peak extra memory <= 3x the input stack (tracemalloc, "
         "outputs included: 42 bytes per pixel for F = 2 since the confidence map, i.e. 2.6x a uint16 stack by "
@@ -676,6 +409,13 @@ def main():
         f"({speed[0]['default_noise_cpu_ms']:.0f} ms CPU) instead of {speed[0]['cached_ms']:.0f} ms "
         f"({speed[0]['cached_cpu_ms']:.0f} ms CPU) in the first row.",
         "",
+    ]
+
+
+def _opencv_section(rep: int, cv_rows: list[dict], vs: dict) -> list[str]:
+    K = K_CV
+    cvr, ourph, ourfull = cv_rows
+    return [
         f"## Against OpenCV `structured_light.SinusoidalPattern` (PSP, K = {K}), 8-bit images",
         "",
         "| method | images | phase ms | unwrap ms | total ms | phase RMS rad | order errors (box) | decoded / lit | valid in shadow |",
@@ -707,6 +447,11 @@ def main():
           + ("-" if k == "opencv" else f"{vs['opencv'][0] / tw:.1f}x, {vs['opencv'][1] / tc:.1f}x") + " |"
           for k, (tw, tc) in vs.items()],
         "",
+    ]
+
+
+def _dark_section(dark_rows: list[dict]) -> list[str]:
+    return [
         "## Adversarial stacks of issue #19 (dark patch beside a depth step)",
         "",
         "`tests/sl/synth.py` `dark_step_scene()`: floor tilted 8 degrees, boxes 0.13 / 0.25 m high, two "
@@ -724,12 +469,18 @@ def main():
           f"{r['filled']} | {r['shadow_valid'] * 100:.2f}% | {r['best_ms']:.0f} ({r['cpu_ms']:.0f}) |"
           for r in dark_rows],
         "",
+    ]
+
+
+def _naive_and_sweep_sections(naive: list[dict], sweep: list[dict]) -> list[str]:
+    nv, ours = naive
+    return [
         "## Naive per-pixel loop (the original's structure)",
         "",
-        f"Per-pixel Python (3-step atan2, heterodyne 8/7, np.linalg.solve 3x3): {t_naive:.0f} ms on a "
-        f"{npx}-pixel crop -> {t_naive_full / 1e3:.0f} s scaled to 1920x1080, versus {t_ours6:.0f} ms for our "
-        f"`decode` on the same 6 images ({t_naive_full / t_ours6:.0f}x). Its max depth error on the crop: "
-        f"{naive_err:.2f} mm (same images; no validity masks).",
+        f"Per-pixel Python (3-step atan2, heterodyne 8/7, np.linalg.solve 3x3): {nv['crop_ms']:.0f} ms on a "
+        f"{nv['crop_px']}-pixel crop -> {nv['total_ms'] / 1e3:.0f} s scaled to 1920x1080, versus {ours['total_ms']:.0f} ms "
+        f"for our `decode` on the same 6 images ({nv['total_ms'] / ours['total_ms']:.0f}x). Its max depth error on the "
+        f"crop: {nv['max_err_mm']:.2f} mm (same images; no validity masks).",
         "",
         "## Depth error vs number of images and noise (sl_error_vs_images.png)",
         "",
@@ -739,15 +490,36 @@ def main():
         "",
         "| noise | images | depth RMSE mm | theory mm | ratio | decoded / lit | order errors |",
         "|---|---|---|---|---|---|---|",
+        *[f"| {r['noise']:g} | {r['images']} | {r['rmse_mm']:.4f} | {r['theory_mm']:.4f} | "
+          f"{r['ratio']:.3f} | {r['decoded_fraction']:.4f} | {r['order_error_fraction']:.0e} |" for r in sweep],
+        "",
     ]
-    for r in rows:
-        if r["kind"] == "sweep":
-            lines.append(f"| {r['noise']:g} | {r['images']} | {r['rmse_mm']:.4f} | {r['theory_mm']:.4f} | "
-                         f"{r['ratio']:.3f} | {r['decoded_fraction']:.4f} | {r['order_error_fraction']:.0e} |")
-    lines.append("")
-    write_with_notes(Path(RESULTS) / "sl_decoder.md", lines)
+
+
+# ----------------------------------------------------------------------------------------------
+def main(argv=None):
+    ap = parser(__doc__, quick="smaller sweep, fewer repeats")
+    ap.add_argument("--coverage", action="store_true", help="only the coverage / wrong-order curves")
+    args = ap.parse_args(argv)
+    rep = 3 if args.quick else 7
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    if args.coverage:
+        coverage_main(rep)
+        return
+    sc = box_scene()
+    speed = speed_rows(sc, rep)
+    cv_rows, vs = opencv_rows(sc, rep)
+    dark = dark_step_rows(rep)
+    naive = naive_rows(sc, rep)
+    sweep = sweep_rows(sc.proj_size, args.quick)
+    vs_rows = [dict(kind="vs_opencv", config=k, images=3 if k == "opencv" else 8, best_ms=tw, cpu_ms=tc)
+               for k, (tw, tc) in vs.items()]
+    write_rows_csv(RESULTS / "sl_decoder.csv", speed + vs_rows + cv_rows + dark + naive + sweep, float_fmt=".6g")
+    lines = (_speed_section(sc, rep, speed) + _opencv_section(rep, cv_rows, vs) + _dark_section(dark)
+             + _naive_and_sweep_sections(naive, sweep))
+    write_with_notes(RESULTS / "sl_decoder.md", lines)
     print("\n".join(lines))
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -18,24 +18,16 @@ the bound 1 - c, log-log: calibrated points lie on or below the diagonal).
 """
 from __future__ import annotations
 
-import argparse
-import os
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests" / "sl"))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from harness import RESULTS, log_x_frame, on_path, parser, write_rows_csv, write_with_notes
 
+on_path("tests/sl")
 import synth  # noqa: E402
-from report_util import log_x_frame, write_rows_csv, write_with_notes  # noqa: E402
 from datapipe import sl  # noqa: E402
 
-RESULTS = ROOT / "benchmarks" / "results"
 PERIODS = (1, 8, 64)
 WP = 1280
 BOUNDS = (0.5, 0.2, 0.1, 0.05, 0.02, 1e-2, 5e-3, 2e-3, 1e-3, 1e-4, 1e-5)   # 1 - c
@@ -106,9 +98,7 @@ def draw(path, totals, reads):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="one seed, 320 x 240")
-    args = ap.parse_args()
+    args = parser(__doc__, quick="one seed, 320 x 240").parse_args()
     reads = (1.0, 2.0, 4.0)
     res_px, seeds = ((320, 240), (0,)) if args.quick else ((640, 480), (0, 1))
     rows, totals = run(res_px, reads, seeds)

@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT / "tests" / "sl"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import synth  # noqa: E402
-from report_util import write_rows_csv, write_with_notes  # noqa: E402
+from harness import write_rows_csv, write_with_notes  # noqa: E402
 from datapipe import sl  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"

@@ -24,22 +24,16 @@ re-decodes without Blender.
 """
 from __future__ import annotations
 
-import argparse
-import csv
 import json
-import platform
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
+from harness import (Stopwatch, cached_renders, clocked, column_table, machine, on_path, sweep_parser, write_rows_csv,
+                     write_with_notes)
 
-from report_util import write_with_notes  # noqa: E402
+on_path()
 from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
 from datapipe.core import structured_light as SLM  # noqa: E402
@@ -156,19 +150,13 @@ def build_world(scene_kind: str, res: tuple[int, int], tmp: Path):
     return cfg, bscene, camera, renderer, T
 
 
-def timed(fn):
-    c0, t0 = time.process_time(), time.perf_counter()
-    out = fn()
-    return out, time.perf_counter() - t0, time.process_time() - c0
-
-
 def cache_native_render(renderer, camera, T, cfg, tmp: Path, cache: Path, nkey: str, meta: dict,
                         meta_path: Path) -> tuple[float, float]:
     """The native render timed (best of 2), its depth/mask/pose cached as `nkey`.npz and its times
     in `meta` (written at once, so a killed sweep keeps it); returns (wall s, CPU s)."""
     runs = []
     for _ in range(2):
-        out, wall, cpu = timed(lambda: renderer.render(tmp / "native", SEED))
+        out, wall, cpu = clocked(lambda: renderer.render(tmp / "native", SEED))
         runs.append((cpu, wall))
     cpu, wall = min(runs)
     np.savez_compressed(cache / f"{nkey}.npz", depth=out.depth, mask=out.mask, T=T, K=camera.K)
@@ -177,25 +165,33 @@ def cache_native_render(renderer, camera, T, cfg, tmp: Path, cache: Path, nkey: 
     return wall, cpu
 
 
+def open_worlds(todo_by_world: dict, meta: dict, cache: Path, log, prefix: str):
+    """For each (scene kind, resolution) with renders still to make: the world built in a fresh
+    temporary folder and its native render cached (timed, once); yields (todo, tmp, (cfg, bscene,
+    camera, renderer, T)). Shared by the sweeps that cache their fringe renders."""
+    for (scene_kind, res), todo in todo_by_world.items():
+        nkey = f"native_{scene_kind}_{res}"
+        if not todo and nkey in meta:
+            continue
+        tmp = Path(tempfile.mkdtemp(prefix=prefix))
+        log(f"building {scene_kind} {res}")
+        world = build_world(scene_kind, RES[res], tmp)
+        if nkey not in meta:
+            cfg, _, camera, renderer, T = world
+            wall, cpu = cache_native_render(renderer, camera, T, cfg, tmp, cache, nkey, meta, cache / "renders.json")
+            log(f"  native {scene_kind} {res}: {wall:.1f} s wall, {cpu:.1f} CPU s")
+        yield todo, tmp, world
+
+
 def render_all(cases, cache: Path, log):
     from datapipe.core.structured_light import StructuredLightCamera
 
     meta_path = cache / "renders.json"
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
-    groups: dict = {}
+    todo_by_world: dict = {}
     for c in cases:
-        groups.setdefault((c["scene"], c["res"]), []).append(c)
-    for (scene_kind, res), cs in groups.items():
-        todo = [c for c in cs if key(c) not in meta]
-        nkey = f"native_{scene_kind}_{res}"
-        if not todo and nkey in meta:
-            continue
-        tmp = Path(tempfile.mkdtemp(prefix="slbench_"))
-        log(f"building {scene_kind} {res}")
-        cfg, bscene, camera, renderer, T = build_world(scene_kind, RES[res], tmp)
-        if nkey not in meta:
-            wall, cpu = cache_native_render(renderer, camera, T, cfg, tmp, cache, nkey, meta, meta_path)
-            log(f"  native {scene_kind} {res}: {wall:.1f} s wall, {cpu:.1f} CPU s")
+        todo_by_world.setdefault((c["scene"], c["res"]), []).extend([c] if key(c) not in meta else [])
+    for todo, tmp, (cfg, bscene, camera, renderer, T) in open_worlds(todo_by_world, meta, cache, log, "slbench_"):
         by_pat: dict = {}
         for c in todo:
             by_pat.setdefault((c["periods"], c["steps"]), []).append(c)
@@ -212,7 +208,7 @@ def render_all(cases, cache: Path, log):
                 slc.filter_width = v.get("filter_width", SLM.FRINGE_FILTER_WIDTH)
                 slc.set_indirect_blur(v.get("indirect_blur_px", SLM.INDIRECT_BLUR_PX))
                 slc.set_samples(c["samples"])
-                (stack, _), wall, cpu = timed(lambda: slc.render_fringes(tmp / "fringes", SEED))
+                (stack, _), wall, cpu = clocked(lambda: slc.render_fringes(tmp / "fringes", SEED))
                 np.savez_compressed(cache / f"{key(c)}.npz", rad=stack)
                 meta[key(c)] = {"wall": wall, "cpu": cpu, "images": int(stack.shape[0])}
                 meta_path.write_text(json.dumps(meta, indent=1))
@@ -268,7 +264,7 @@ def decode_all(cases, meta, cache: Path, log):
                        (MIN_CONTRAST, True, True))
             scanner = sl.Scanner.from_config(cfg, sensor=sensor, exposure=exposure, min_contrast=dec[0],
                                              edge_filter=dec[1], multipath_filter=dec[2])
-            scan, wall, _ = timed(lambda: scanner.scan(rad, SEED, nat["K"], nat["T"]))
+            scan, wall, _ = clocked(lambda: scanner.scan(rad, SEED, nat["K"], nat["T"]))
             m = metrics(scan.result, scan, nat["depth"])
             r = meta[key(c)]
             row = {"scene": c["scene"], "res": "x".join(map(str, RES[c["res"]])), "tag": c["tag"],
@@ -295,10 +291,7 @@ COLS = [("scene", "{}"), ("res", "{}"), ("periods", "{}"), ("steps", "{}"), ("sa
 
 
 def table(rows, cols=COLS) -> str:
-    head = "| " + " | ".join(c for c, _ in cols) + " |\n|" + "---|" * len(cols) + "\n"
-    def fmt(f, v):
-        return "-" if isinstance(v, float) and not np.isfinite(v) else f.format(v)
-    return head + "".join("| " + " | ".join(fmt(f, r[c]) for c, f in cols) + " |\n" for r in rows)
+    return column_table(rows, cols)
 
 
 def pareto(points):
@@ -405,14 +398,18 @@ def plot(rows, path, chosen_keys):
     cv2.imwrite(str(path), img)
 
 
-def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: bool = True):
-    out_dir.mkdir(parents=True, exist_ok=True)
-    fields = list(rows[0].keys())
-    with open(out_dir / "sl_render.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields)
-        w.writeheader()
-        w.writerows(rows)
-    # robustness metric per render: mean miss1mm over the light levels (bin scene, industrial)
+BASE_PAT = " ".join(map(str, BASE["periods"]))
+
+
+def is_default(r) -> bool:
+    """A row of the shipped base point's render (any scene, resolution, sensor, decoder)."""
+    return (r["periods"] == BASE_PAT and r["steps"] == BASE["steps"] and r["samples"] == BASE["samples"]
+            and r["variant"] == "default")
+
+
+def add_robustness(rows) -> None:
+    """`miss_robust` per row: mean miss1mm over the light levels of its render (bin scene,
+    industrial sensor); NaN where a level is missing or on the plane."""
     groups: dict = {}
     for r in rows:
         if r["scene"] == "bin" and r["sensor"] == "industrial" and (r["decoder"] == "shipped"
@@ -422,53 +419,53 @@ def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: boo
         g = groups.get((r["res"], r["periods"], r["steps"], r["samples"], r["variant"]))
         r["miss_robust"] = (float(np.mean([x["miss1mm"] for x in g])) if g and len(g) == len(LIGHT_FACTORS)
                             and r["scene"] == "bin" else float("nan"))
-    base_pat = " ".join(map(str, BASE["periods"]))
-    chosen = {(res, base_pat, BASE["steps"], BASE["samples"], "default") for res in ("320x240", "640x480")}
-    plot(rows, out_dir / "sl_render_pareto.png", chosen)
 
-    ship = [r for r in rows if r["decoder"] == "shipped"]
-    sel = lambda **kw: [r for r in ship if all(r[k] == v for k, v in kw.items())]  # noqa: E731
-    is_def = lambda r: (r["periods"] == base_pat and r["steps"] == BASE["steps"]  # noqa: E731
-                        and r["samples"] == BASE["samples"] and r["variant"] == "default")
-    L = ["# Structured-light camera: depth error against run time\n",
-         f"Machine: {platform.machine()}, 2 cores shared with other jobs; Blender (bpy) Cycles CPU. "
-         f"Renders {sum(v['wall'] * (2 if k.startswith('native') else 1) for k, v in meta.items()) / 60:.1f} "
-         f"min wall (sum over the cached renders; scene setup and simulation not included); "
-         f"{'whole run' if rendered else 'decoding and report (--report-only)'} {elapsed / 60:.1f} min"
-         f"{' (--quick)' if quick else ''}. "
-         "Generated by `benchmarks/bench_sl_render.py`; raw rows in `sl_render.csv`.\n",
-         "Scenes: the demo preset's bin (seed 0, scene 0, 8 parts, camera straight down from 0.8 m) and a "
-         "plane (the floor alone at Z = 0.8 m). Projector: preset (912x570, f 16 mm, 0.15 m baseline, "
-         f"8.5 deg toe-in). Shipped defaults (base point): periods {BASE['periods']}, {BASE['steps']} steps, "
-         f"{BASE['samples']} fringe samples per camera pixel (2x2 point sub-samples), sensor `{D.sensor}`, "
-         f"exposure {FIXED_EXPOSURE} (fixed), decoder min_contrast {MIN_CONTRAST} + multipath + edge/speckle "
-         "filter. "
-         "Native render: 32 samples, RGB + depth + normals + mask.\n",
-         "Columns: `render_cpu_s` fringe render (all fringe layers, own Cycles call), `decode_s` sensor "
-         "model + decode + filter (wall), `native_cpu_s` the native render, `fringe_over_native` = "
-         "(render CPU + decode) / native CPU; errors on pixels valid in both SL and z-buffer; `out5` "
-         "fraction of them off by > 5 mm; `valid` fraction of all pixels; `sigma_meas` 1.4826 MAD of "
-         "the error, `sigma_theo` median per-pixel noise limit, `ratio` robust sigma of error/limit; "
-         "`miss_robust` (bin only) the fraction of image pixels NOT measured to within 1 mm, averaged "
-         "over three light levels (exposure x1/4, x1, x2: dark parts or ~1.1 m range, nominal, bright "
-         "parts): a coverage-aware error that also punishes pattern sets that fail in dim light or "
-         "saturate.\n"]
-    L.append("## Base point and targets\n")
-    L.append(table([r for r in ship if is_def(r)]))
-    tgt = []
-    for r in sel(scene="plane", sensor="industrial"):
-        if is_def(r):
-            tgt.append(f"- Plane {r['res']}: measured sigma {r['sigma_meas_mm']:.3f} mm vs theoretical "
-                       f"{r['sigma_theo_mm']:.3f} mm, ratio {r['ratio']:.2f} (target <= 1.5): "
-                       f"{'met' if r['ratio'] <= 1.5 else 'NOT met'}.")
-    for r in sel(scene="bin", sensor="industrial", res="640x480"):
-        if is_def(r):
-            tgt.append(f"- Bin 640x480: fringe work {r['fringe_cpu_s']:.1f} CPU s (render {r['render_cpu_s']:.1f} "
-                       f"+ decode {r['decode_s']:.2f}) vs native {r['native_cpu_s']:.1f} CPU s = "
-                       f"{r['fringe_over_native']:.2f}x (target <= 4x): "
-                       f"{'met' if r['fringe_over_native'] <= 4 else 'NOT met'}; wall {r['render_s']:.1f} s vs "
-                       f"{r['native_s']:.1f} s.")
-    L.append("\n".join(tgt) + "\n")
+
+def intro(meta, quick: bool, elapsed: float, rendered: bool) -> list[str]:
+    return [
+        "# Structured-light camera: depth error against run time\n",
+        f"Machine: {machine()}, shared with other jobs; Blender (bpy) Cycles CPU. "
+        f"Renders {sum(v['wall'] * (2 if k.startswith('native') else 1) for k, v in meta.items()) / 60:.1f} "
+        f"min wall (sum over the cached renders; scene setup and simulation not included); "
+        f"{'whole run' if rendered else 'decoding and report (--report-only)'} {elapsed / 60:.1f} min"
+        f"{' (--quick)' if quick else ''}. "
+        "Generated by `benchmarks/bench_sl_render.py`; raw rows in `sl_render.csv`.\n",
+        "Scenes: the demo preset's bin (seed 0, scene 0, 8 parts, camera straight down from 0.8 m) and a "
+        "plane (the floor alone at Z = 0.8 m). Projector: preset (912x570, f 16 mm, 0.15 m baseline, "
+        f"8.5 deg toe-in). Shipped defaults (base point): periods {BASE['periods']}, {BASE['steps']} steps, "
+        f"{BASE['samples']} fringe samples per camera pixel (2x2 point sub-samples), sensor `{D.sensor}`, "
+        f"exposure {FIXED_EXPOSURE} (fixed), decoder min_contrast {MIN_CONTRAST} + multipath + edge/speckle "
+        "filter. "
+        "Native render: 32 samples, RGB + depth + normals + mask.\n",
+        "Columns: `render_cpu_s` fringe render (all fringe layers, own Cycles call), `decode_s` sensor "
+        "model + decode + filter (wall), `native_cpu_s` the native render, `fringe_over_native` = "
+        "(render CPU + decode) / native CPU; errors on pixels valid in both SL and z-buffer; `out5` "
+        "fraction of them off by > 5 mm; `valid` fraction of all pixels; `sigma_meas` 1.4826 MAD of "
+        "the error, `sigma_theo` median per-pixel noise limit, `ratio` robust sigma of error/limit; "
+        "`miss_robust` (bin only) the fraction of image pixels NOT measured to within 1 mm, averaged "
+        "over three light levels (exposure x1/4, x1, x2: dark parts or ~1.1 m range, nominal, bright "
+        "parts): a coverage-aware error that also punishes pattern sets that fail in dim light or "
+        "saturate.\n"]
+
+
+def targets(ship) -> list[str]:
+    """The base point's table and whether it meets the plane's noise and the bin's cost targets."""
+    def sel(**kw):
+        return [r for r in ship if all(r[k] == v for k, v in kw.items()) and is_default(r)]
+    tgt = [f"- Plane {r['res']}: measured sigma {r['sigma_meas_mm']:.3f} mm vs theoretical "
+           f"{r['sigma_theo_mm']:.3f} mm, ratio {r['ratio']:.2f} (target <= 1.5): "
+           f"{'met' if r['ratio'] <= 1.5 else 'NOT met'}." for r in sel(scene="plane", sensor="industrial")]
+    tgt += [f"- Bin 640x480: fringe work {r['fringe_cpu_s']:.1f} CPU s (render {r['render_cpu_s']:.1f} "
+            f"+ decode {r['decode_s']:.2f}) vs native {r['native_cpu_s']:.1f} CPU s = "
+            f"{r['fringe_over_native']:.2f}x (target <= 4x): "
+            f"{'met' if r['fringe_over_native'] <= 4 else 'NOT met'}; wall {r['render_s']:.1f} s vs "
+            f"{r['native_s']:.1f} s." for r in sel(scene="bin", sensor="industrial", res="640x480")]
+    return ["## Base point and targets\n", table([r for r in ship if is_default(r)]), "\n".join(tgt) + "\n"]
+
+
+def factor_sections(ship) -> list[str]:
+    """One table per factor varied around the base point (industrial sensor)."""
+    L = []
     for title, tag in (("Fringe samples", "samples"), ("Phase steps", "steps"), ("Pattern sets", "periods"),
                        ("Pixel filter (shipped 2x2 point samples vs Cycles' 1.5 px Blackman-Harris)", "filter"),
                        ("Inter-reflected light: regularised (shipped) vs plain Monte Carlo (noreg)", "indirect"),
@@ -482,13 +479,16 @@ def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: boo
         if tag == "resolution":
             rs = [r for r in ship if r["scene"] == "bin" and r["res"] == "640x480"]
         rs = [r for r in rs if r["sensor"] == "industrial"]
-        if not rs:
-            continue
-        L.append(f"## {title} (industrial sensor)\n")
-        L.append(table(rs))
+        if rs:
+            L += [f"## {title} (industrial sensor)\n", table(rs)]
+    return L
+
+
+def base_render_sections(rows) -> list[str]:
+    """Exposure and decoder settings on the base render (bin 320x240, industrial sensor)."""
     base = [r for r in rows if r["scene"] == "bin" and r["res"] == "320x240" and r["sensor"] == "industrial"
-            and r["periods"] == base_pat and r["steps"] == BASE["steps"] and r["samples"] == BASE["samples"]
-            and r["variant"] == "default"]
+            and is_default(r)]
+    L = []
     ex = sorted({r["exposure"]: r for r in base if r["decoder"] in ("shipped", "exposure")
                  or r["decoder"].startswith("light")}.values(), key=lambda r: r["exposure"])
     if ex:
@@ -502,7 +502,11 @@ def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: boo
         L.append(table(dec, [("decoder", "{}"), ("valid", "{:.3f}"), ("filtered", "{:.4f}"),
                              ("median_mm", "{:.3f}"), ("rmse_mm", "{:.3f}"), ("p99_mm", "{:.2f}"),
                              ("out5", "{:.4f}")]))
-    L.append("## Pareto plot\n\n![error vs time](sl_render_pareto.png)\n")
+    return L
+
+
+def pareto_lines(ship) -> list[str]:
+    L = ["## Pareto plot\n\n![error vs time](sl_render_pareto.png)\n"]
     for res_name in ("320x240", "640x480"):
         sel = [r for r in ship if r["scene"] == "bin" and r["res"] == res_name and r["sensor"] == "industrial"
                and np.isfinite(r["rmse_mm"]) and np.isfinite(r["miss_robust"])]
@@ -512,28 +516,29 @@ def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: boo
                      + "; ".join(f"{label(sel[i])} ({sel[i]['fringe_cpu_s']:.1f} s, {sel[i]['rmse_mm']:.3f} mm, "
                                  f"{sel[i]['miss_robust']:.3f})" for i in sorted(nd, key=lambda i: sel[i]["fringe_cpu_s"]))
                      + ".\n")
-    write_with_notes(out_dir / "sl_render.md", L)
+    return L
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="four renders only (a smoke test)")
-    ap.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "datapipe_sl_bench"),
-                    help="folder for rendered stacks and timings (resumable)")
-    ap.add_argument("--report-only", action="store_true", help="decode cached renders, no Blender")
-    ap.add_argument("--out", default=str(RESULTS))
-    a = ap.parse_args()
-    cache = Path(a.cache)
-    cache.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    log = lambda s: print(f"[{time.perf_counter() - t0:6.0f}s] {s}", flush=True)  # noqa: E731
+def report(rows, meta, out_dir: Path, quick: bool, elapsed: float, rendered: bool = True):
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_rows_csv(out_dir / "sl_render.csv", rows, list(rows[0].keys()))
+    add_robustness(rows)
+    chosen = {(res, BASE_PAT, BASE["steps"], BASE["samples"], "default") for res in ("320x240", "640x480")}
+    plot(rows, out_dir / "sl_render_pareto.png", chosen)
+    ship = [r for r in rows if r["decoder"] == "shipped"]
+    write_with_notes(out_dir / "sl_render.md", intro(meta, quick, elapsed, rendered) + targets(ship)
+                     + factor_sections(ship) + base_render_sections(rows) + pareto_lines(ship))
+
+
+def main(argv=None):
+    ap = sweep_parser(__doc__, "datapipe_sl_bench", quick="four renders only (a smoke test)")
+    a = ap.parse_args(argv)
+    clock = Stopwatch().start()
+    log = lambda s: print(f"[{clock.stop().wall_s:6.0f}s] {s}", flush=True)  # noqa: E731
     cases = plan(a.quick)
-    if a.report_only:
-        meta = json.loads((cache / "renders.json").read_text())
-    else:
-        meta = render_all(cases, cache, log)
-    rows = decode_all(cases, meta, cache, log)
-    report(rows, meta, Path(a.out), a.quick, time.perf_counter() - t0, rendered=not a.report_only)
+    meta = cached_renders(a, cases, render_all, log)
+    rows = decode_all(cases, meta, a.cache, log)
+    report(rows, meta, a.out, a.quick, clock.stop().wall_s, rendered=not a.report_only)
     log(f"wrote {a.out}/sl_render.md")
 
 

@@ -16,21 +16,17 @@ run).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import shutil
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
+from harness import RESULTS, Stopwatch, on_path, parser
 
+on_path()
 from datapipe import config as C  # noqa: E402
 
 
@@ -53,11 +49,11 @@ def run(cfg: C.Config, out: Path) -> float:
     import bpy
     from datapipe.engine.pipeline import Pipeline
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    t0 = time.perf_counter()
-    for ev in Pipeline(cfg, out).run():
-        if ev.stage == "render":
-            print(ev.line(), flush=True)
-    return time.perf_counter() - t0
+    with Stopwatch() as t:
+        for ev in Pipeline(cfg, out).run():
+            if ev.stage == "render":
+                print(ev.line(), flush=True)
+    return t.wall_s
 
 
 def measure(out: Path) -> list[dict]:
@@ -140,12 +136,15 @@ def _observations(results: dict) -> list[str]:
 
 
 def main():
-    ap = argparse.ArgumentParser()
+    # quick at 320x240: the default 160x120 is refused by the gate (the finest fringe 2.5 camera px)
+    ap = parser(__doc__, quick="--renders 2 --res 320 240")
     ap.add_argument("--renders", type=int, default=20)
     ap.add_argument("--res", type=int, nargs=2, default=[160, 120])
     ap.add_argument("--out", default=None, help="keep the runs here (default: a temporary folder)")
     ap.add_argument("--report-only", action="store_true", help="re-measure the runs kept in --out, no rendering")
     a = ap.parse_args()
+    if a.quick:
+        a.renders, a.res = 2, [320, 240]
     base = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="bench_variety_"))
     results, seconds = {}, {}
     for name, varied in (("pose pool", False), ("varied", True)):

@@ -13,16 +13,14 @@ run) is left out, as in production.md. Prints a Markdown table; `--out` keeps th
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from harness import ROOT, md_table, parser, run_child
+
 DROP_STEPS = ("placement", "simulation")
 PER_SCENE_IGNORED = ("setup",)
 
@@ -40,16 +38,16 @@ def measure(preset: Path, views: int, binning: int | None, out: Path, seed: int)
         o["filepath"] = str((preset.parent / o["filepath"]).resolve())
     tmp.write_text(json.dumps(d))
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "datapipe", "run", str(tmp), "--out", str(out), "--force", "--quiet"],
-                   check=True, env=env)
-    wall = time.perf_counter() - t0
+    child = run_child([sys.executable, "-m", "datapipe", "run", str(tmp), "--out", str(out), "--force", "--quiet"],
+                      env=env)
+    if child.returncode:
+        raise RuntimeError(f"datapipe run of {tmp} failed (exit {child.returncode})")
     run = json.loads((out / "run.json").read_text())
     steps = run["stats"]["steps"]
     drop = sum(steps[k]["cpu_s"] for k in DROP_STEPS if k in steps)
     rest = sum(v["cpu_s"] for k, v in steps.items() if k not in DROP_STEPS + PER_SCENE_IGNORED)
     scene = json.loads((out / "scene.0001" / "scene.json").read_text())
-    return {"views": views, "drop_cpu_s": drop, "view_cpu_s": rest / views, "wall_s": wall,
+    return {"views": views, "drop_cpu_s": drop, "view_cpu_s": rest / views, "wall_s": child.wall_s,
             "parts": scene["simulation"]["parts"], "resolution": scene["renders"][0]["resolution"],
             "steps": {k: round(v["cpu_s"], 2) for k, v in steps.items()}}
 
@@ -59,13 +57,15 @@ def per_hour(drop: float, view: float, v: int) -> float:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, quick="--binning 4 --views 1: the smallest run (about a minute)")
     ap.add_argument("--preset", type=Path, default=ROOT / "datapipe" / "presets" / "bin_picking.json")
     ap.add_argument("--views", type=int, default=3, help="renders of the one measured drop")
     ap.add_argument("--binning", type=int, default=None, help="the device's binning (fewer pixels)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
+    if a.quick:
+        a.binning, a.views = 4, 1
     with tempfile.TemporaryDirectory() as tmp:
         out = a.out or Path(tmp) / "run"
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -73,12 +73,10 @@ def main(argv=None) -> int:
     print(f"{a.preset.name}, binning {a.binning}, {m['resolution'][0]} x {m['resolution'][1]}, {m['parts']} parts, "
           f"{a.views} views of one drop, {m['wall_s']:.0f} s wall; CPU s per step: {m['steps']}")
     print(f"drop {m['drop_cpu_s']:.1f} CPU s, each view {m['view_cpu_s']:.1f} CPU s\n")
-    print("| views per drop | CPU s per image | images / h / core | vs 1 view |")
-    print("|---|---|---|---|")
     one = per_hour(m["drop_cpu_s"], m["view_cpu_s"], 1)
-    for v in (1, 2, 5, 25):
-        r = per_hour(m["drop_cpu_s"], m["view_cpu_s"], v)
-        print(f"| {v} | {3600 / r:.1f} | {r:.1f} | {r / one:.2f}x |")
+    rates = [(v, per_hour(m["drop_cpu_s"], m["view_cpu_s"], v)) for v in (1, 2, 5, 25)]
+    print("\n".join(md_table(["views per drop", "CPU s per image", "images / h / core", "vs 1 view"],
+                             [[v, f"{3600 / r:.1f}", f"{r:.1f}", f"{r / one:.2f}x"] for v, r in rates])))
     return 0
 
 

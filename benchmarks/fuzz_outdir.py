@@ -20,7 +20,6 @@ temporary name). Writes benchmarks/results/fuzz_outdir.md.
 """
 from __future__ import annotations
 
-import argparse
 import collections
 import hashlib
 import os
@@ -29,12 +28,11 @@ import shutil
 import signal
 import sys
 import tempfile
-import time
 import traceback
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
+from harness import RESULTS, ROOT, Stopwatch, parser
+
 sys.path.insert(0, str(ROOT / "tests"))     # the fake world and its fixtures
 sys.path.append(str(ROOT))                  # PYTHONPATH first: another checkout can be measured
 
@@ -155,18 +153,21 @@ def trial(rng: random.Random, work: Path) -> tuple[str, str]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, quick="--n 3")
     ap.add_argument("--n", type=int, default=20)
     ap.add_argument("--seed", type=int, default=33)
-    ap.add_argument("--out", default=str(RESULTS / "fuzz_outdir.md"))
+    ap.add_argument("--out", default=None, help="the report (default benchmarks/results/fuzz_outdir.md)")
     args = ap.parse_args()
+    if args.quick:
+        args.n = 3
+    args.out = args.out or str(RESULTS / "fuzz_outdir.md")
     rng = random.Random(args.seed)
     counts, bad = collections.Counter(), []
 
     def on_alarm(*_):
         raise Hang()
     signal.signal(signal.SIGALRM, on_alarm)
-    t0 = time.perf_counter()
+    clock = Stopwatch().start()
     for i in range(args.n):
         work = Path(tempfile.mkdtemp(prefix=f"fuzz_outdir_{i}_"))
         signal.alarm(60)
@@ -180,7 +181,7 @@ def main() -> None:
         if outcome not in ("done", "refused, naming the path", "OS error naming the file"):
             bad.append(f"trial {i}: {outcome}: {detail}")
         shutil.rmtree(work, ignore_errors=True)
-    wall = time.perf_counter() - t0
+    wall = clock.stop().wall_s
     lines = ["# Mid-run file-system changes in the output folder", "",
              f"`benchmarks/fuzz_outdir.py --n {args.n} --seed {args.seed}`: the fake world's run loop (no Blender) "
              "with 1-3 random changes at a random event (see the script's docstring); "

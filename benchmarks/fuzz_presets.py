@@ -30,7 +30,6 @@ by kind with an example, and its preset kept in the folder printed at the end.
 """
 from __future__ import annotations
 
-import argparse
 import collections
 import copy
 import json
@@ -44,14 +43,13 @@ import sys
 import tempfile
 import time
 import traceback
+from dataclasses import dataclass, field
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT))
+from harness import RESULTS, ROOT, Stopwatch, on_path, parser, write_with_notes
 
+on_path()
 from datapipe import config as C  # noqa: E402
-from report_util import write_with_notes  # noqa: E402
 from datapipe.errors import ConfigError, DataPipeError  # noqa: E402
 
 HOSTILE_TEXT = ["", "\x00", "a\x00.obj", "\x00.blend", "\ud800", "\ud800.obj", "\udc80.obj", "peg\n", "\t",
@@ -309,44 +307,100 @@ def well_formed(e: Exception) -> bool:
     return "(fix:" in str(e)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=3000, help="generated presets (default 3000)")
-    ap.add_argument("--seed", type=int, default=21)
-    ap.add_argument("--preflight-share", type=float, default=1.0,
-                    help="share of the presets validate accepts that also go through the Blender preflight")
-    ap.add_argument("--cli", type=int, default=0, metavar="N",
-                    help="also run N of the presets through `python -m datapipe validate` and `run` (subprocesses)")
-    ap.add_argument("--out", default=str(RESULTS / "fuzz_presets.md"))
-    args = ap.parse_args()
+@dataclass
+class Tally:
+    """What the presets came to: outcome counts, the stage and field of each refusal, the foreign
+    exceptions and hangs, the files per outcome (for the CLI check) and the CPU seconds."""
+    work: Path
+    counts: collections.Counter = field(default_factory=collections.Counter)
+    stages: collections.Counter = field(default_factory=collections.Counter)
+    fields: collections.Counter = field(default_factory=collections.Counter)
+    preflight_fields: collections.Counter = field(default_factory=collections.Counter)   # only the preflight finds
+    preflight_examples: dict = field(default_factory=dict)
+    foreign: list = field(default_factory=list)
+    outcomes: dict = field(default_factory=lambda: collections.defaultdict(list))  # stage refused at -> files
+    cpu: collections.Counter = field(default_factory=collections.Counter)
+    input_kinds: dict = field(default_factory=lambda: collections.defaultdict(collections.Counter))
 
-    import bpy  # noqa: F401  (the preflight's Blender; imported once)
-    from datapipe.engine.gate import run_checks
+    def refused(self, e: Exception, stage: str, path: Path, kinds: list[str]) -> None:
+        if not well_formed(e):
+            self.counts["project error without path or fix"] += 1
+            self.foreign.append((path.name, f"{stage}: {type(e).__name__} without a path or fix", str(e)[:160]))
+            return
+        self.counts["clear error"] += 1
+        self.stages[stage] += 1
+        for k in kinds:
+            self.input_kinds[k][f"refused ({stage})"] += 1
+        for p in getattr(e, "problems", [])[:1]:
+            name = p.path.split("[")[0].split(".")[0] + ("." + p.path.split(".")[-1].split("[")[0]
+                                                         if "." in p.path else "")
+            self.fields[name] += 1
+            if stage == "preflight":
+                self.preflight_fields[name] += 1
+                self.preflight_examples.setdefault(name, p.message.replace(str(self.work), "DIR")[:110])
+        if {q.path for q in getattr(e, "problems", [])} == {"output.path"}:
+            stage = "output.path only"     # `run --out DIR` replaces that field: the CLI check skips it
+        self.outcomes[stage].append(path)
 
-    def watchdog(signum, frame):
-        raise Hang()
-    signal.signal(signal.SIGALRM, watchdog)
+    def failed(self, what: str, stage: str, path: Path, kinds: list[str], where: str, msg: str) -> None:
+        """A hang or a foreign exception: a defect, kept with the preset's name."""
+        self.counts[what] += 1
+        for k in kinds:
+            self.input_kinds[k][what] += 1
+        self.foreign.append((path.name, f"{stage}: {where}", msg))
 
-    rng = random.Random(args.seed)
-    work = Path(tempfile.mkdtemp(prefix="datapipe_fuzz_"))
-    files = make_files(work)
+
+def judge(path: Path, kinds: list[str], rng, share: float, tally: Tally, run_checks) -> None:
+    """One preset through load, validate and (for `share` of those validate accepts) the preflight,
+    under the watchdog; the outcome goes into `tally`."""
+    stage = "load"
+    signal.alarm(HANG_S)                   # the watchdog: a preset that hangs is counted, not waited on
+    try:
+        t = time.process_time()
+        cfg = C.load(path)
+        stage = "validate"
+        cfg.validate()
+        tally.cpu["load + validate"] += time.process_time() - t
+        if rng.random() < share:
+            stage = "preflight"
+            t = time.process_time()
+            tally.counts["went through the Blender preflight"] += 1
+            run_checks(cfg)
+            tally.cpu["preflight"] += time.process_time() - t
+        tally.counts["accepted"] += 1
+        tally.outcomes["accepted"].append(path)
+        for k in kinds:
+            tally.input_kinds[k]["accepted"] += 1
+    except (ConfigError, DataPipeError) as e:
+        tally.refused(e, stage, path, kinds)
+    except Hang:
+        tally.failed("hang", stage, path, kinds, f"no answer within {HANG_S} s (hang)", "")
+    except Exception as e:  # noqa: BLE001 - the point: anything else is a defect
+        frame = traceback.extract_tb(e.__traceback__)[-1]
+        where = f"{Path(frame.filename).name}:{frame.lineno} in {frame.name}"
+        tally.failed("foreign exception", stage, path, kinds, f"{type(e).__name__} at {where}", str(e)[:160])
+    finally:
+        signal.alarm(0)
+
+
+def base_presets() -> tuple[dict, dict]:
+    """The demo preset as JSON and as the original add-on's input dict, mesh paths by name only
+    (the generated files sit beside the presets)."""
     json_base = json.loads((C.presets_dir() / "default.json").read_text())
     for o in json_base["objects"]:
         o["filepath"] = o["filepath"].rsplit("/", 1)[-1]
     legacy_base = C.to_legacy_dict(C.default_config())
     for o in legacy_base["objects"]["objects_list"]:
         o["filepath"] = Path(o["filepath"]).name
-    kept = work / "foreign"
-    counts = collections.Counter()
-    stages = collections.Counter()
-    fields = collections.Counter()
-    preflight_fields = collections.Counter()      # what only the Blender preflight finds
-    preflight_examples: dict[str, str] = {}
-    foreign: list[tuple[str, str]] = []
-    outcomes: dict[str, list[Path]] = collections.defaultdict(list)   # stage refused at (or accepted) -> files
-    cpu = collections.Counter()
-    input_kinds = collections.defaultdict(collections.Counter)   # presets naming a BOP folder / a glTF
-    t_start, wall_start = time.process_time(), time.perf_counter()
+    return json_base, legacy_base
+
+
+def fuzz(args, work: Path, run_checks) -> Tally:
+    """Generate args.n presets (a generated one that cannot be written is skipped) and judge each."""
+    rng = random.Random(args.seed)
+    files = make_files(work)
+    json_base, legacy_base = base_presets()
+    tally = Tally(work)
     made = 0
     while made < args.n:
         as_pickle = rng.random() < 0.3
@@ -356,74 +410,50 @@ def main() -> None:
             base["structured_light"]["enabled"] = True
         raw = encode(rng, mutate(rng, base, files), as_pickle)
         if raw is None:
-            counts["not writable (skipped)"] += 1
+            tally.counts["not writable (skipped)"] += 1
             continue
         made += 1
         kinds = [k for k, marks in (("BOP models folder", (b"bop_",)), ("glTF / .glb", (b".gltf", b".glb")),
                                     ("OBJ naming a .mtl", (b"mtl_",))) if any(m in raw for m in marks)]
         path = work / f"p{made:05d}.{'pickle' if as_pickle else 'json'}"
         path.write_bytes(raw)
-        stage = "load"
-        signal.alarm(HANG_S)                   # the watchdog: a preset that hangs is counted, not waited on
-        try:
-            t = time.process_time()
-            cfg = C.load(path)
-            stage = "validate"
-            cfg.validate()
-            cpu["load + validate"] += time.process_time() - t
-            if rng.random() < args.preflight_share:
-                stage = "preflight"
-                t = time.process_time()
-                counts["went through the Blender preflight"] += 1
-                run_checks(cfg)
-                cpu["preflight"] += time.process_time() - t
-            counts["accepted"] += 1
-            outcomes["accepted"].append(path)
-            for k in kinds:
-                input_kinds[k]["accepted"] += 1
-        except (ConfigError, DataPipeError) as e:
-            if well_formed(e):
-                counts["clear error"] += 1
-                stages[stage] += 1
-                for k in kinds:
-                    input_kinds[k][f"refused ({stage})"] += 1
-                for p in getattr(e, "problems", [])[:1]:
-                    field = p.path.split("[")[0].split(".")[0] + ("." + p.path.split(".")[-1].split("[")[0]
-                                                                  if "." in p.path else "")
-                    fields[field] += 1
-                    if stage == "preflight":
-                        preflight_fields[field] += 1
-                        preflight_examples.setdefault(field, p.message.replace(str(work), "DIR")[:110])
-                if {q.path for q in getattr(e, "problems", [])} == {"output.path"}:
-                    stage = "output.path only"     # `run --out DIR` replaces that field: the CLI check skips it
-                outcomes[stage].append(path)
-            else:
-                counts["project error without path or fix"] += 1
-                foreign.append((path.name, f"{stage}: {type(e).__name__} without a path or fix", str(e)[:160]))
-        except Hang:
-            counts["hang"] += 1
-            for k in kinds:
-                input_kinds[k]["hang"] += 1
-            foreign.append((path.name, f"{stage}: no answer within {HANG_S} s (hang)", ""))
-        except Exception as e:  # noqa: BLE001 - the point: anything else is a defect
-            counts["foreign exception"] += 1
-            for k in kinds:
-                input_kinds[k]["foreign exception"] += 1
-            frame = traceback.extract_tb(e.__traceback__)[-1]
-            where = f"{Path(frame.filename).name}:{frame.lineno} in {frame.name}"
-            foreign.append((path.name, f"{stage}: {type(e).__name__} at {where}", str(e)[:160]))
-        finally:
-            signal.alarm(0)
-    total_cpu, wall = time.process_time() - t_start, time.perf_counter() - wall_start
-    cli = cli_check(outcomes, args.cli, args.seed, work) if args.cli else None
-    if foreign:
+        judge(path, kinds, rng, args.preflight_share, tally, run_checks)
+    return tally
+
+
+def main(argv=None) -> None:
+    ap = parser(__doc__, quick="--n 50 --preflight-share 0.2 (under a minute)")
+    ap.add_argument("--n", type=int, default=3000, help="generated presets (default 3000)")
+    ap.add_argument("--seed", type=int, default=21)
+    ap.add_argument("--preflight-share", type=float, default=1.0,
+                    help="share of the presets validate accepts that also go through the Blender preflight")
+    ap.add_argument("--cli", type=int, default=0, metavar="N",
+                    help="also run N of the presets through `python -m datapipe validate` and `run` (subprocesses)")
+    ap.add_argument("--out", default=None, help="the report (default benchmarks/results/fuzz_presets.md)")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.n, args.preflight_share = 50, 0.2
+    args.out = args.out or str(RESULTS / "fuzz_presets.md")
+
+    import bpy  # noqa: F401  (the preflight's Blender; imported once)
+    from datapipe.engine.gate import run_checks
+
+    def watchdog(signum, frame):
+        raise Hang()
+    signal.signal(signal.SIGALRM, watchdog)
+
+    work = Path(tempfile.mkdtemp(prefix="datapipe_fuzz_"))
+    with Stopwatch() as total:
+        tally = fuzz(args, work, run_checks)
+    cli = cli_check(tally.outcomes, args.cli, args.seed, work) if args.cli else None
+    kept = work / "foreign"
+    if tally.foreign:
         kept.mkdir(exist_ok=True)
-        for name, _, _ in foreign:
+        for name, _, _ in tally.foreign:
             shutil.copy(work / name, kept / name)
-    write_report(Path(args.out), args, counts, stages, fields, (preflight_fields, preflight_examples), foreign,
-                 cpu, total_cpu, wall, cli, input_kinds)
+    write_report(Path(args.out), args, tally, total, cli)
     print(Path(args.out).read_text())
-    if foreign or (cli and cli["bad"]):
+    if tally.foreign or (cli and cli["bad"]):
         print(f"presets with foreign exceptions kept in {kept}; all presets in {work}")
     else:
         shutil.rmtree(work)
@@ -444,7 +474,7 @@ def cli_check(outcomes: dict, n: int, seed: int, work: Path) -> dict:
         picks.append((stage, rng.choice(outcomes[stage])))
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     result = {"presets": len(picks), "calls": 0, "bad": [], "seconds": 0.0}
-    t0 = time.perf_counter()
+    clock = Stopwatch().start()
     for k, (stage, path) in enumerate(picks):
         out = work / f"cli_out_{k}"
         calls = [["validate", str(path)]] + ([] if stage == "accepted" else [["run", str(path), "--out", str(out)]])
@@ -463,7 +493,7 @@ def cli_check(outcomes: dict, n: int, seed: int, work: Path) -> dict:
             if not ok:
                 result["bad"].append(f"{path.name} ({stage}) {argv[0]}: exit {r.returncode}, "
                                      f"{r.stderr.strip().splitlines()[-1][:160] if r.stderr.strip() else ''}")
-    result["seconds"] = time.perf_counter() - t0
+    result["seconds"] = clock.stop().wall_s
     return result
 
 
@@ -473,9 +503,11 @@ def _example(foreign, kind) -> str:
     return f"{name}: {msg!r}".replace("|", "\\|")
 
 
-def write_report(out: Path, args, counts, stages, fields, preflight_fields, foreign, cpu, total_cpu,
-                 wall, cli, input_kinds) -> None:
+def write_report(out: Path, args, tally: Tally, total: Stopwatch, cli) -> None:
     n = args.n
+    counts, stages, fields, foreign, cpu = tally.counts, tally.stages, tally.fields, tally.foreign, tally.cpu
+    input_kinds, preflight_fields = tally.input_kinds, (tally.preflight_fields, tally.preflight_examples)
+    total_cpu, wall = total.cpu_s, total.wall_s
     pf = counts["went through the Blender preflight"]
     lines = [
         "# Generated hostile presets: load + validate + Blender preflight",
@@ -539,4 +571,4 @@ def write_report(out: Path, args, counts, stages, fields, preflight_fields, fore
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -9,15 +9,15 @@ Prints `acquisitions N refused R seconds S double holders D` (the last line). A 
 """
 from __future__ import annotations
 
-import argparse
 import multiprocessing as mp
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-sys.path.append(str(Path(__file__).resolve().parents[1]))     # PYTHONPATH first: another checkout can be measured
+from harness import ROOT, Stopwatch, parser
+
+sys.path.append(str(ROOT))     # PYTHONPATH first: another checkout can be measured
 
 from datapipe.io.outdir import OutLock, OutputStateError  # noqa: E402
 
@@ -54,21 +54,22 @@ def stress(out: Path, procs: int, acquisitions: int) -> tuple[int, int, int, flo
     ps = [ctx.Process(target=hammer, args=(str(out), each, start, results)) for _ in range(procs)]
     for p in ps:
         p.start()
-    t0 = time.perf_counter()
-    start.set()
-    totals = [results.get() for _ in ps]
-    for p in ps:
-        p.join()
-    return (sum(t[0] for t in totals), sum(t[1] for t in totals), sum(t[2] for t in totals),
-            time.perf_counter() - t0)
+    with Stopwatch() as clock:
+        start.set()
+        totals = [results.get() for _ in ps]
+        for p in ps:
+            p.join()
+    return (sum(t[0] for t in totals), sum(t[1] for t in totals), sum(t[2] for t in totals), clock.wall_s)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, quick="--procs 2 --acquisitions 500")
     ap.add_argument("--procs", type=int, default=4)
     ap.add_argument("--acquisitions", type=int, default=12000)
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
+    if args.quick:
+        args.procs, args.acquisitions = 2, 500
     out = args.out or Path(tempfile.mkdtemp(prefix="lock_stress_")) / "OUT"
     got, refused, double, secs = stress(out, args.procs, args.acquisitions)
     print(f"acquisitions {got} refused {refused} seconds {secs:.1f} double holders {double}")

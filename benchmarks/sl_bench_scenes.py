@@ -19,16 +19,15 @@ ray cast, independent of the fringe render), plus render times.
 from __future__ import annotations
 
 import json
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from harness import clocked, on_path
 
-from datapipe import config as C
+on_path("tests")
+from datapipe import config as C  # noqa: E402
 from datapipe.sl.scanner import ROW_PERIODS     # the row code the cache holds (renders again when it changes)  # noqa: E402
 from sl_scenes import RIGS, direct_mask, rig_config  # noqa: E402,F401  (RIGS: part of this module's API)
 
@@ -78,23 +77,20 @@ def render_cases(cases, cache: Path, log=print) -> dict:
         world.start_scene(0, cfg.scene.seed, scene_rng(cfg.scene.seed, 0), 1)   # drops the parts, applies their material
         for k, h in enumerate(heights):
             T = world.camera.set_pose(k)
-            t0 = time.perf_counter()
-            out = world.renderer.render(tmp / "native", SEED)
-            t1 = time.perf_counter()
+            out, native_s, _ = clocked(lambda: world.renderer.render(tmp / "native", SEED))
             world.sl.set_sharp_glossy(has_shiny_surface(world.blend.scene))   # as process() does
             rows = world.sl.wants_rows()                                       # what the product renders
-            t2 = time.perf_counter()
-            rad, _ = world.sl.render_fringes(tmp / "fringes", SEED, rows=True)  # every case: the row code's
-            fringe_s = time.perf_counter() - t2                                # residual on diffuse bins too
+            # every case: the row code's residual on diffuse bins too
+            (rad, _), fringe_s, _ = clocked(lambda: world.sl.render_fringes(tmp / "fringes", SEED, rows=True))
             direct = direct_mask(world.blend.scene, cfg, T, world.camera.K, out.depth)
             key = case_key(rig, h, mat)
             np.savez_compressed(cache / f"{key}.npz", rad=rad, depth=out.depth, mask=out.mask, T=T,
                                 K=world.camera.K, direct=direct, rgb=out.rgb)
-            meta[key] = {"rig": rig, "height": h, "material": mat or "file", "native_s": t1 - t0,
+            meta[key] = {"rig": rig, "height": h, "material": mat or "file", "native_s": native_s,
                          "fringe_s": fringe_s, "images": int(rad.shape[0]), "sharp_glossy": world.sl.sharp_glossy,
                          "row_periods": list(ROW_PERIODS), "product_rows": rows}
             meta_path.write_text(json.dumps(meta, indent=1))
-            log(f"  {key}: native {t1 - t0:.1f} s, fringes {fringe_s:.1f} s")
+            log(f"  {key}: native {native_s:.1f} s, fringes {fringe_s:.1f} s")
     return meta
 
 
@@ -113,7 +109,7 @@ def dark_step_stack(cam_size=(640, 480), seed: int = 0):
     boxes with 0.13 m and 0.25 m steps, two spheres, projector shadows, a floor patch of albedo
     0.015 beside the tall box and that box (top) of albedo 0.04; periods (1, 8, 64) x 4; read +
     shot noise, 8-bit. Returns (images, render truth, camera, projector); `images` uint8."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "sl"))
+    on_path("tests/sl")
     import synth
 
     cam, proj = synth.make_rig(cam_size=cam_size, proj_size=(912, 570), baseline=0.15, distance=1.0)

@@ -58,6 +58,30 @@ def model_depth(V, F, K, R, t, W, H):
     return depth
 
 
+def obj_mesh(path: Path):
+    """(vertices, triangles) of an OBJ file, parsed here (polygons fanned), independent of the
+    importers DataPipe uses."""
+    v, f = [], []
+    for line in Path(path).read_text().splitlines():
+        t = line.split()
+        if t and t[0] == "v":
+            v.append([float(x) for x in t[1:4]])
+        elif t and t[0] == "f":
+            idx = [int(x.split("/")[0]) - 1 for x in t[1:]]
+            f += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
+    return np.array(v), np.array(f)
+
+
+def visible_part(V, F, K, T, depth, occluder):
+    """(silhouette, visible pixels) of a model at pose T (4x4, the units of V and `depth`) against a
+    rendered depth map (NaN where nothing was hit): a silhouette pixel is visible unless something
+    lies more than `occluder` in front of the model there."""
+    H, W = depth.shape
+    own = model_depth(V, F, K, T[:3, :3], T[:3, 3], W, H)
+    full = own > 0
+    return full, full & ~(np.nan_to_num(depth, nan=np.inf) < own - occluder)
+
+
 def _dilate(mask):
     out = mask.copy()
     for dy in (-1, 0, 1):

@@ -3,11 +3,15 @@ emulated with the bpy module: a .blend is open, so the CLI keeps it and its `dro
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import bpy
 import numpy as np
 
 from datapipe import config as C
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from cli_runs import small_config  # noqa: E402
 
 
 def test_cli_inside_an_open_blend_uses_its_drop_zone(tmp_path):
@@ -19,12 +23,7 @@ def test_cli_inside_an_open_blend_uses_its_drop_zone(tmp_path):
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
 
-    cfg = C.default_config()
-    cfg.scene.num_renders = 1
-    cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 1
-    cfg.camera.resolution = [32, 24]
-    cfg.render.samples = 1
-    cfg.structured_light.enabled = False
+    cfg = small_config(1, (32, 24))
     for pose in cfg.camera.poses:          # look at the .blend's drop zone
         pose.location[0] += 2.0
     C.save(cfg, tmp_path / "preset.json")

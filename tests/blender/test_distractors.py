@@ -24,30 +24,18 @@ from datapipe import config as C
 from datapipe.engine.pipeline import Pipeline
 from datapipe.io.bop import export_bop
 from datapipe.io.exr import read_depth, read_mask
-from small_runs import small_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bop_toolkit_check import check, model_depth, toolkit  # noqa: E402
+from cli_runs import small_config  # noqa: E402
+from bop_toolkit_check import check, obj_mesh, toolkit, visible_part  # noqa: E402
 
 OCCLUDER_MM = 1.0        # in front of the part by more than this: occluded (Cycles' depth vs the raster: < 0.1 mm)
 EDGE_PX = 2
 ASSETS = Path(__file__).resolve().parents[2] / "datapipe" / "assets"
 
 
-def _obj_mesh(path: Path):
-    v, f = [], []
-    for line in path.read_text().splitlines():
-        t = line.split()
-        if t and t[0] == "v":
-            v.append([float(x) for x in t[1:4]])
-        elif t and t[0] == "f":
-            idx = [int(x.split("/")[0]) - 1 for x in t[1:]]
-            f += [(idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1)]
-    return np.array(v), np.array(f)
-
-
 def _config():
-    cfg = small_config(2, 2, (160, 120))
+    cfg = small_config(2, (160, 120), per_scene=2, threads=2)
     cfg.output.formats = ["native", "bop"]
     peg = cfg.objects[0]
     peg.min_instances = peg.max_instances = 3
@@ -93,7 +81,7 @@ def test_distractors_are_in_no_ground_truth(run_dir):
 
 
 def test_visible_fraction_counts_occlusion_by_distractors(run_dir):
-    V, F = _obj_mesh(ASSETS / "peg.obj")
+    V, F = obj_mesh(ASSETS / "peg.obj")
     scene = json.loads((run_dir / "scene.0001" / "scene.json").read_text())
     by_distractor = 0
     for r, rec in enumerate(scene["renders"]):
@@ -101,14 +89,10 @@ def test_visible_fraction_counts_occlusion_by_distractors(run_dir):
         depth = read_depth(rdir / "depth.exr").astype(np.float64)
         mask = read_mask(rdir / "mask.exr")
         K = np.array(rec["K"])
-        W, H = rec["resolution"]
         for o in rec["objects"]:
-            T = np.array(o["T_cam_obj"])
-            own = model_depth(V, F, K, T[:3, :3], T[:3, 3], W, H)
-            full = own > 0
+            full, vis = visible_part(V, F, K, np.array(o["T_cam_obj"]), depth, OCCLUDER_MM / 1000)
             if full.sum() < 20:
                 continue
-            vis = full & ~(np.nan_to_num(depth, nan=np.inf) < own - OCCLUDER_MM / 1000)
             # hidden behind something in the mask's background: a distractor (the bin and floor lie below)
             by_distractor += int((full & ~vis & (mask == 0)).sum())
             assert abs(o["px_count_visib"] - vis.sum()) <= EDGE_PX, (o["name"], o["px_count_visib"], vis.sum())

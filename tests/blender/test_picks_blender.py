@@ -11,16 +11,20 @@ The 10 steps from 80 parts of issue #29 are measured outside the suite (benchmar
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from datapipe import config as C
 from datapipe.io.exr import read_mask
-from small_runs import kill_after_scene, small_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from cli_runs import kill_at_scene, small_config  # noqa: E402
 
 
 def picks_config():
-    cfg = small_config(4, 1, (64, 48), instances=4)                # 3 entries x 4: 12 parts
+    cfg = small_config(4, (64, 48))
+    cfg.render.threads = 2
     cfg.output.overview = False
     cfg.scene.picks = C.PicksConfig(per_step=3, order="top", until=3)   # 12 -> 9 -> 6 -> 3: 4 scenes
     return cfg
@@ -53,7 +57,7 @@ def test_pick_steps_settle_clean_and_resume_to_the_same_files(tmp_path):
             seen = set(np.unique(read_mask(full / d["name"] / r["files"]["mask"])).tolist())
             assert not {pile[n] for n in removed} & seen       # no removed part in the rendered mask
     # kill the second run once the pile's first pick step is complete, then resume
-    kill_after_scene(cmd + ["--out", str(part)], "scene.0002", timeout=120)
+    assert kill_at_scene(cmd + ["--out", str(part)], "scene.0002", 120) == -signal.SIGKILL
     assert len(scene_docs(part)) < 4 or not scene_docs(part)[-1].get("complete")
     r = subprocess.run(cmd + ["--out", str(part), "--resume"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr

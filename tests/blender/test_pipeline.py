@@ -19,7 +19,9 @@ import pytest
 from datapipe import config as C
 from datapipe.engine.pipeline import Pipeline
 from datapipe.io.exr import read_depth, read_mask, read_normals
-from small_runs import kill_after_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from cli_runs import kill_at_scene  # noqa: E402
 
 
 def tiny_config(num_renders=3, res=(96, 72), samples=2):
@@ -162,7 +164,7 @@ def test_killed_run_resumes_to_the_same_dataset(tmp_path):
     cmd = [sys.executable, "-m", "datapipe", "run", str(tmp_path / "p.json")]
     subprocess.run(cmd + ["--out", str(full), "--quiet"], check=True, capture_output=True)
     # kill the second run as soon as its first scene is complete
-    kill_after_scene(cmd + ["--out", str(part)], "scene.0001", timeout=60)
+    assert kill_at_scene(cmd + ["--out", str(part)], "scene.0001", 60) == -signal.SIGKILL
     assert len(scenes(part)) < 3
     r = subprocess.run(cmd + ["--out", str(part)], capture_output=True, text=True)
     assert r.returncode == 2 and "--resume" in r.stderr                 # refused without --resume

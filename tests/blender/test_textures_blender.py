@@ -19,7 +19,7 @@ from datapipe.core.camera import BlendCamera  # noqa: E402
 from datapipe.core.projector import fringe_layer_leaks  # noqa: E402
 from datapipe.core.renderer import Renderer  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
-from small_runs import maps_only, small_config  # noqa: E402
+from cli_runs import maps_only, small_config  # noqa: E402
 
 SEED = 5
 STEPS = 4
@@ -120,7 +120,7 @@ def _run_config(tmp_path) -> C.Config:
             assert cv2.imwrite(str(skies / name), np.tile(np.float32(v), (8, 16, 1)))
     from datapipe.io.exr import write_exr
     write_exr(skies / "warm.exr", {c: np.full((8, 16), x, np.float32) for c, x in zip("RGB", (1.0, 0.6, 0.3))})
-    cfg = maps_only(small_config(2, 2, (48, 36), samples=2, instances=2))
+    cfg = maps_only(small_config(2, (48, 36), samples=2, per_scene=2, instances=2, threads=2))
     cfg.scene.textures = C.TexturesConfig(targets=["bin", "floor", "parts"], kinds=[*C.TEXTURE_KINDS],
                                           image_folder=str(tmp_path / "sets"))
     cfg.lighting = C.LightingConfig(per_render=True, environment=str(skies))

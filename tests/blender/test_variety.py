@@ -17,13 +17,13 @@ import pytest
 from datapipe import config as C
 from datapipe.engine.pipeline import Pipeline
 
-from small_runs import maps_only, small_config
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from cli_runs import maps_only, small_config  # noqa: E402
 from pose_checks import pose_parameters  # noqa: E402
 
 
 def variety_config():
-    cfg = maps_only(small_config(8, 1, (48, 36), samples=4, instances=1))    # 8 scenes: 8 light draws
+    cfg = maps_only(small_config(8, (48, 36), samples=4, instances=1, threads=2))    # 8 scenes: 8 light draws
     cfg.scene.bin_size_scale, cfg.scene.bin_wall_scale = [0.8, 1.2], [0.6, 1.2]
     cfg.camera.sampler = C.CameraSamplerConfig(kind="bin_view", distance=[0.55, 0.85], tilt_deg=[0.0, 30.0],
                                                azimuth_deg=[0.0, 360.0], roll_deg=[-180.0, 180.0],

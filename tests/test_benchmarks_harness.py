@@ -1,0 +1,146 @@
+"""benchmarks/harness.py, what every benchmark times and writes with (no bpy), and every benchmark
+script: each imports with bpy blocked (those listed as needing Blender excepted: they are run by
+tests/blender/test_benchmark_scripts.py) and answers `--help`, so a broken script is seen here and
+not at its next long run.
+
+CPU times are judged against the kernel's own account of this process (resource.getrusage), not
+the clock the harness reads (time.process_time)."""
+import csv
+import json
+import math
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "benchmarks"
+sys.path.insert(0, str(BENCH))
+import harness  # noqa: E402
+
+# benchmark scripts that import bpy at module level (their --help runs in tests/blender)
+NEEDS_BLENDER = {"bench_physics"}
+# getrusage counts in scheduler ticks (<= 4 ms at 250 Hz) and the interpreter's own work around the
+# timed block adds a few ms: 50 ms is ample, and far below the 300 ms the busy loop takes
+CPU_TOL_S = 0.05
+
+
+def _rusage_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def test_md_table_and_csv_round_trip(tmp_path):
+    rows = [{"case": "a", "cpu_s": 1.5, "n": 3}, {"case": "b", "cpu_s": 0.25, "n": 4, "extra": "x"}]
+    assert harness.md_table(["case", "n"], [["a", 3], ["b", 4]]) == ["| case | n |", "|---|---|", "| a | 3 |",
+                                                                    "| b | 4 |"]
+    path = tmp_path / "sub" / "r.csv"
+    harness.write_rows_csv(path, rows)
+    with open(path, newline="") as f:
+        read = list(csv.reader(f))
+    assert read[0] == ["case", "cpu_s", "n", "extra"]                   # every key, first seen first
+    assert read[1] == ["a", "1.5", "3", ""] and read[2] == ["b", "0.25", "4", "x"]
+    assert harness.read_rows_csv(path) == [{"case": "a", "cpu_s": 1.5, "n": 3, "extra": ""},
+                                           {"case": "b", "cpu_s": 0.25, "n": 4, "extra": "x"}]
+    harness.append_row_csv(path, {"case": "c", "new": 7})                # a new column: the file is rewritten
+    assert [r["case"] for r in harness.read_rows_csv(path)] == ["a", "b", "c"]
+    assert list(harness.read_rows_csv(path)[0]) == ["case", "cpu_s", "n", "extra", "new"]
+    harness.write_rows_csv(path, [{"v": 1 / 3}], float_fmt=".3g")
+    assert path.read_text().splitlines() == ["v", "0.333"]
+    assert harness.read_rows_csv(tmp_path / "missing.csv") == []
+
+
+def test_column_table_and_notes(tmp_path):
+    t = harness.column_table([{"a": 1.0, "b": math.nan}], [("a", "{:.2f}"), ("b", "{:.1f}")])
+    assert t == "| a | b |\n|---|---|\n| 1.00 | - |\n"
+    (tmp_path / "rep_notes.md").write_text("## Findings\nby hand")
+    harness.write_with_notes(tmp_path / "rep.md", ["# Title", "", "table"])
+    assert (tmp_path / "rep.md").read_text() == "# Title\n\ntable\n## Findings\nby hand\n"
+    harness.write_with_notes(tmp_path / "other.md", ["# Other"])          # no notes file: the lines alone
+    assert (tmp_path / "other.md").read_text() == "# Other\n"
+
+
+def test_cpu_time_of_a_busy_loop_and_of_a_sleep():
+    """A loop that spins until the kernel has counted 0.3 s of this process's CPU measures 0.3 s of
+    CPU; a 0.3 s sleep measures 0.3 s of wall and (almost) no CPU."""
+    start = _rusage_cpu()
+    with harness.Stopwatch() as busy:
+        while _rusage_cpu() - start < 0.3:
+            pass
+    spent = _rusage_cpu() - start
+    assert busy.cpu_s == pytest.approx(spent, abs=CPU_TOL_S)
+    assert busy.wall_s >= busy.cpu_s - CPU_TOL_S                      # one thread: CPU <= wall
+    with harness.Stopwatch() as idle:
+        time.sleep(0.3)
+    assert idle.wall_s >= 0.3 and idle.cpu_s < CPU_TOL_S
+
+
+def test_timed_repeats_and_round_robin():
+    calls = []
+    out, t = harness.timed(lambda: calls.append(1) or len(calls), repeat=3, warmup=True)
+    assert len(calls) == 4 and out == 4                       # the warm-up is not timed, the last result is returned
+    assert len(t.wall) == len(t.cpu) == 3 and t.best_wall_s <= t.wall_s and t.best_cpu_s <= t.cpu_s
+    order = []
+    tt = harness.round_robin({"a": lambda: order.append("a"), "b": lambda: order.append("b")}, 2)
+    assert order == ["a", "b", "a", "b", "a", "b"]                      # warm-ups, then in turns
+    assert set(tt) == {"a", "b"} and len(tt["a"].wall) == 2
+
+
+def test_child_cpu_and_peak_memory():
+    """A child that spins 0.3 s of its own CPU and holds 200 MiB: os.wait4 reports both."""
+    code = ("import resource, numpy as np\n"
+            "a = np.ones(200 * 2**20, np.uint8)\n"
+            "cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])\n"
+            "s = cpu()\n"
+            "while cpu() - s < 0.3: pass\n")
+    c = harness.run_child([sys.executable, "-c", code])
+    assert c.returncode == 0
+    assert c.cpu_s >= 0.3 - CPU_TOL_S and c.wall_s >= c.cpu_s - CPU_TOL_S
+    assert 200 <= c.peak_rss_mib < 2000
+    assert harness.run_child([sys.executable, "-c", "raise SystemExit(3)"]).returncode == 3
+
+
+def test_machine_line_names_the_cpus():
+    import os
+    assert f"{os.cpu_count()} logical CPUs" in harness.machine()
+
+
+# Blender's modules are refused (None in sys.modules: every import of them raises ImportError), so
+# an installed bpy wheel cannot hide a script that needs it
+_IMPORT_ALL = """
+import contextlib, io, json, sys
+sys.modules.update(dict.fromkeys(('bpy', 'mathutils', 'bmesh')))
+sys.path.insert(0, sys.argv[1])
+bad = {}
+for m in json.loads(sys.argv[2]):
+    try:
+        mod = __import__(m)
+        if hasattr(mod, 'main'):
+            sys.argv = [m + '.py', '--help']
+            with contextlib.redirect_stdout(io.StringIO()):
+                try:
+                    mod.main()
+                    bad[m] = 'main(--help) returned instead of printing its help'
+                except SystemExit as e:
+                    if e.code not in (0, None):
+                        bad[m] = f'--help exited {e.code}'
+    except Exception as e:
+        bad[m] = f'{type(e).__name__}: {e}'
+print(json.dumps(bad))
+"""
+
+
+def test_every_benchmark_imports_and_parses_help():
+    """Every module of benchmarks/ imports with bpy absent and each script's main answers --help;
+    the ones that need Blender are exactly the listed ones (the block is real)."""
+    mods = sorted(p.stem for p in BENCH.glob("*.py"))
+    assert len(mods) > 20 and "bench_sl" in mods                # the walk sees the scripts
+    r = subprocess.run([sys.executable, "-c", _IMPORT_ALL, str(BENCH), json.dumps(mods)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=240, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 0, r.stderr
+    bad = json.loads(r.stdout.strip().splitlines()[-1])
+    assert set(bad) == NEEDS_BLENDER, bad
+    assert all("import of bpy halted" in bad[m] for m in NEEDS_BLENDER), bad
