@@ -28,11 +28,7 @@ PKG = ROOT / "datapipe"
 MAX_FUNCTION_LINES = 80          # issue #32: a function a newcomer reads on one screen
 MAX_MODULE_LINES = 600
 # qualified name -> why it may be longer for now
-LONG_FUNCTION_EXCEPTIONS = {
-    "datapipe/sl/spatial.py:correct_orders": "being split in the decoder work",
-    "datapipe/sl/decode_slab.py:decode_slab": "being split in the decoder work",
-    "datapipe/sl/unwrap.py:unwrap_cycles": "being split in the decoder work",
-    "datapipe/sl/noise.py:_statistics": "being split in the decoder work",
+LONG_FUNCTION_EXCEPTIONS: dict[str, str] = {
 }
 
 # Blender's side is core/ (bpy at import) and ui/ (the add-on's panels); every other module of the
@@ -265,8 +261,7 @@ def test_long_function_exceptions_are_still_needed():
 # benchmarks/ (issue #32): its scripts are read and changed like the package, so the same rule, at 80
 MAX_BENCHMARK_FUNCTION_LINES = 80
 # path:function -> why it may be longer for now
-LONG_BENCHMARK_EXCEPTIONS = {
-    "benchmarks/bench_sl_speed.py:main": "81 lines; the decoder's file, being changed on its own branch",
+LONG_BENCHMARK_EXCEPTIONS: dict[str, str] = {
 }
 
 
