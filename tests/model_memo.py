@@ -4,10 +4,11 @@ computed once per distinct mesh in a test session instead of once per run.
 Why: every fake-world run (tests/fake_world.py, no Blender) analyses the same three box models again
 at its start (Pipeline._build_world: io.bop_models.models_symmetries -> io.symmetry.detect_symmetries)
 and at each BOP export (io.bop.BopWriter._write_models_eval -> resample_for_eval): measured 2.7 of
-the 3.0 s of test_run_loop's small run. The tests of the run loop, the output folder and the picks
-check what a run writes and when, not these two functions (tests/test_symmetry.py, test_bop_models.py
-and test_bop.py check them, unmemoised); both are pure functions of their arguments, so a remembered
-result is the one a new call would give and every file a run writes keeps its bytes.
+the 3.0 s of test_run_loop's small run. The tests of the run loop, the output folder, the picks and
+the BOP sensor and xyz_crop exports check what a run or an export writes and when, not these two
+functions (tests/test_symmetry.py, test_bop_models.py and test_bop.py check them, unmemoised: keep the
+fixture out of them); both are pure functions of their arguments, so a remembered result is the one a
+new call would give and every file a run writes keeps its bytes.
 
 The first call with given arguments runs the real function; a later call with equal arguments (the
 same array bytes, dtype and shape, the same other values) gets a deep copy of that result. The second
