@@ -20,6 +20,8 @@ from fake_world import BoxWorld
 from datapipe.config import load, presets_dir
 from datapipe.engine.pipeline import Pipeline
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -21,6 +21,8 @@ from datapipe.io.bop import export_bop
 from datapipe.io.bop_sensor import sensor_for_config
 from datapipe.io.exr import read_exr
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 SENSOR = "photoneo"        # one of xyzibd's sensor names, so the toolkit's own templates apply as they are
 
 

@@ -22,6 +22,8 @@ from datapipe.io.exr import read_exr
 import fixtures_native as fx
 from distributed_helpers import assert_recorded_as_written, killing, legacy, local_ray  # noqa: F401  (local_ray: a fixture)
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 TESTS = Path(__file__).resolve().parent
 FAKE_RUNNER = [sys.executable, str(TESTS / "fixtures_native.py"), "run"]
 

@@ -16,6 +16,8 @@ from datapipe.core.world import BlenderWorld
 from datapipe.engine.distributed import run_distributed
 from datapipe.errors import ConfigError, DataPipeError, Problem
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 
 @pytest.fixture
 def cfg(tmp_path):

@@ -135,12 +135,13 @@ def _module_graph() -> dict[str, set[str]]:
     graph = {}
     for name, p in paths.items():
         deps = set()
-        for m in _imported_modules(p):
+        imported = _imported_modules(p)       # parsed once per file (was once per imported name: 20 s)
+        for m in imported:
             if m not in paths and not any(m.startswith(k + ".") for k in paths):
                 continue
             while m not in paths:             # pkg.mod.attr -> pkg.mod
                 m = m.rpartition(".")[0]
-            if m != name and not any(d.startswith(m + ".") for d in _imported_modules(p) if d in paths):
+            if m != name and not any(d.startswith(m + ".") for d in imported if d in paths):
                 deps.add(m)
         graph[name] = deps
     return graph

@@ -22,6 +22,8 @@ from test_outdir_safety import _victim, finished, one_run  # noqa: F401 (fixture
 from test_run_loop import run, small_cfg
 from tree_hash import hashes
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

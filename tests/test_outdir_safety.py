@@ -25,6 +25,8 @@ from datapipe.io import files, layout, legacy
 from test_run_loop import run, small_cfg
 from tree_hash import hashes
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 
 def tmp_leftovers(root) -> list[str]:
     return [str(p) for p in root.rglob("*") if ".tmp" in p.name or p.name.startswith("_")]

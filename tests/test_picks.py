@@ -20,6 +20,8 @@ from datapipe.io import layout
 from datapipe.reader import read_run
 from test_run_loop import annotations, finished_run, run, shard_runs
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 
 def picks_cfg(tmp_path, order="top", per_step=1, until=0, num_renders=9):
     cfg = fx.default_config(num_renders=num_renders, min_per_scene=1, max_per_scene=1, resolution=(64, 48),

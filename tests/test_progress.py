@@ -14,6 +14,8 @@ from datapipe.engine.progress import STEP, Tracker, estimate_eta
 from datapipe.visibility import VisibStats
 from datapipe.world import SILENT
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 
 def test_eta_adds_current_step_later_steps_and_later_renders():
     # a structured-light Cycles call 30 s in and 25% done: 90 s left in it; decode 10 s and maps 5 s

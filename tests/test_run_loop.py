@@ -18,6 +18,8 @@ from datapipe.engine.distributed import merge_shards
 from datapipe.errors import DataPipeError
 from datapipe.io import layout
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 
 def small_cfg(tmp_path, formats=("native", "bop")):
     cfg = fx.default_config(num_renders=5, min_per_scene=1, max_per_scene=2, resolution=(64, 48),

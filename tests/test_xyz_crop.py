@@ -23,6 +23,8 @@ from datapipe.io.bop import export_bop
 
 import fixtures_native as fx
 
+pytestmark = pytest.mark.usefixtures("remembered_model_analysis")   # box models analysed once (tests/model_memo.py)
+
 # three boxes drawn close together (interpenetrating is fine for images): occluded parts in every image
 LAYOUT = dict(min_boxes=3, max_boxes=3, spread=0.02, truncate=True)
 TOL_M = 1e-4          # the acceptance line: 0.1 mm

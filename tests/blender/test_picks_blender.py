@@ -23,8 +23,7 @@ from cli_runs import kill_at_scene, small_config  # noqa: E402
 
 
 def picks_config():
-    cfg = small_config(4, (64, 48))
-    cfg.render.threads = 2
+    cfg = small_config(4, (64, 48), instances=4, threads=2)         # 3 entries x 4: 12 parts
     cfg.output.overview = False
     cfg.scene.picks = C.PicksConfig(per_step=3, order="top", until=3)   # 12 -> 9 -> 6 -> 3: 4 scenes
     return cfg

@@ -55,6 +55,8 @@ def scan(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sl_truth")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cfg = rig_config("gui", HEIGHT)
+    cfg.render.outputs = ["depth", "mask"]   # no RGB: the native layer takes 1 sample; depth and mask are the
+                                             # pixel centre's at any count (core/renderer.py), so the same truth
     world = BlenderWorld(cfg, tmp / "world")
     world.setup()
     world.start_scene(0, cfg.scene.seed, scene_rng(cfg.scene.seed, 0), 1)

@@ -68,6 +68,8 @@ def measure(tmp: Path, exposure=None) -> dict:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cfg = rig_config("default", HEIGHTS[0])
     cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, h]) for h in HEIGHTS]
+    cfg.render.outputs = ["depth", "mask"]   # no RGB: the native layer takes 1 sample; depth and mask are the
+                                             # pixel centre's at any count (core/renderer.py), so the same truth
     if exposure is not None:
         cfg.structured_light.exposure = exposure
     world = BlenderWorld(cfg, tmp / "world")
