@@ -9,6 +9,7 @@ the seed, so the later steps start from the same pile.
 The 10 steps from 80 parts of issue #29 are measured outside the suite (benchmarks/bench_picks.py).
 """
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
