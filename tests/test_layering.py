@@ -154,32 +154,7 @@ KNOWN_CYCLES = []
 
 def test_no_import_cycles():
     graph = _module_graph()
-    cycles, index, low, stack, on = [], {}, {}, [], set()
-
-    def visit(v):                               # Tarjan's strongly connected components
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on.add(v)
-        for w in graph[v]:
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            if len(comp) > 1:
-                cycles.append(sorted(comp))
-
-    for v in graph:
-        if v not in index:
-            visit(v)
+    cycles = _circles(graph)
     assert [c for c in cycles if c not in KNOWN_CYCLES] == []
     assert [c for c in KNOWN_CYCLES if c not in cycles] == []      # a broken known cycle leaves the list
     assert "datapipe.ui.props" in graph["datapipe.ui"]          # the graph is real: a known edge is there
