@@ -10,7 +10,7 @@ meshes, shaders, images, lights, kernels), bvh (building the BVHs), path tracing
 denoise, output (compositing and the File Output's EXR). Per view it prints the native render's and
 the fringe call's phases, and run.json's steps (decode, writing, annotations).
 
-    python benchmarks/bench_view_cost.py --views 3 [--persistent-data] [--binning 4] [--json out.json]
+    python benchmarks/bench_view_cost.py --views 3 [--persistent-data] [--binning 4] [--no-denoise] [--json out.json]
 """
 from __future__ import annotations
 
@@ -86,6 +86,8 @@ def main(argv=None) -> int:
     ap.add_argument("--views", type=int, default=3)
     ap.add_argument("--binning", type=int, default=None)
     ap.add_argument("--persistent-data", action="store_true")
+    ap.add_argument("--no-denoise", action="store_true", help="the native render without OpenImageDenoise "
+                    "(to measure the denoiser's share; not the preset's output)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, default=None, help="also write the numbers here")
     a = ap.parse_args(argv)
@@ -97,6 +99,8 @@ def main(argv=None) -> int:
     s["num_renders"] = s["min_renders_per_scene"] = s["max_renders_per_scene"] = a.views
     s["seed"] = a.seed
     d["render"]["persistent_data"] = a.persistent_data
+    if a.no_denoise:
+        d["render"]["denoise"] = False
     d["output"]["overview"] = False
     for o in d["objects"]:
         o["filepath"] = str((pre.parent / o["filepath"]).resolve())
@@ -112,7 +116,8 @@ def main(argv=None) -> int:
     steps = {k: round(v["cpu_s"], 2) for k, v in run["stats"]["steps"].items()}
     res = cfg.camera.resolution
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20        # KiB on Linux -> GiB
-    print(f"bin_picking.json, {res[0]} x {res[1]}, {a.views} views, persistent data {a.persistent_data}: "
+    print(f"bin_picking.json, {res[0]} x {res[1]}, {a.views} views, persistent data {a.persistent_data}, "
+          f"denoise {cfg.render.denoise}: "
           f"{cpu:.1f} CPU s, {wall:.0f} s wall, peak RSS {rss:.2f} GiB; run.json steps (CPU s): {steps}\n")
     print("| view | call | " + " | ".join(PHASES) + " | call CPU s |")
     print("|---|---|" + "---|" * (len(PHASES) + 1))
@@ -126,6 +131,7 @@ def main(argv=None) -> int:
             print(f"| {v} | {kind} | " + " | ".join(f"{x:.1f}" for x in vals) + f" | {sum(vals):.1f} |")
     if a.json:
         a.json.write_text(json.dumps({"views": a.views, "persistent_data": a.persistent_data, "resolution": res,
+                                      "denoise": cfg.render.denoise,
                                       "cpu_s": cpu, "wall_s": wall, "peak_rss_gib": rss, "steps": steps, "calls": rows}, indent=1))
     return 0
 
