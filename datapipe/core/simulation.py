@@ -45,7 +45,7 @@ from mathutils import Matrix
 
 from ..config import Config
 from ..checks.physics_check import Part, SceneCheck, check_scene, physics_line
-from ..checks.settle import SETTLE_CONFIRM_S, RestTest, settle_speeds  # noqa: F401 (SETTLE_CONFIRM_S: tests)
+from ..checks.settle import RestTest, settle_speeds
 from ..engine import progress
 from .objects import COM_PROP, SIM_MESH_PROP, STAGE_LAYERS, Instance, ObjectManager
 from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_bodies
