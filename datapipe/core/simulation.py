@@ -13,7 +13,8 @@
 3. steps frames in order with `scene.frame_set(f)`. A body is at rest when its linear speed (of
    its centre) and its angular speed times its radius both stay below min(settle_speed, 20% of
    its size per second) for `settle_frames` frames and at least 0.5 s, and it moved less than
-   min(1 mm, 10% of its size) over that window: the rest is confirmed, not a momentary slow-down.
+   min(1 mm, 10% of its size) over that window: the rest is confirmed, not a momentary slow-down
+   (the test, over a window that slides with the frames, is `datapipe/checks/settle.py`).
    Bullet's deactivation uses the same speeds (`_let_sleep`): a body below them for 2 s sleeps,
    so the numerical creep of a resting pile (< 1 mm/s, yet resetting the confirmation window
    again and again) ends instead of running the stage to max_frames.
@@ -44,6 +45,7 @@ from mathutils import Matrix
 
 from ..config import Config
 from ..checks.physics_check import Part, SceneCheck, check_scene, physics_line
+from ..checks.settle import RestTest, settle_speeds
 from ..world import SILENT, Reporter
 from .objects import COM_PROP, SIM_MESH_PROP, STAGE_LAYERS, Instance, ObjectManager
 from .scene import INSIDE_MARGIN, BlendScene, ensure_rigidbody_world, remove_rigid_bodies
@@ -53,10 +55,6 @@ LEFT_BIN = "left the bin"
 FELL_THROUGH = "fell through the floor"
 GRAVITY = 9.81                 # m/s^2
 SUBSTEP_FRACTION = 0.5         # one substep moves a part at most this x the thinnest width
-SETTLE_RELATIVE = 0.2          # at rest: speed below this x the part's size per second ...
-SETTLE_CONFIRM_S = 0.5         # ... for at least this long, moving less than ...
-SETTLE_MOTION = 0.001          # ... this (m) ...
-SETTLE_MOTION_RELATIVE = 0.1   # ... or this x its size if that is smaller
 
 
 @dataclass
@@ -227,11 +225,6 @@ def settle_sizes(instances: list[Instance], corners: list[np.ndarray]) -> np.nda
                      for inst, c in zip(instances, corners)], dtype=np.float64)
 
 
-def settle_speeds(settle_speed: float, sizes: np.ndarray) -> np.ndarray:
-    """The speed (m/s) below which a body of this size counts as at rest."""
-    return np.minimum(settle_speed, SETTLE_RELATIVE * sizes)
-
-
 def plan_substeps(cfg: Config, bs: BlendScene, instances: list[Instance], frame_time: float) -> SubstepPlan:
     """Substeps so that a part at its impact speed moves at most SUBSTEP_FRACTION x the thinnest
     part (or the wall/floor) per substep."""
@@ -356,9 +349,6 @@ class Simulation:
         n = len(instances)
         sizes = settle_sizes(instances, corners)
         radius = sizes / 2
-        v_max = settle_speeds(float(sim.settle_speed), sizes)
-        motion = np.minimum(SETTLE_MOTION, SETTLE_MOTION_RELATIVE * sizes)
-        window = max(int(sim.settle_frames), math.ceil(SETTLE_CONFIRM_S / dt - 1e-9))
         C = np.array(corners, dtype=np.float64).reshape(n, 8, 3)
         T = np.array(offsets, dtype=np.float64).reshape(n, 4, 4)
 
@@ -369,8 +359,8 @@ class Simulation:
             return mats, np.einsum("nij,nkj->nki", mats[:, :3, :3], C) + mats[:, None, :3, 3]
 
         mats, pts = state()
-        still = np.zeros(n, dtype=int)
-        anchor = pts.copy()                    # corners when the current rest run began
+        test = RestTest(sizes, float(sim.settle_speed), int(sim.settle_frames), dt, pts)
+        rest = np.zeros(n, dtype=bool)
         speed = np.zeros(n)
         frames, settled = 0, n == 0
         for k in range(1, int(sim.max_frames) + 1):
@@ -381,13 +371,11 @@ class Simulation:
             lin = np.linalg.norm(mats[:, :3, 3] - prev[:, :3, 3], axis=1) / dt
             cos = (np.einsum("nij,nij->n", prev[:, :3, :3], mats[:, :3, :3]) - 1) / 2   # trace(R_prev^T R)
             speed = np.maximum(lin, np.arccos(np.clip(cos, -1.0, 1.0)) / dt * radius)
-            rest = (speed < v_max) & (np.linalg.norm(pts - anchor, axis=2).max(axis=1) < motion)
-            still = np.where(rest, still + 1, 0)
-            anchor[~rest] = pts[~rest]
-            if np.all(self._gone(pts) | (still >= window)):
+            rest = test.update(speed, pts)
+            if np.all(self._gone(pts) | rest):
                 settled = True
                 break
-        moving = ~(self._gone(pts) | (still >= window))
+        moving = ~(self._gone(pts) | rest)
         return frames, settled, mats, [(inst.name, float(speed[j])) for j, inst in enumerate(instances) if moving[j]]
 
     def _gone(self, corners: np.ndarray) -> np.ndarray:

@@ -13,9 +13,10 @@ bpy = pytest.importorskip("bpy")
 from mathutils import Matrix  # noqa: E402
 
 from datapipe.config import ObjectEntry, assets_dir, default_config  # noqa: E402
+from datapipe.checks.settle import SETTLE_CONFIRM_S  # noqa: E402
 from datapipe.core.objects import ObjectManager  # noqa: E402
 from datapipe.core.scene import BlendScene  # noqa: E402
-from datapipe.core.simulation import SETTLE_CONFIRM_S, Simulation  # noqa: E402
+from datapipe.core.simulation import Simulation  # noqa: E402
 from datapipe.draws.seeds import scene_rng  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
