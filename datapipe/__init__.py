@@ -6,7 +6,7 @@ imports the package to register the add-on. Everything under `datapipe.core` and
 the `bpy` module (or runs inside Blender); every other module imports without it (`config`, `sl`,
 `io`, `draws`, `checks`, `engine`, `api`, ...).
 """
-__version__ = "0.1.0"
+from .version import __version__  # noqa: F401  (the one place it is written: datapipe/version.py)
 
 # datapipe.api's public names (its __all__), spelled here so that `import datapipe` does not import the API
 API_NAMES = (

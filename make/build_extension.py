@@ -141,9 +141,11 @@ def check_package() -> None:
     if not re.search(r"(?m)^def register\(", init) or not re.search(r"(?m)^def unregister\(", init):
         fail("datapipe/__init__.py defines no register()/unregister(): Blender could not enable the add-on "
              "(add: def register(): from .ui import register as r; r()  and the same for unregister)")
-    m = re.search(r'(?m)^__version__\s*=\s*"([^"]+)"', init)
+    m = re.search(r'(?m)^__version__\s*=\s*"([^"]+)"', (PACKAGE / "version.py").read_text())
     ver = re.search(r'(?m)^version\s*=\s*"([^"]+)"', MANIFEST.read_text())
-    if m and ver and m.group(1) != ver.group(1):
+    if not m:
+        fail('datapipe/version.py holds no __version__ = "X.Y.Z" line: write the version there')
+    if ver and m.group(1) != ver.group(1):
         fail(f"version mismatch: datapipe.__version__ {m.group(1)} vs blender_manifest.toml {ver.group(1)}")
 
 

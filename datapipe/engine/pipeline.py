@@ -21,7 +21,7 @@ from typing import Callable, ContextManager, Iterator
 
 import numpy as np
 
-from .. import __version__
+from ..version import __version__
 from ..io import outdir
 from . import gate
 from ..config import Config
