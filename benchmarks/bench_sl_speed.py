@@ -1,4 +1,4 @@
-"""Decoder speed at 1080p (issue #31): this branch's decoder, main's decoder when this speed pass began
+"""Decoder speed at 1080p (issue #31): today's decoder, main's decoder when this speed pass began
 and OpenCV, in one run; main's recorded figure beside them.
 
 Run as a script (not a test):  .venv/bin/python benchmarks/bench_sl_speed.py [--repeat 7]
@@ -46,7 +46,7 @@ from datapipe import sl  # noqa: E402
 RESULTS = ROOT / "benchmarks" / "results"
 MAIN = "6927a1b"            # main when this speed pass began (issue #31 item 3)
 PERIODS, STEPS = (1, 8, 64), 4
-NEW, OLD = "this branch", f"main (git {MAIN})"
+NEW, OLD = "today's decoder", f"main (git {MAIN})"
 STAGES = ("setup + noise fit", "slabs (per-pixel decode)", "pooled order decision",
           "spatial neighbour pass + re-triangulation", "assemble")
 
@@ -196,7 +196,7 @@ def write_report(times, quality, same, st, recorded, repeat):
            "| stage | " + " | ".join(f"{k} CPU ms" for k in st) + " |", "|---|" + "---|" * len(st)]
     md += [f"| {k} | " + " | ".join(f"{v[k]:.0f}" for v in st.values()) + " |" for k in STAGES]
     md += ["| sum | " + " | ".join(f"{sum(v.values()):.0f}" for v in st.values()) + " |", "",
-           f"Same outputs: this branch's maps against main's (git {MAIN}) on this stack:", "",
+           f"Same outputs: today's maps against main's (git {MAIN}) on this stack:", "",
            "| noise | reason codes differing | valid differing | valid agreement (lit) | NaN depth differing "
            "| max depth difference m | max confidence difference | max wrapped phase difference rad "
            "| modulation values differing |", "|---|---|---|---|---|---|---|---|---|"]
