@@ -53,21 +53,11 @@ READS = (1.0, 2.0, 3.0, 4.0)
 FULL_SCALE, E_PER_DN = 250.0, 40.0
 
 
-def patch_albedo(shape):
-    """0.8 with a vertical ramp 0.04 -> 0.8 on the left quarter and five dark patches."""
-    H, W = shape
-    a = np.full(shape, 0.8)
-    a[:, :W // 4] = np.linspace(0.04, 0.8, H)[:, None]
-    for r0, c0, v in [(20, 100, 0.04), (20, 190, 0.06), (130, 100, 0.1), (130, 190, 0.15), (80, 260, 0.04)]:
-        a[r0:r0 + 60, c0:c0 + 56] = v
-    return a
-
-
 def scenes():
     """(name, rig baseline, scene, albedo multiplier or None)."""
     return [("dark step 5 cm", 0.05, synth.dark_step_scene(), None),
             ("dark step 15 cm", 0.15, synth.dark_step_scene(), None),
-            ("dark patches", 0.15, synth.box_scene(), patch_albedo((CAM[1], CAM[0])))]
+            ("dark patches", 0.15, synth.box_scene(), synth.dark_patch_albedo((CAM[1], CAM[0])))]
 
 
 def ls_phase(images, F, N):

@@ -384,3 +384,17 @@ def tone_curve_stack(render, curve, *, full_scale=255.0, ambient=0.05, noise_dn=
         out = full_scale * curve(lin) + rng.standard_normal(lin.shape) * noise_dn
         true = float(np.sqrt(noise_dn ** 2 + 1 / 12))
     return np.clip(np.rint(out), 0, 255).astype(np.uint8), true
+
+
+def dark_patch_albedo(shape):
+    """Albedo 0.8 with a vertical ramp 0.04 -> 0.8 on the left quarter and five dark patches
+    (0.04-0.15), laid out on a 320 x 240 frame and scaled to `shape` (H, W): the dark-region stacks of
+    tests/sl/test_sl_coverage.py (160 x 120) and benchmarks/bench_sl_coverage.py (320 x 240)."""
+    H, W = shape
+    sy, sx = H / 240, W / 320
+    a = np.full(shape, 0.8)
+    a[:, :W // 4] = np.linspace(0.04, 0.8, H)[:, None]
+    for r0, c0, v in [(20, 100, 0.04), (20, 190, 0.06), (130, 100, 0.1), (130, 190, 0.15), (80, 260, 0.04)]:
+        r, c = round(r0 * sy), round(c0 * sx)
+        a[r:r + round(60 * sy), c:c + round(56 * sx)] = v
+    return a

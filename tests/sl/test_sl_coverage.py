@@ -10,20 +10,10 @@ from sl_helpers import STEPS, add_noise, decode_kw
 from datapipe.sl import NEIGHBOUR_RISK, Reason, decode, unwrap_phase
 
 
-def albedo_map(shape):
-    """0.8 with a vertical ramp 0.04 -> 0.8 on the left quarter and five patches 0.04-0.15."""
-    H, W = shape
-    a = np.full(shape, 0.8)
-    a[:, :W // 4] = np.linspace(0.04, 0.8, H)[:, None]
-    for r0, c0, v in [(10, 50, 0.04), (10, 95, 0.06), (65, 50, 0.1), (65, 95, 0.15), (40, 130, 0.04)]:
-        a[r0:r0 + 30, c0:c0 + 28] = v
-    return a
-
-
 @pytest.fixture(scope="module")
 def dark_scene():
     cam, proj = synth.make_rig()
-    return cam, proj, albedo_map((cam.size[1], cam.size[0]))
+    return cam, proj, synth.dark_patch_albedo((cam.size[1], cam.size[0]))
 
 
 def coverage(dark_scene, periods, noise, seed=5, **kw):
