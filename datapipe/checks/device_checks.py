@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..draws.camera_sampler import look_at_pose
 from ..config import CameraConfig, Config, ProjectorConfig, StructuredLightConfig
@@ -94,6 +93,7 @@ def calibrate_full_well(name: str) -> float:
     cfg = _build_cfg(config_sections(name))
     s = dev["sensor"]
     f = lambda fw: math.log(predicted_precision(cfg, p["distance"], fw, s["read_noise"], s["adc_bits"]) / p["value"])
+    from scipy.optimize import brentq  # here: scipy.optimize costs ~0.3 s to import, and only calibration needs it
     return float(brentq(f, 10.0, 1e8, rtol=1e-10))
 
 

@@ -37,7 +37,7 @@ off by more than 5 mm.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
+from .distributions import chi2_isf
 
 __all__ = ["phase_var_cycles", "phase_var_from_snr", "wrong_probability", "consistency_limits"]
 
@@ -73,7 +73,7 @@ def phase_var_from_snr(q):
 def consistency_limits(n_freq: int, d_min: float = 1.0):
     """Consistency test limits: chi-square for one dof and for a lattice stage's n_freq - 1 dofs,
     and the smallest squared residual that counts (rounding stage, lattice stage of ``d_min``)."""
-    return (float(chi2.isf(CONSISTENCY_P, 1)), float(chi2.isf(CONSISTENCY_P, max(1, n_freq - 1))),
+    return (float(chi2_isf(CONSISTENCY_P, 1)), float(chi2_isf(CONSISTENCY_P, max(1, n_freq - 1))),
             MIN_INCONSISTENCY ** 2, (MIN_INCONSISTENCY_LATTICE * d_min) ** 2)
 
 

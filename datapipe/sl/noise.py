@@ -53,8 +53,8 @@ from functools import cached_property
 from typing import Sequence
 
 import numpy as np
-import scipy.stats
 
+from .distributions import chi2_cdf, chi2_median, chi2_ppf, f_isf
 from .patterns import phase_shifts
 from .phase import PhaseKernel, work_dtype_for
 
@@ -236,7 +236,7 @@ def _tone_present(res, feats, a) -> bool:
             continue
         sel = order[b0:b1]
         _, rss1, rss0 = _fit_bin(feats[:, sel].reshape(m, -1), res[sel].reshape(-1), d, refit=False)
-        significant |= (rss0 - rss1) / m > scipy.stats.f.isf(TONE_P, m, nobs - m) * rss1 / (nobs - m)
+        significant |= (rss0 - rss1) / m > f_isf(TONE_P, m, nobs - m) * rss1 / (nobs - m)
         explained += rss0 - rss1
         total += rss0
     return bool(significant and explained >= TONE_MIN_SHARE * total)
@@ -424,8 +424,8 @@ def _fit(a, stat, dof, floor) -> NoiseModel:
     # is model error), over what that trimmed mean is for chi2(dof): unbiased for Gaussian noise and,
     # unlike a median, also for the skewed noise of pixels clipped at the ADC's zero (a sensor
     # without black level: there the median understated sigma^2 by 2x and shadows passed the floor)
-    q = scipy.stats.chi2.ppf(1.0 - TRIM, dof)
-    corr = dof * scipy.stats.chi2.cdf(q, dof + 2) / (1.0 - TRIM)
+    q = chi2_ppf(1.0 - TRIM, dof)
+    corr = dof * chi2_cdf(q, dof + 2) / (1.0 - TRIM)
     r = np.sqrt(np.maximum(a, 0.0))
     top = float(np.percentile(r, 99.9))
     edges = np.linspace(0.0, top if top > 0 else 1.0, BINS + 1)
@@ -443,7 +443,7 @@ def _fit(a, stat, dof, floor) -> NoiseModel:
             vb.append(max(float(np.mean(kept)) / corr, floor * floor))
             nn.append(b1 - b0)
     if not ab:
-        s2 = max(float(np.median(stat)) / scipy.stats.chi2.median(dof), floor * floor)
+        s2 = max(float(np.median(stat)) / chi2_median(dof), floor * floor)
         return NoiseModel(s2, 0.0, kind="fit", pixels=int(a.size), dof=dof)
     ab, vb, nn = np.array(ab), np.array(vb), np.array(nn, float)
     # the line read + shot x A through the bins (weights: a median's variance ~ sigma^4 / n): it

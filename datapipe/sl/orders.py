@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.special import gammainccinv
-from scipy.stats import chi2
+from .distributions import chi2_isf
 
 from .confidence import phase_var_from_snr
 from .surfaces import LINK_MAX, surfaces
@@ -193,7 +193,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     sel, key = sel[by_block], key[by_block]
     binv = np.cumsum(np.r_[False, key[1:] != key[:-1]])      # block numbers 0, 1, ... in key order
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
-    own_max = chi2.isf(OWN_P, max(1, F - 1))
+    own_max = chi2_isf(OWN_P, max(1, F - 1))
     sub_cyc, sub_var = [c_[sel] for c_ in cyc], [v[sel] for v in var_c]
     capped = _offset_costs(fine, sub_cyc, sub_var, per, cap=ROBUST_CAP)
     # a pixel's own test: below the cap it reads the same from the capped costs

@@ -37,7 +37,7 @@ The decoder marks accepted pixels NEIGHBOUR_ORDER and lowers their confidence by
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
+from .distributions import chi2_isf
 
 __all__ = ["correct_orders"]
 
@@ -245,8 +245,8 @@ class _Scorer:
         self.per, self.L, self.cyc, self.var_c, self.max_wrong = per, L, cyc, var_c, max_wrong
         self.f = int(np.argmax(per))
         self.T = L / per[self.f]
-        self.chi_max = chi2.isf(1e-4, max(1, len(per) - 1))
-        self.chi_sp = chi2.isf(SPATIAL_P, 1)
+        self.chi_max = chi2_isf(1e-4, max(1, len(per) - 1))
+        self.chi_sp = chi2_isf(SPATIAL_P, 1)
         self.own_min = 2.0 * np.log(1.0 / max_wrong)          # likelihood ratio 1 / max_wrong
 
     def __call__(self, sel, xh, spread, through):
