@@ -116,7 +116,8 @@ def run_case(name, baseline, scene, alb, periods, steps, read, seed, decode_kw=N
     row["calibration"] = [[int(np.sum(b == k)), float(post[b == k].sum()), int(oright[b == k].sum())]
                           for k in range(len(CAL_BINS) - 1)]
     log(f"{name:16s} {row['periods']:16s} read {read:.0f}: oracle {oracle:.4f} ours {row['coverage']:.4f} "
-        f"sure {row['oracle_sure']:.4f} ({row['oracle_sure_wrong']:.1e}) wrong {row['wrong']} ({row['wrong_of_valid']:.1e}) shadow {row['shadow_valid']:.4f} cpu {cpu:.2f}s")
+        f"sure {row['oracle_sure']:.4f} ({row['oracle_sure_wrong']:.1e}) wrong {row['wrong']} "
+        f"({row['wrong_of_valid']:.1e}) shadow {row['shadow_valid']:.4f} cpu {cpu:.2f}s")
     return row
 
 
@@ -140,8 +141,8 @@ def write_report(rows, base_label=None):
              "`gap` = oracle - coverage in points; `oracle wrong`: the oracle's decided pixels that are wrong (all lit "
              "pixels are decided); `sure oracle`: the oracle keeping only pixels whose posterior of being right is "
              ">= 1 - 1e-4 (expected wrong share <= 0.01%), lit pixels kept and right; `sure wrong`: its kept pixels "
-             "that are wrong; `sure gap` = sure oracle - coverage in points; `wrong`: valid pixels half a finest period or more off, share of "
-             "the valid ones; `shadow valid`: projector-shadowed pixels with a depth"
+             "that are wrong; `sure gap` = sure oracle - coverage in points; `wrong`: valid pixels half a finest "
+             "period or more off, share of the valid ones; `shadow valid`: projector-shadowed pixels with a depth"
              + (f"; `before`: the same stacks decoded by {base_label}" if base_label else "") + ".", ""]
     head = ["stack", "periods", "read DN", "oracle", "coverage", "gap", "oracle wrong", "sure oracle", "sure wrong",
             "sure gap", "wrong / valid", "wrong px", "shadow valid", "decode CPU s"]
@@ -151,7 +152,8 @@ def write_report(rows, base_label=None):
     for r in rows:
         cells = [r["stack"], r["periods"], f"{r['read_dn']:.0f}", f"{r['oracle']:.4f}", f"{r['coverage']:.4f}",
                  f"{100 * r['gap']:+.2f}", f"{r['oracle_wrong']:.1e}", f"{r['oracle_sure']:.4f}",
-                 f"{r['oracle_sure_wrong']:.1e}", f"{100 * r['gap_sure']:+.2f}", f"{r['wrong_of_valid']:.1e}", str(r["wrong"]), f"{r['shadow_valid']:.4f}",
+                 f"{r['oracle_sure_wrong']:.1e}", f"{100 * r['gap_sure']:+.2f}", f"{r['wrong_of_valid']:.1e}",
+                 str(r["wrong"]), f"{r['shadow_valid']:.4f}",
                  f"{r['decode_cpu_s']:.2f}"]
         if base_label:
             cells += [f"{r['before_coverage']:.4f}", f"{r['before_wrong_of_valid']:.1e}"]

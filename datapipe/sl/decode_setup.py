@@ -17,7 +17,7 @@ from .noise import fit_noise_model, variance_function
 from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
 from .response import linearise
-from .triangulate import Triangulator
+from .triangulate import Triangulator, _size
 from .unwrap import as_plan
 
 __all__ = ["DecodeOptions", "DecodeSetup", "prepare_decode", "modulation_floor_factor"]
@@ -106,6 +106,19 @@ def _check_image_size(tri: Triangulator, W: int, H: int):
                         f"{100 * fy:.0f}% across the {W}x{H} images: it was made for images of another size",
                         "pass the camera matrix of the images' resolution (scale K's first two rows by the "
                         "resize factor, shift cx, cy by a crop) or the images P_cam was calibrated for")
+
+
+def _check_cam_size(cam_size, W: int, H: int):
+    """The images must be the size the camera was calibrated at, when the caller says which: the
+    principal-point test of :func:`_check_image_size` cannot see an upscaled image (2x: cx at 25%,
+    every pixel on a wrong ray, measured: half the pixels valid, all of them 0.5-0.9 m off)."""
+    if cam_size is None:
+        return
+    w, h = _size(cam_size, "cam_size")
+    if (w, h) != (W, H):
+        raise bad_value("images", f"are {W}x{H} pixels but cam_size (the size P_cam was calibrated at) is {w}x{h}",
+                        "pass the images at the calibration's resolution, or P_cam and cam_size of the images' "
+                        "resolution (scale K's first two rows by the resize factor, shift cx, cy by a crop)")
 
 
 def _check_positive(name, v, allow_none=True, upper=None, strict=True):
@@ -239,6 +252,7 @@ class DecodeOptions:
     spatial: bool = True
     projector_gamma: float = 1.0
     response: object = None             # None, 'fit', a 1-D table or a callable (.response)
+    cam_size: tuple | None = None       # (width, height) P_cam was calibrated at; None: not checked
 
 
 def _saturation_level(saturation, in_dtype):
@@ -258,6 +272,7 @@ def prepare_decode(images, o: DecodeOptions) -> DecodeSetup:
     plan = as_plan(o.periods, o.unwrap)   # a method name, or the plan made once per run
     frames = _frames(images, len(plan.periods) * steps, plan.periods, steps)
     H, W = frames[0].shape
+    _check_cam_size(o.cam_size, W, H)
     if o.shifts is not None:
         shifts = np.asarray(o.shifts, dtype=np.float64).ravel()
         if shifts.size != steps:

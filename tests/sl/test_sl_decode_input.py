@@ -54,6 +54,24 @@ def test_images_of_another_size_than_the_camera_matrix(how):
     _raises(imgs, decode_kw(cam, proj), "P_cam", "principal point", f"{imgs.shape[2]}x{imgs.shape[1]}")
 
 
+def test_upscaled_images_with_the_calibrations_cam_size():
+    """Twice the size of the camera matrix's images: its principal point sits at 25% across, inside
+    the central 90%, so without cam_size the decode runs -- half the pixels valid, every one of them
+    more than 5 mm off (each on another pixel's ray: that is what cam_size is for). With the
+    calibration's cam_size it is an error naming both sizes; the right cam_size decodes as before."""
+    cam, proj = synth.make_rig(cam_size=(160, 120))
+    big, _ = synth.make_rig(cam_size=(320, 240))
+    r = synth.render(synth.plane_scene(), big, proj, PERIODS, STEPS)
+    imgs = r.images.astype(np.float32)
+    res = decode(imgs, **decode_kw(cam, proj))
+    assert res.valid.mean() > 0.3 and np.all(np.abs(res.depth - r.depth)[res.valid] > 5e-3)
+    _raises(imgs, decode_kw(cam, proj, cam_size=(160, 120)), "cam_size", "320x240", "160x120")
+    ok = decode(imgs, **decode_kw(big, proj, cam_size=(320, 240)))
+    assert ok.valid.mean() > 0.9 and np.nanmax(np.abs(ok.depth - r.depth)[ok.valid]) < 1e-4
+    with pytest.raises(TypeError, match="cam_size"):
+        decode(imgs, **decode_kw(big, proj, cam_size=320))
+
+
 def test_the_images_own_camera_matrix_decodes():
     """The same half-size images with the camera matrix scaled to them decode to the truth."""
     cam, proj = synth.make_rig(cam_size=(160, 120))
