@@ -48,7 +48,7 @@ import numpy as np
 
 from .decode_neighbours import neighbour_pass
 from .decode_result import NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason
-from .decode_setup import DecodeOptions, DecodeSetup, modulation_floor_factor, prepare_decode
+from .decode_setup import DecodeOptions, DecodeSetup, check_geometry_fits, modulation_floor_factor, prepare_decode
 from .decode_slab import DecodeMaps, decode_slab
 from .noise import estimate_noise_sigma
 from .triangulate import Triangulator
@@ -107,7 +107,10 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
         ValueError, before any work: another count than F*N, an image without a finite value
         (single NaN / inf samples are per-pixel INVALID_INPUT), images of another size than P_cam
         was made for (``cam_size`` if given; else its principal point outside the central 90% of
-        the images, which misses an upscaled image: pass ``cam_size``).
+        the images, which misses an upscaled image: pass ``cam_size``). After the decode, a geometry
+        that puts over a quarter of the decided pixels (and 5% of the image) outside the projector's
+        image is a ValueError too (:func:`.decode_setup.check_geometry_fits`: images of another
+        size, a proj_size of another projector mode).
     periods: fringe frequencies K (periods across the projector), in stack order.
     steps: phase steps N per frequency (>= 3). shifts: optional N shifts (radians) instead of
         the uniform ``2*pi*n/N``.
@@ -155,4 +158,6 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
             decode_slab(st, out, r0, min(H, r0 + rows), coefs)
         if st.spatial:
             neighbour_pass(st, out)
-    return _assemble(st, out)
+    res = _assemble(st, out)
+    check_geometry_fits(st, res.reason, res.valid)
+    return res

@@ -12,6 +12,7 @@ from scipy.special import gammainccinv
 
 from ._errors import bad_type, bad_value
 from .confidence import consistency_limits
+from .decode_result import Reason
 from .gamma import gamma_phase_lut
 from .noise import fit_noise_model, variance_function
 from .patterns import _check_steps, phase_shifts
@@ -20,7 +21,17 @@ from .response import linearise
 from .triangulate import Triangulator, _size
 from .unwrap import as_plan
 
-__all__ = ["DecodeOptions", "DecodeSetup", "prepare_decode", "modulation_floor_factor"]
+__all__ = ["DecodeOptions", "DecodeSetup", "prepare_decode", "modulation_floor_factor", "check_geometry_fits"]
+
+# Share of the pixels with a decided order that may land outside the projector's image (or, with the
+# default slope cap, along its column planes) before the geometry is called wrong for the images, if
+# they are also GEOMETRY_MISFIT_PIXELS of the image. Pixels that see the fringes are inside the
+# projector's frustum: a right geometry puts 0.3-0.6% of them outside (noise, multipath: the demo's
+# and the original rig's renders of bench_sl_truth; sl_materials' glossy parts: at most 1.5% of the
+# part pixels), images upscaled 2x for their P_cam or a proj_size half or twice the calibration's
+# 49-87% (49-87% of the image on the synthetic plane, box and dark-step scenes).
+GEOMETRY_MISFIT = 0.25
+GEOMETRY_MISFIT_PIXELS = 0.05
 
 
 def modulation_floor_factor(steps: int | np.ndarray = None, false_valid_rate: float = 1e-3, *,
@@ -119,6 +130,27 @@ def _check_cam_size(cam_size, W: int, H: int):
         raise bad_value("images", f"are {W}x{H} pixels but cam_size (the size P_cam was calibrated at) is {w}x{h}",
                         "pass the images at the calibration's resolution, or P_cam and cam_size of the images' "
                         "resolution (scale K's first two rows by the resize factor, shift cx, cy by a crop)")
+
+
+def check_geometry_fits(st: "DecodeSetup", reason: np.ndarray, valid: np.ndarray):
+    """The one input check the pixels answer, after the decode: the geometry must put the decoded
+    points inside the projector's image. Images of another size than P_cam's (when cam_size is not
+    given and the principal point still looks central) or a proj_size of another projector mode
+    triangulate about half the pixels outside it and the rest to wrong depths: an error, not that
+    depth map."""
+    if not st.check_other_axis:
+        return
+    off = int(np.count_nonzero(reason == Reason.OUTSIDE_PROJECTOR))
+    if st.max_depth_slope is None:           # the default cap flags only near-grazing rays
+        off += int(np.count_nonzero(reason == Reason.ILL_CONDITIONED))
+    decided = off + int(np.count_nonzero(valid))
+    if off > GEOMETRY_MISFIT * decided and off >= GEOMETRY_MISFIT_PIXELS * reason.size:
+        raise bad_value("P_cam / P_proj / proj_size",
+                        f"{off} of the {decided} pixels that see the fringes with a decided order "
+                        f"({100 * off / decided:.0f}%) triangulate outside the projector's image or along its "
+                        "column planes: this geometry does not fit these images",
+                        "pass P_cam of the images' resolution (and cam_size), proj_size as (width, height) at the "
+                        "resolution K_proj was calibrated at, and the axis the fringes code")
 
 
 def _check_positive(name, v, allow_none=True, upper=None, strict=True):

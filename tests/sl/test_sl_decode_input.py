@@ -56,20 +56,32 @@ def test_images_of_another_size_than_the_camera_matrix(how):
 
 def test_upscaled_images_with_the_calibrations_cam_size():
     """Twice the size of the camera matrix's images: its principal point sits at 25% across, inside
-    the central 90%, so without cam_size the decode runs -- half the pixels valid, every one of them
-    more than 5 mm off (each on another pixel's ray: that is what cam_size is for). With the
-    calibration's cam_size it is an error naming both sizes; the right cam_size decodes as before."""
+    the central 90%. Before these checks the decode ran: half the pixels valid, every one of them
+    more than 5 mm off (median 0.72 m: each on another pixel's ray). With the calibration's cam_size
+    it is an error naming both sizes, before any work; without it the decoded points say it (49%
+    of them outside the projector's image, sl.decode_setup.check_geometry_fits). The right
+    P_cam and cam_size decode as before."""
     cam, proj = synth.make_rig(cam_size=(160, 120))
     big, _ = synth.make_rig(cam_size=(320, 240))
     r = synth.render(synth.plane_scene(), big, proj, PERIODS, STEPS)
     imgs = r.images.astype(np.float32)
-    res = decode(imgs, **decode_kw(cam, proj))
-    assert res.valid.mean() > 0.3 and np.all(np.abs(res.depth - r.depth)[res.valid] > 5e-3)
     _raises(imgs, decode_kw(cam, proj, cam_size=(160, 120)), "cam_size", "320x240", "160x120")
+    _raises(imgs, decode_kw(cam, proj), "P_cam / P_proj / proj_size", "outside the projector's image")
     ok = decode(imgs, **decode_kw(big, proj, cam_size=(320, 240)))
     assert ok.valid.mean() > 0.9 and np.nanmax(np.abs(ok.depth - r.depth)[ok.valid]) < 1e-4
     with pytest.raises(TypeError, match="cam_size"):
         decode(imgs, **decode_kw(big, proj, cam_size=320))
+
+
+@pytest.mark.parametrize("scale", [0.5, 2.0])
+def test_a_proj_size_of_another_projector_mode(rig, plane_render, scale):
+    """proj_size half or twice the one P_proj was made for: before this check a plane decoded with
+    50% / 12.5% of the pixels valid, every one more than 5 mm off; now an error naming the
+    geometry. (A swapped width and height cannot be told from the images: one coded axis.)"""
+    cam, proj = rig
+    size = (int(proj.size[0] * scale), int(proj.size[1] * scale))
+    _raises(plane_render.images.astype(np.float32), decode_kw(cam, proj, proj_size=size), "proj_size",
+            "outside the projector's image")
 
 
 def test_the_images_own_camera_matrix_decodes():
