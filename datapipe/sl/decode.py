@@ -104,7 +104,8 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
 
     images: ``(F*N, H, W)`` frequency-major, ``(F, N, H, W)``, or a list of F*N ``(H, W)``
         arrays; uint8/uint16/int/float16/32/64 (linear intensities, e.g. from ``sl.sensor``).
-        ValueError, before any work: another count than F*N, an image without a finite value
+        ValueError, before any work: another count than F*N, frequencies in another order than
+        ``periods`` (a finer fringe's phase must change faster), an image without a finite value
         (single NaN / inf samples are per-pixel INVALID_INPUT), images of another size than P_cam
         was made for (``cam_size`` if given; else its principal point outside the central 90% of
         the images, which misses an upscaled image: pass ``cam_size``). After the decode, a geometry

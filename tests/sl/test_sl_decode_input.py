@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import synth
-from sl_helpers import PERIODS, STEPS, decode_kw
+from sl_helpers import PERIODS, STEPS, add_noise, decode_kw
 from datapipe.errors import DataPipeError
 from datapipe.sl import decode
 
@@ -26,6 +26,19 @@ def test_image_count_must_match_periods_times_steps(rig, plane_render, count):
     imgs = np.resize(plane_render.images.astype(np.float32), (count,) + plane_render.images.shape[1:])
     _raises(imgs, decode_kw(cam, proj), f"{count} images", "needs 12")
     _raises(list(imgs), decode_kw(cam, proj), f"{count} images")
+
+
+@pytest.mark.parametrize("stack, given", [((1, 8, 64), (64, 8, 1)), ((1, 8, 64), (8, 1, 64)), ((13, 7), (7, 13))])
+def test_periods_in_another_order_than_the_stack(rig, stack, given):
+    """A stack rendered for ``stack`` decoded with ``given``: before this check (64, 8, 1) for a
+    (1, 8, 64) plane decoded 27.5% of the pixels, 64% of those more than 5 mm off. A finer fringe's
+    phase changes faster from pixel to pixel, so the error names periods and the two frequencies
+    whose images say otherwise; the stack's own order decodes."""
+    cam, proj = rig
+    r = synth.render(synth.box_scene(), cam, proj, stack, STEPS)
+    imgs = add_noise(r.images, 0.005, 1).astype(np.float32)
+    _raises(imgs, decode_kw(cam, proj, periods=given), "periods", "does not match the stack", "rad per pixel")
+    assert decode(imgs, **decode_kw(cam, proj, periods=stack)).valid[r.lit].mean() > 0.9
 
 
 def test_an_image_without_finite_values_is_named(rig, plane_render):
