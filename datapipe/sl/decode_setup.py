@@ -150,7 +150,7 @@ def _check_period_order(frames, periods, steps: int, kernel: PhaseKernel):
     with np.errstate(invalid="ignore"):
         for i in range(F):
             p0, b = phase_mod(i, 0, 0)
-            d = [np.angle(np.exp(1j * (phase_mod(i, dr, dc)[0] - p0))) for dr, dc in ((0, 1), (1, 0))]
+            d = [np.mod(phase_mod(i, dr, dc)[0] - p0 + np.pi, 2 * np.pi) - np.pi for dr, dc in ((0, 1), (1, 0))]
             step.append(np.hypot(*d))
             good &= np.isfinite(b) & (b >= np.nanmedian(b)) & np.isfinite(step[-1])
     if good.sum() < 50:
