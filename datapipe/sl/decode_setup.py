@@ -28,8 +28,8 @@ __all__ = ["DecodeOptions", "DecodeSetup", "prepare_decode", "modulation_floor_f
 # they are also GEOMETRY_MISFIT_PIXELS of the image. Pixels that see the fringes are inside the
 # projector's frustum: a right geometry puts 0.3-0.6% of them outside (noise, multipath: the demo's
 # and the original rig's renders of bench_sl_truth; sl_materials' glossy parts: at most 1.5% of the
-# part pixels), images upscaled 2x for their P_cam or a proj_size half or twice the calibration's
-# 49-87% (49-87% of the image on the synthetic plane, box and dark-step scenes).
+# part pixels); images upscaled 2x for their P_cam or a proj_size half or twice the calibration's
+# put 49-88% of them outside, 49-88% of the image (synthetic plane, box and dark-step scenes).
 GEOMETRY_MISFIT = 0.25
 GEOMETRY_MISFIT_PIXELS = 0.05
 
@@ -159,7 +159,8 @@ def _check_period_order(frames, periods, steps: int, kernel: PhaseKernel):
     for i in range(F):
         for j in range(F):
             if per[i] >= 1.5 * per[j] and med[i] < np.sqrt(per[j] / per[i]) * med[j]:
-                raise bad_value("periods", f"({', '.join(f'{k:g}' for k in per)}) does not match the stack: the images given for period "
+                listed = ", ".join(f"{k:g}" for k in per)
+                raise bad_value("periods", f"({listed}) does not match the stack: the images given for period "
                                 f"{per[i]:g} change phase by {med[i]:.3g} rad per pixel (median), those for period "
                                 f"{per[j]:g} by {med[j]:.3g}, though a finer fringe changes faster",
                                 "list periods in the order of the images (frequency-major stack), or project "
@@ -169,7 +170,7 @@ def _check_period_order(frames, periods, steps: int, kernel: PhaseKernel):
 def _check_cam_size(cam_size, W: int, H: int):
     """The images must be the size the camera was calibrated at, when the caller says which: the
     principal-point test of :func:`_check_image_size` cannot see an upscaled image (2x: cx at 25%,
-    every pixel on a wrong ray, measured: half the pixels valid, all of them 0.5-0.9 m off)."""
+    every pixel on a wrong ray, measured on a plane: half the pixels valid, all > 5 mm off, median 0.7 m)."""
     if cam_size is None:
         return
     w, h = _size(cam_size, "cam_size")
