@@ -48,7 +48,7 @@ import numpy as np
 
 from .decode_neighbours import neighbour_pass
 from .decode_result import NEIGHBOUR_RISK, VALID_REASONS, DecodeResult, Reason
-from .decode_setup import DecodeOptions, DecodeSetup, modulation_floor_factor, prepare_decode
+from .decode_setup import DecodeOptions, DecodeSetup, check_geometry_fits, modulation_floor_factor, prepare_decode
 from .decode_slab import DecodeMaps, decode_slab
 from .noise import estimate_noise_sigma
 from .triangulate import Triangulator
@@ -99,19 +99,26 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
            order_sigmas: float | None = None, max_depth_slope: float | None = None, shifts=None,
            axis: str = "x", check_other_axis: bool = True, triangulator: Triangulator | None = None,
            slab_pixels: int = 1 << 16, max_wrong: float = 1e-3, spatial: bool = True,
-           projector_gamma: float = 1.0, response=None) -> DecodeResult:
+           projector_gamma: float = 1.0, response=None, cam_size: tuple | None = None) -> DecodeResult:
     """Decode phase-shifted fringe images into depth (see the module doc).
 
     images: ``(F*N, H, W)`` frequency-major, ``(F, N, H, W)``, or a list of F*N ``(H, W)``
         arrays; uint8/uint16/int/float16/32/64 (linear intensities, e.g. from ``sl.sensor``).
-        ValueError, before any work: another count than F*N, an image without a finite value
+        ValueError, before any work: another count than F*N, frequencies in another order than
+        ``periods`` (a finer fringe's phase must change faster), an image without a finite value
         (single NaN / inf samples are per-pixel INVALID_INPUT), images of another size than P_cam
-        was made for (its principal point outside the central 90% of the images).
+        was made for (``cam_size`` if given; else its principal point outside the central 90% of
+        the images, which misses an upscaled image: pass ``cam_size``). After the decode, a geometry
+        that puts over a quarter of the decided pixels (and 5% of the image) outside the projector's
+        image is a ValueError too (:func:`.decode_setup.check_geometry_fits`: images of another
+        size, a proj_size of another projector mode).
     periods: fringe frequencies K (periods across the projector), in stack order.
     steps: phase steps N per frequency (>= 3). shifts: optional N shifts (radians) instead of
         the uniform ``2*pi*n/N``.
     P_cam, P_proj: 3x4 world -> pixel matrices (``K @ inv(T_world_cam)[:3]``); depth and points
         are in the camera frame of P_cam. proj_size: projector (width, height) in pixels.
+    cam_size: the camera's (width, height) P_cam was calibrated at; images of another size are a
+        ValueError (None: only the principal-point test above).
     unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`),
         or the UnwrapPlan of these periods made beforehand (``plan_unwrap``: once per run, not per image).
     noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = fitted per
@@ -141,7 +148,7 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
         false_valid_rate=false_valid_rate, max_order_error=max_order_error, order_sigmas=order_sigmas,
         max_wrong=max_wrong, max_depth_slope=max_depth_slope, shifts=shifts, axis=axis,
         check_other_axis=check_other_axis, triangulator=triangulator, spatial=spatial,
-        projector_gamma=projector_gamma, response=response))
+        projector_gamma=projector_gamma, response=response, cam_size=cam_size))
     H, W = st.shape
     out = DecodeMaps.allocate(H, W, len(st.plan.periods))
     st.tri.coefficients  # compute (or reuse) the per-pixel coefficients before the loop
@@ -152,4 +159,6 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
             decode_slab(st, out, r0, min(H, r0 + rows), coefs)
         if st.spatial:
             neighbour_pass(st, out)
-    return _assemble(st, out)
+    res = _assemble(st, out)
+    check_geometry_fits(st, res.reason, res.valid)
+    return res

@@ -12,15 +12,26 @@ from scipy.special import gammainccinv
 
 from ._errors import bad_type, bad_value
 from .confidence import consistency_limits
+from .decode_result import Reason
 from .gamma import gamma_phase_lut
 from .noise import fit_noise_model, variance_function
 from .patterns import _check_steps, phase_shifts
 from .phase import PhaseKernel, check_image_dtype, work_dtype_for
 from .response import linearise
-from .triangulate import Triangulator
+from .triangulate import Triangulator, _size
 from .unwrap import as_plan
 
-__all__ = ["DecodeOptions", "DecodeSetup", "prepare_decode", "modulation_floor_factor"]
+__all__ = ["DecodeOptions", "DecodeSetup", "prepare_decode", "modulation_floor_factor", "check_geometry_fits"]
+
+# Share of the pixels with a decided order that may land outside the projector's image (or, with the
+# default slope cap, along its column planes) before the geometry is called wrong for the images, if
+# they are also GEOMETRY_MISFIT_PIXELS of the image. Pixels that see the fringes are inside the
+# projector's frustum: a right geometry puts 0.3-0.6% of them outside (noise, multipath: the demo's
+# and the original rig's renders of bench_sl_truth; sl_materials' glossy parts: at most 1.5% of the
+# part pixels); images upscaled 2x for their P_cam or a proj_size half or twice the calibration's
+# put 49-88% of them outside, 49-88% of the image (synthetic plane, box and dark-step scenes).
+GEOMETRY_MISFIT = 0.25
+GEOMETRY_MISFIT_PIXELS = 0.05
 
 
 def modulation_floor_factor(steps: int | np.ndarray = None, false_valid_rate: float = 1e-3, *,
@@ -106,6 +117,88 @@ def _check_image_size(tri: Triangulator, W: int, H: int):
                         f"{100 * fy:.0f}% across the {W}x{H} images: it was made for images of another size",
                         "pass the camera matrix of the images' resolution (scale K's first two rows by the "
                         "resize factor, shift cx, cy by a crop) or the images P_cam was calibrated for")
+
+
+ORDER_SAMPLES = 4096   # pixels sampled by the period-order check (a grid over the image)
+
+
+def _check_period_order(frames, periods, steps: int, kernel: PhaseKernel):
+    """The stack must hold the frequencies in the order of ``periods``: a finer fringe's phase changes
+    faster from pixel to pixel (K times |du/dpixel|). On a grid of about ORDER_SAMPLES pixels with the
+    upper half of every frequency's modulation, the median phase step to the next pixel (right and
+    down, wrapped) of a period K_i >= 1.5 K_j must be at least sqrt(K_j / K_i) times K_j's: it is
+    K_i / K_j times as large where the fringes dominate the noise, about as large where the noise
+    does (noise only raises a step), and K_j / K_i times as large when the two are swapped. Periods
+    listed in another order than the stack (e.g. (64, 8, 1) for a (1, 8, 64) stack: 27.5% valid, 64%
+    of those > 5 mm off before this check) fail; a fringe finer than 2 camera pixels aliases and can
+    fail it too. Sets of near periods (ratio < 1.5: (16, 15), (9, 10, 11)) are not checked."""
+    per = [float(k) for k in periods]
+    F = len(per)
+    H, W = frames[0].shape
+    if F < 2 or H < 2 or W < 2:
+        return
+    st = max(1, int(np.sqrt((H - 1) * (W - 1) / ORDER_SAMPLES)))
+    h, w = (H - 2) // st + 1, (W - 2) // st + 1
+
+    def phase_mod(i, dr, dc):
+        fr = [np.asarray(frames[i * steps + n][dr::st, dc::st][:h, :w], dtype=np.float64) for n in range(steps)]
+        c = sum(kernel.coef[1][n] * fr[n] for n in range(steps))
+        s = sum(kernel.coef[2][n] * fr[n] for n in range(steps))
+        return np.arctan2(s, c), np.hypot(c, s)
+
+    step, good = [], np.ones((h, w), bool)
+    with np.errstate(invalid="ignore"):
+        for i in range(F):
+            p0, b = phase_mod(i, 0, 0)
+            d = [np.mod(phase_mod(i, dr, dc)[0] - p0 + np.pi, 2 * np.pi) - np.pi for dr, dc in ((0, 1), (1, 0))]
+            step.append(np.hypot(*d))
+            good &= np.isfinite(b) & (b >= np.nanmedian(b)) & np.isfinite(step[-1])
+    if good.sum() < 50:
+        return
+    med = [float(np.median(g[good])) for g in step]
+    for i in range(F):
+        for j in range(F):
+            if per[i] >= 1.5 * per[j] and med[i] < np.sqrt(per[j] / per[i]) * med[j]:
+                listed = ", ".join(f"{k:g}" for k in per)
+                raise bad_value("periods", f"({listed}) does not match the stack: the images given for period "
+                                f"{per[i]:g} change phase by {med[i]:.3g} rad per pixel (median), those for period "
+                                f"{per[j]:g} by {med[j]:.3g}, though a finer fringe changes faster",
+                                "list periods in the order of the images (frequency-major stack), or project "
+                                "fringes the camera resolves (>= 2 camera pixels per period)")
+
+
+def _check_cam_size(cam_size, W: int, H: int):
+    """The images must be the size the camera was calibrated at, when the caller says which: the
+    principal-point test of :func:`_check_image_size` cannot see an upscaled image (2x: cx at 25%,
+    every pixel on a wrong ray, measured on a plane: half the pixels valid, all > 5 mm off, median 0.7 m)."""
+    if cam_size is None:
+        return
+    w, h = _size(cam_size, "cam_size")
+    if (w, h) != (W, H):
+        raise bad_value("images", f"are {W}x{H} pixels but cam_size (the size P_cam was calibrated at) is {w}x{h}",
+                        "pass the images at the calibration's resolution, or P_cam and cam_size of the images' "
+                        "resolution (scale K's first two rows by the resize factor, shift cx, cy by a crop)")
+
+
+def check_geometry_fits(st: "DecodeSetup", reason: np.ndarray, valid: np.ndarray):
+    """The one input check the pixels answer, after the decode: the geometry must put the decoded
+    points inside the projector's image. Images of another size than P_cam's (when cam_size is not
+    given and the principal point still looks central) or a proj_size of another projector mode
+    triangulate about half the pixels outside it and the rest to wrong depths: an error, not that
+    depth map."""
+    if not st.check_other_axis:
+        return
+    off = int(np.count_nonzero(reason == Reason.OUTSIDE_PROJECTOR))
+    if st.max_depth_slope is None:           # the default cap flags only near-grazing rays
+        off += int(np.count_nonzero(reason == Reason.ILL_CONDITIONED))
+    decided = off + int(np.count_nonzero(valid))
+    if off > GEOMETRY_MISFIT * decided and off >= GEOMETRY_MISFIT_PIXELS * reason.size:
+        raise bad_value("P_cam / P_proj / proj_size",
+                        f"{off} of the {decided} pixels that see the fringes with a decided order "
+                        f"({100 * off / decided:.0f}%) triangulate outside the projector's image or along its "
+                        "column planes: this geometry does not fit these images",
+                        "pass P_cam of the images' resolution (and cam_size), proj_size as (width, height) at the "
+                        "resolution K_proj was calibrated at, and the axis the fringes code")
 
 
 def _check_positive(name, v, allow_none=True, upper=None, strict=True):
@@ -239,6 +332,7 @@ class DecodeOptions:
     spatial: bool = True
     projector_gamma: float = 1.0
     response: object = None             # None, 'fit', a 1-D table or a callable (.response)
+    cam_size: tuple | None = None       # (width, height) P_cam was calibrated at; None: not checked
 
 
 def _saturation_level(saturation, in_dtype):
@@ -258,6 +352,7 @@ def prepare_decode(images, o: DecodeOptions) -> DecodeSetup:
     plan = as_plan(o.periods, o.unwrap)   # a method name, or the plan made once per run
     frames = _frames(images, len(plan.periods) * steps, plan.periods, steps)
     H, W = frames[0].shape
+    _check_cam_size(o.cam_size, W, H)
     if o.shifts is not None:
         shifts = np.asarray(o.shifts, dtype=np.float64).ravel()
         if shifts.size != steps:
@@ -265,6 +360,7 @@ def prepare_decode(images, o: DecodeOptions) -> DecodeSetup:
     else:
         shifts = phase_shifts(steps)
     kernel = PhaseKernel(shifts)
+    _check_period_order(frames, plan.periods, steps, kernel)
     tri = _check_triangulator(o.triangulator, o.P_cam, o.P_proj, W, H, o.proj_size, o.axis)
     sat = _saturation_level(o.saturation, frames[0].dtype)
     frames, sat, response_info = linearise(frames, o.response, steps, shifts, sat)

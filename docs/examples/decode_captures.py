@@ -7,12 +7,15 @@ CAPTURES_DIR holds the F * N fringe images (PNG or TIFF, 8 or 16 bit, grey or co
 names sort in capture order: all N steps of the first period, then all of the second, ...
 CALIBRATION.json (OpenCV conventions, metres):
 
-    {"K_cam": 3x3, "K_proj": 3x3, "R": 3x3, "t": [x, y, z], "proj_size": [width, height], "axis": "x"}
+    {"K_cam": 3x3, "K_proj": 3x3, "R": 3x3, "t": [x, y, z], "proj_size": [width, height],
+     "cam_size": [width, height], "axis": "x"}
 
 R, t: the projector's pose relative to the camera as cv2.stereoCalibrate returns it with the camera
 as the first and the projector as the second device (a point X in the camera frame is R X + t in
-the projector frame). Writes the depth map (metres along the camera's z axis, NaN where invalid)
-as .npy and prints what the decoder kept and why it dropped the rest.
+the projector frame). cam_size (optional, recommended): the camera image size K_cam was calibrated
+at (cv2.stereoCalibrate's imageSize); images of another size are refused. Writes the depth map
+(metres along the camera's z axis, NaN where invalid) as .npy and prints what the decoder kept and
+why it dropped the rest.
 """
 from __future__ import annotations
 
@@ -65,7 +68,8 @@ def main(argv=None) -> sl.DecodeResult:
     calib = json.loads(args.calibration.read_text())
     P_cam, P_proj = projection_matrices(calib)
     res = sl.decode(images, periods=tuple(args.periods), steps=args.steps, P_cam=P_cam, P_proj=P_proj,
-                    proj_size=tuple(calib["proj_size"]), axis=calib.get("axis", "x"),
+                    proj_size=tuple(calib["proj_size"]), cam_size=calib.get("cam_size"),
+                    axis=calib.get("axis", "x"),
                     response=None if args.response == "none" else args.response)
     np.save(args.out, res.depth)
     counts = {k: v for k, v in res.reason_counts().items() if v}
