@@ -99,7 +99,8 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
            order_sigmas: float | None = None, max_depth_slope: float | None = None, shifts=None,
            axis: str = "x", check_other_axis: bool = True, triangulator: Triangulator | None = None,
            slab_pixels: int = 1 << 16, max_wrong: float = 1e-3, spatial: bool = True,
-           projector_gamma: float = 1.0, response=None, cam_size: tuple | None = None) -> DecodeResult:
+           projector_gamma: float = 1.0, response=None, cam_size: tuple | None = None,
+           stack_checks: bool = True) -> DecodeResult:
     """Decode phase-shifted fringe images into depth (see the module doc).
 
     images: ``(F*N, H, W)`` frequency-major, ``(F, N, H, W)``, or a list of F*N ``(H, W)``
@@ -119,6 +120,10 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
         are in the camera frame of P_cam. proj_size: projector (width, height) in pixels.
     cam_size: the camera's (width, height) P_cam was calibrated at; images of another size are a
         ValueError (None: only the principal-point test above).
+    stack_checks: False skips the two checks that guard a user's captures against a stack that does
+        not match its ``periods`` or geometry (the period order, the decided pixels outside the
+        projector): for a caller that makes the stack and the geometry from one description, as the
+        pipeline's scanner does, where they can only be false alarms.
     unwrap: 'auto' | 'heterodyne' | 'multi-frequency' | 'number-theoretic' (:mod:`datapipe.sl.unwrap`),
         or the UnwrapPlan of these periods made beforehand (``plan_unwrap``: once per run, not per image).
     noise_sigma: image noise (number, (H, W) array, or callable of the signal); None = fitted per
@@ -148,7 +153,8 @@ def decode(images, *, periods, steps, P_cam, P_proj, proj_size, unwrap: str | Un
         false_valid_rate=false_valid_rate, max_order_error=max_order_error, order_sigmas=order_sigmas,
         max_wrong=max_wrong, max_depth_slope=max_depth_slope, shifts=shifts, axis=axis,
         check_other_axis=check_other_axis, triangulator=triangulator, spatial=spatial,
-        projector_gamma=projector_gamma, response=response, cam_size=cam_size))
+        projector_gamma=projector_gamma, response=response, cam_size=cam_size,
+        stack_checks=stack_checks))
     H, W = st.shape
     out = DecodeMaps.allocate(H, W, len(st.plan.periods))
     st.tri.coefficients  # compute (or reuse) the per-pixel coefficients before the loop

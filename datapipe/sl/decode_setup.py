@@ -186,7 +186,7 @@ def check_geometry_fits(st: "DecodeSetup", reason: np.ndarray, valid: np.ndarray
     given and the principal point still looks central) or a proj_size of another projector mode
     triangulate about half the pixels outside it and the rest to wrong depths: an error, not that
     depth map."""
-    if not st.check_other_axis:
+    if not (st.check_other_axis and st.stack_checks):
         return
     off = int(np.count_nonzero(reason == Reason.OUTSIDE_PROJECTOR))
     if st.max_depth_slope is None:           # the default cap flags only near-grazing rays
@@ -247,6 +247,7 @@ class DecodeSetup:
     order_floor: float | None = None
     noise_model: dict = field(default_factory=dict)
     response: dict | None = None          # the tone curve undone before decoding (.response), None: none
+    stack_checks: bool = True             # DecodeOptions.stack_checks
 
     @property
     def shape(self):
@@ -333,6 +334,7 @@ class DecodeOptions:
     projector_gamma: float = 1.0
     response: object = None             # None, 'fit', a 1-D table or a callable (.response)
     cam_size: tuple | None = None       # (width, height) P_cam was calibrated at; None: not checked
+    stack_checks: bool = True           # period order and geometry fit (guards for a user's captures)
 
 
 def _saturation_level(saturation, in_dtype):
@@ -360,7 +362,8 @@ def prepare_decode(images, o: DecodeOptions) -> DecodeSetup:
     else:
         shifts = phase_shifts(steps)
     kernel = PhaseKernel(shifts)
-    _check_period_order(frames, plan.periods, steps, kernel)
+    if o.stack_checks:
+        _check_period_order(frames, plan.periods, steps, kernel)
     tri = _check_triangulator(o.triangulator, o.P_cam, o.P_proj, W, H, o.proj_size, o.axis)
     sat = _saturation_level(o.saturation, frames[0].dtype)
     frames, sat, response_info = linearise(frames, o.response, steps, shifts, sat)
@@ -381,6 +384,7 @@ def prepare_decode(images, o: DecodeOptions) -> DecodeSetup:
                      factor=_row_sigma(shifts=shifts) * float(np.sqrt(q2 / F)),
                      row_sigma=_row_sigma(shifts=shifts), joint_q2=q2)
     st.response = response_info
+    st.stack_checks = bool(o.stack_checks)
     st.consistency_limits = consistency_limits(F, plan.lattice.d_min if plan.lattice is not None else 1.0)
     min_modulation = _check_positive("min_modulation", o.min_modulation, strict=False)
     order_sigmas = _check_positive("order_sigmas", o.order_sigmas, strict=False)

@@ -275,7 +275,7 @@ class Scanner:
         res = decode(cap.images[:n], periods=self.periods, steps=self.steps, P_cam=P_cam, P_proj=P_proj,
                      proj_size=self.proj_size, unwrap=self.unwrap_plan, noise_sigma=cap.noise_sigma,
                      saturation=cap.saturation, min_contrast=self.min_contrast, projector_gamma=self.projector_gamma,
-                     triangulator=tri)
+                     triangulator=tri, stack_checks=False)   # stack and geometry made here from one config
         res.extras["noise_model"] = {          # never a global estimate: the sensor's own per-pixel noise
             "kind": "sensor", "source": "sensor model: shot + read + quantisation at each pixel's signal"
             + (", per pixel at its HDR exposure after fusion" if cap.chosen is not None else
