@@ -69,3 +69,28 @@ def test_back_and_forth_inside_the_window_counts_its_furthest_point():
     assert rest[33:36].all()           # windows from 0.4-0.8 mm out: the path within 0.8 mm of it
     assert not rest[37]                # the window from the 1.2 mm point back to 0 mm
     assert rest[40:].all()             # windows from 0.4 mm on the way back or later
+
+
+def creeping(velocities: np.ndarray) -> np.ndarray:
+    """As `run`, but returns frames x n `creeping()` flags (below the speed limit over the window)."""
+    frames, n, _ = velocities.shape
+    pos = np.zeros((n, 3))
+    test = RestTest(np.full(n, SIZE), SETTLE_SPEED, 5, DT, BOX[None] + pos[:, None])
+    out = []
+    for k in range(frames):
+        pos = pos + velocities[k] * DT
+        test.update(np.linalg.norm(velocities[k], axis=1), BOX[None] + pos[:, None])
+        out.append(test.creeping())
+    return np.array(out)
+
+
+def test_a_slow_slide_creeps_a_fast_one_does_not():
+    """What may end a drop stage before the last: body 0 slides at 2.5 mm/s (1.25 mm per window:
+    not at rest, but under the 5 mm/s speed limit at every frame: creeping from the window's 12th
+    frame on); body 1 at 6 mm/s is neither; body 2 at rest is both."""
+    v = np.zeros((40, 3, 3))
+    v[:, 0, 0], v[:, 1, 0] = 0.0025, 0.006
+    c, rest = creeping(v), run(v)
+    assert not c[:11].any() and c[11:, 0].all() and not rest[:, 0].any()
+    assert not c[:, 1].any() and not rest[:, 1].any()
+    assert c[11:, 2].all() and rest[11:, 2].all()

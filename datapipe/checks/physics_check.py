@@ -79,7 +79,7 @@ def winding_number(points: np.ndarray, tri_pts: np.ndarray) -> np.ndarray:
     for sl in _blocks(len(points), len(tri_pts)):
         d = tri_pts[None, :, :, :] - points[sl, None, None, :]          # (P,F,3,3)
         a, b, c = d[..., 0, :], d[..., 1, :], d[..., 2, :]
-        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+        la, lb, lc = (np.sqrt(np.einsum("pfi,pfi->pf", x, x)) for x in (a, b, c))
         num = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
         den = (la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc
                + np.einsum("pfi,pfi->pf", b, c) * la + np.einsum("pfi,pfi->pf", c, a) * lb)
@@ -117,7 +117,8 @@ def point_triangle_distance(points: np.ndarray, tri_pts: np.ndarray) -> np.ndarr
         closest = np.where(((d6 >= 0) & (d5 <= d6))[..., None], C, closest)
         closest = np.where(((d3 >= 0) & (d4 <= d3))[..., None], B, closest)
         closest = np.where(((d1 <= 0) & (d2 <= 0))[..., None], A, closest)
-        out[sl] = np.linalg.norm(P - closest, axis=-1).min(axis=1)
+        D = P - closest
+        out[sl] = np.sqrt(np.einsum("pfi,pfi->pf", D, D).min(axis=1))
     return out
 
 
@@ -172,7 +173,9 @@ def check_scene(parts: list[Part], floor_z: float, walls: tuple[np.ndarray, np.n
             # only samples near the other part's box can be inside it or within float_tol of it
             near_i = _near_box(samples[i], parts[j], boxes[j], float_tol)
             near_j = _near_box(samples[j], parts[i], boxes[i], float_tol)
-            depth = max(penetration_depth(near_i, tri_pts[j]), penetration_depth(near_j, tri_pts[i]))
+            # only samples in the other part's box can be inside it (a closed mesh lies in its box)
+            depth = max(penetration_depth(_near_box(near_i, parts[j], boxes[j], 0.0), tri_pts[j]),
+                        penetration_depth(_near_box(near_j, parts[i], boxes[i], 0.0), tri_pts[i]))
             res.max_depth = max(res.max_depth, depth)
             if depth > pen_tol:
                 res.pairs.append((parts[i].name, parts[j].name, depth))

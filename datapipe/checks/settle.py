@@ -60,4 +60,11 @@ class RestTest:
             return np.zeros(len(self.slow), dtype=bool)
         W = np.stack(self._corners)                            # (window + 1) x n x 8 x 3
         moved = np.linalg.norm(W - W[0], axis=3).max(axis=(0, 2))
-        return (self.slow >= self.window) & (moved < self.motion)
+        return self.creeping() & (moved < self.motion)
+
+    def creeping(self) -> np.ndarray:
+        """Which bodies were below their at-rest speed at every frame of the window, whether or
+        not they moved further than the motion limit (at rest, or creeping: sliding slowly on the
+        pile). A drop stage that is not the last may end when every body is at least creeping
+        (core/simulation.drop_in_stages): the creeping parts stay ACTIVE into the next stage."""
+        return self.slow >= self.window

@@ -20,7 +20,9 @@
    again and again) ends instead of running the stage to max_frames.
    It stops when every body is at rest or gone for good (below the floor, or outside the walls
    below their top), else after max_frames frames: the bodies still moving are then reported in
-   `unsettled`, never silently frozen;
+   `unsettled`, never silently frozen. A drop stage that is not the last also stops when every
+   body is at rest or creeping (below its at-rest speed over the window, yet drifting further than
+   the motion limit): the creeping ones stay ACTIVE into the next stage (`drop_in_stages`);
 4. reads each body's evaluated world matrix, deletes the parts that left the bin (centre of their
    world bounding box outside the zone's footprint: "left the bin") or fell through the floor
    (below floor_z - margin: "fell through the floor"), and freezes the others: their rigid body is
@@ -149,7 +151,10 @@ def drop_in_stages(objects: ObjectManager, simulation: "Simulation", instances: 
     bin's height (impact speed, substeps, parts thrown over the walls). Each stage is one
     `Simulation.run` with its own substep plan and settle criteria over every part in the bin; the
     parts at rest at the end of a stage stay where they lay as PASSIVE bodies (`_freeze_settled`),
-    the parts still moving start the next stage at rest where they were. A column of <=
+    the parts still moving start the next stage at rest where they were. A stage before the last
+    ends once its parts not at rest all creep (slower than the at-rest speed, see `_step`): a part
+    sliding at 2-3 mm/s on the frozen pile held a stage for 100-200 frames before, with every
+    frozen part costing Bullet every substep; it now slides on in the next stage. A column of <=
     STAGE_LAYERS layers is one plain run."""
     waves = sorted({inst.layer // STAGE_LAYERS for inst in instances})
     if len(waves) <= 1:
@@ -282,7 +287,7 @@ class Simulation:
         self._let_sleep(instances, corners)
         rbw = self._configure_world(plan.substeps)
         scene.frame_set(FRAME_START)               # back to the initial state: Bullet world rebuilt
-        frames, settled, mats, unsettled = self._step(instances, offsets, corners, dt)
+        frames, settled, mats, unsettled = self._step(instances, offsets, corners, dt, final)
 
         kept: list[Instance] = []
         removed: list[tuple[Instance, str]] = []
@@ -339,8 +344,13 @@ class Simulation:
         bpy.context.view_layer.update()
 
 
-    def _step(self, instances: list[Instance], offsets: list[np.ndarray], corners: list[np.ndarray], dt: float):
-        """Step until every body is at rest (confirmed) or gone, or max_frames. Returns (frames,
+    def _step(self, instances: list[Instance], offsets: list[np.ndarray], corners: list[np.ndarray], dt: float,
+              final: bool = True):
+        """Step until every body is at rest (confirmed) or gone, or max_frames; a stage that is not
+        the last (`final=False`) also stops when the bodies not at rest are all creeping (below their
+        at-rest speed over the whole window, yet drifting further than the motion limit: sliding
+        slowly on the frozen pile, 2-3 mm/s): they stay ACTIVE and go on sliding in the next stage,
+        where the last stage's settle test confirms them like every other part. Returns (frames,
         settled, model-frame world poses, [(name, speed m/s)] of the bodies still moving). The
         per-frame test runs on all bodies at once (arrays of n poses): at 120 parts and ~1000
         frames a per-body Python loop cost seconds of its own."""
@@ -374,6 +384,8 @@ class Simulation:
             rest = test.update(speed, pts)
             if np.all(self._gone(pts) | rest):
                 settled = True
+                break
+            if not final and np.all(self._gone(pts) | test.creeping()):
                 break
         moving = ~(self._gone(pts) | rest)
         return frames, settled, mats, [(inst.name, float(speed[j])) for j, inst in enumerate(instances) if moving[j]]

@@ -360,3 +360,35 @@ def test_staged_drop_freezes_the_settled_pile_and_sleeps_at_the_settle_speeds(mo
     seen.clear()
     _, again = drop()
     assert max(np.abs(again[n] - poses[n]).max() for n in poses) < 1e-6   # m: same seed, same poses
+
+
+def test_a_stage_before_the_last_ends_when_its_parts_only_creep(monkeypatch):
+    """A drop stage that is not the last stops once every part is below its at-rest speed over the
+    settle window, even where the motion test is not met (the creeping parts go on ACTIVE in the
+    next stage; the last stage still waits for the whole settle test). Made visible by a motion
+    limit of 0: no part is ever at rest, so a stage before the last ends when all creep, the last
+    one at max_frames with every part reported unsettled. Before, every stage ran to max_frames."""
+    from datapipe.checks import settle
+    from datapipe.core import objects as O
+    from datapipe.core import simulation as S
+    monkeypatch.setattr(O, "STAGE_LAYERS", 1)
+    monkeypatch.setattr(S, "STAGE_LAYERS", 1)
+    monkeypatch.setattr(settle, "SETTLE_MOTION", 0.0)
+    cfg = one_part_cfg("nut", n=12)
+    cfg.scene.drop_zone_loc, cfg.scene.drop_zone_scale = [0.0, 0.0, 0.05], [0.045, 0.045, 0.05]
+    cfg.simulation.max_frames = 150
+    bs, om, sim = make(cfg)
+    real_run, stages = sim.run, []
+
+    def run(insts, rng=None, *, final=True):
+        res = real_run(insts, rng, final=final)
+        stages.append((final, res.frames, len(res.unsettled), len(res.kept)))
+        return res
+    monkeypatch.setattr(sim, "run", run)
+    res, _ = S.drop_scene(om, sim, scene_rng(0, 1), 99)
+    assert len(stages) >= 3, "the column must drop in 3+ stages for this test"
+    for final, frames, unsettled, kept in stages[:-1]:
+        assert not final and frames < cfg.simulation.max_frames and unsettled == kept
+    assert stages[-1][0] and stages[-1][1] == cfg.simulation.max_frames and not res.settled
+    assert not res.removed and res.check.pairs == []
+    om.clear()
