@@ -16,7 +16,7 @@ def edge_speckle_filter(depth, valid, sigma_z, pixel_angle: float, *, sigmas: fl
     Remnants. The support test looks at all valid pixels at once, so in a small island of wrong
     points (a band of wrong fringe orders) the rim pixels lose their support and go while the
     middle one, supported by that rim, stays -- alone, with none of the pixels kept around it at
-    its depth (demo render 1 in render mode: one bin-wall pixel 164 mm off among 4 removed
+    its depth (demo render 1 in render mode: one bin-wall pixel 164 mm off among 3 removed
     neighbours at its depth and 3 kept floor pixels; benchmarks/results/sl_truth.md). A
     scanner's speckle filter removes such an island whole (OpenCV's filterSpeckles "Filters off
     small noise blobs (speckles)": https://docs.opencv.org/4.x/d9/d0c/group__calib3d.html). So a
@@ -24,8 +24,8 @@ def edge_speckle_filter(depth, valid, sigma_z, pixel_angle: float, *, sigmas: fl
     none of them agrees with it. Removing it takes no support from anyone, so one such step
     suffices. Not done instead: repeating the support test until what it keeps passes it (eroded
     0.5-2 points of correct pixels off the 16 renders of sl_truth.md, thin strips and steep walls)
-    or removing every kept pixel without an agreeing kept neighbour (16-94 correct pixels a render,
-    all within 1 mm: lone pixels whose neighbours had no data)."""
+    or removing every kept pixel without an agreeing kept neighbour (16-94 pixels a render,
+    nearly all within 1 mm of the truth)."""
     z = np.where(valid, depth, np.nan).astype(np.float64)
     s = np.where(valid, sigma_z, np.nan).astype(np.float64)
     s = np.where(np.isfinite(s), s, 0.0)
