@@ -89,6 +89,8 @@ def render_demo(cache: Path, mode: str, log=print) -> None:
 
     if all((cache / f"{demo_key(i, mode)}.npz").is_file() for i in range(DEMO_RENDERS)):
         return
+    import bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)   # a rig case rendered before leaves its objects behind
     cfg = C.default_config()
     cfg.structured_light.fringe_mode = mode
     store: list = []

@@ -54,7 +54,9 @@ Validity (what "valid" means)
 
     tol_pq = EDGE_SIGMAS * sqrt(sigma_p^2 + sigma_q^2) + EDGE_SLOPE * Z_p * pixel_angle * |q - p|
 
-   (`sigma` the per-pixel theoretical depth noise, `pixel_angle` = 1/f_camera [rad per px]).
+   (`sigma` the per-pixel theoretical depth noise, `pixel_angle` = 1/f_camera [rad per px]); and a
+   pixel that test keeps alone among at least EDGE_MIN_SUPPORT kept neighbours, none agreeing with
+   it: the middle of a small island of wrong orders whose rim the test removed.
 Pixels removed by 2. and 3. get reason FILTERED (7), depth NaN.
 """
 from __future__ import annotations

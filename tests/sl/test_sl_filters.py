@@ -33,6 +33,37 @@ def test_edge_filter_removes_flying_pixels_and_speckles_keeps_slopes():
     assert edge_speckle_filter(z2, valid, sigma, 1.0 / f)[21:-1, 41:-1].all()
 
 
+
+def test_edge_filter_removes_the_remnant_of_an_island_of_wrong_orders():
+    """Demo render 1 in render mode (320 x 240, benchmarks/results/sl_truth.md): the decoder's
+    depth (mm, NaN = no data) and depth sigma (um) at rows 146-152, columns 33-39, before the edge
+    filter. Columns 33-35: the bin floor (z-buffer 617-618 mm); 36-39: the bin wall at grazing
+    incidence, where light bounced off the floor pulls the 1-period phase by 0.107 periods and
+    the 8-period order goes one too far: 456-459 mm for 620-624 mm (953 mm: one order the other
+    way). The support test removed the island's rim (too few agreeing neighbours each) and kept
+    its middle pixel (row 149, column 36: its rim agreed with it) -- alone, 164 mm off, among 3
+    kept floor pixels that do not agree with it. It must go; the floor stays."""
+    n = np.nan
+    z = np.array([[617.24, 617.03, 618.16, n, n, 627.82, n],
+                  [617.35, 617.18, 618.19, n, 623.86, n, 631.54],
+                  [617.41, 617.33, 618.40, 456.55, 458.45, n, 631.97],
+                  [617.51, 617.48, 618.43, 456.56, n, 627.76, n],
+                  [617.79, 617.64, 618.76, 953.33, 458.61, n, 631.83],
+                  [617.92, 617.73, 618.67, n, n, n, n],
+                  [617.94, 617.83, 618.22, n, 458.63, 627.88, n]]) * 1e-3
+    sigma = np.array([[56, 56, 74, n, n, 179, n],
+                      [55, 54, 73, n, 161, n, 165],
+                      [55, 56, 73, 112, 116, n, 194],
+                      [54, 55, 71, 111, n, 202, n],
+                      [55, 54, 77, 475, 125, n, 167],
+                      [55, 55, 71, n, n, n, n],
+                      [55, 55, 70, n, 125, 176, n]]) * 1e-6
+    valid = np.isfinite(z)
+    bad = edge_speckle_filter(z, valid, sigma, 1.0 / 453.1)      # fx of the demo camera at 320 px
+    assert bad[3, 3]                                   # the remnant (row 149, column 36)
+    assert bad[2:5, 3:5][valid[2:5, 3:5]].all()        # and the rest of the island
+    assert not bad[1:-1, 1:3].any()                    # the floor pixels with all 8 neighbours here stay
+
 def test_multipath_filter_removes_inter_reflected_orders_not_ambient(rig):
     """Plane, periods (1, 8, 64). Right half: besides the direct light, light from another surface
     point 256 projector px away, 1.5x as strong, blurred by a bounce (modulation kept 98% / 21% /
