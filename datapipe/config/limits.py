@@ -10,6 +10,10 @@ SL_OUTPUT_KINDS = ("sl_gray", "point_cloud")
 FORMATS = ("native", "bop")
 ENGINES = ("CYCLES",)
 DEVICES = ("CPU", "GPU")
+# render.denoise_prefilter / render.denoise_quality: Cycles' OpenImageDenoise settings, by their
+# Cycles names (scene.cycles.denoising_prefilter / denoising_quality); the first is the default
+DENOISE_PREFILTERS = ("ACCURATE", "FAST", "NONE")
+DENOISE_QUALITIES = ("HIGH", "BALANCED", "FAST")
 # AUTO: DECOMPOSED for clearly concave meshes, else CONVEX_HULL. DECOMPOSED and MESH: a compound of
 # convex pieces (Blender's moving triangle meshes threw concave parts out; see collision.py)
 ORIGINS = ("file", "bbox_center")       # objects[i].origin

@@ -220,6 +220,10 @@ class RenderConfig:
                                        # at 0.64x the time of 32 undenoised (36.9 dB): rgb_quality.md
     threads: int = 0                   # 0 = all cores
     denoise: bool = True               # OpenImageDenoise (CPU) on the RGB, albedo + normal guided
+    denoise_prefilter: str = "ACCURATE"  # OIDN's guide passes: ACCURATE (denoised first), FAST, NONE (as
+                                       # rendered); Cycles' denoising_prefilter (DENOISE_PREFILTERS)
+    denoise_quality: str = "HIGH"      # OIDN's network: HIGH, BALANCED, FAST; Cycles' denoising_quality
+                                       # (what each costs and loses: benchmarks/results/view_settings.md)
     adaptive_threshold: float = 0.0    # Cycles adaptive sampling noise threshold; 0 = off (fixed samples)
     persistent_data: bool = False      # keep Cycles' scene data between the renders of a scene
     max_bounces: int = 4

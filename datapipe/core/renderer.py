@@ -126,9 +126,7 @@ class Renderer:
         if r.denoise:                 # OpenImageDenoise runs on the CPU; guided by albedo and normals
             cy.denoiser = "OPENIMAGEDENOISE"
             cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-            cy.denoising_prefilter = "ACCURATE"
-            if hasattr(cy, "denoising_quality"):
-                cy.denoising_quality = "HIGH"
+            compat.set_denoiser_settings(cy, r.denoise_prefilter, r.denoise_quality)
         sc.render.use_persistent_data = bool(r.persistent_data)
         cy.use_preview_denoising = False
         cy.time_limit = 0.0
