@@ -172,6 +172,7 @@ CASES = [
     (lambda c: setattr(c.render, "engine", "BLENDER_EEVEE"), "render.engine", "unknown value"),
     (lambda c: setattr(c.render, "denoise_prefilter", "SLOW"), "render.denoise_prefilter", "unknown value"),
     (lambda c: setattr(c.render, "denoise_quality", "balanced"), "render.denoise_quality", "unknown value"),
+    (lambda c: setattr(c.render, "sampling_pattern", "SOBOL_BURLEY"), "render.sampling_pattern", "unknown value"),
     (lambda c: (setattr(c.output, "formats", ["bop"]), setattr(c.render, "outputs", ["rgb", "depth"])),
      "render.outputs", "BOP format needs"),
     (lambda c: setattr(c.simulation, "max_frames", 0), "simulation.max_frames", ">= 1"),
@@ -346,10 +347,11 @@ def test_only_grey_materials_pack_three_images_per_layer():
 
 def test_denoiser_settings_default_to_the_former_fixed_ones_and_are_checked():
     """render.denoise_prefilter / denoise_quality: the defaults are the values the renderer hard-coded
-    before they were fields (ACCURATE, HIGH), so a preset that does not set them renders as before; a
-    JSON value is Cycles' name, checked before any work with the choices in the fix."""
+    before they were fields (ACCURATE, HIGH), and render.sampling_pattern's SCENE leaves the scene's
+    as the renderer did, so a preset that does not set them renders as before; a JSON value is
+    Cycles' name, checked before any work with the choices in the fix."""
     r = C.RenderConfig()
-    assert (r.denoise_prefilter, r.denoise_quality) == ("ACCURATE", "HIGH")
+    assert (r.denoise_prefilter, r.denoise_quality, r.sampling_pattern) == ("ACCURATE", "HIGH", "SCENE")
     cfg = C.loads(json.dumps({"render": {"denoise_prefilter": "FAST", "denoise_quality": "BALANCED"}}))
     assert (cfg.render.denoise_prefilter, cfg.render.denoise_quality) == ("FAST", "BALANCED")
     assert "render.denoise_prefilter" not in _problems(cfg) and "render.denoise_quality" not in _problems(cfg)
@@ -359,3 +361,7 @@ def test_denoiser_settings_default_to_the_former_fixed_ones_and_are_checked():
     assert "render.denoise_prefilter" in paths and "render.denoise_quality" in paths
     p = _problems(C.loads(json.dumps({"render": {"denoise_prefilter": "fast"}})))["render.denoise_prefilter"]
     assert "ACCURATE, FAST, NONE" in p.fix
+    cfg = C.loads(json.dumps({"render": {"sampling_pattern": "BLUE_NOISE"}}))
+    assert cfg.render.sampling_pattern == "BLUE_NOISE" and "render.sampling_pattern" not in _problems(cfg)
+    p = _problems(C.loads(json.dumps({"render": {"sampling_pattern": "blue"}})))["render.sampling_pattern"]
+    assert "SCENE, TABULATED_SOBOL, BLUE_NOISE, AUTOMATIC" in p.fix

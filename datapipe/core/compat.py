@@ -6,7 +6,7 @@ repository's venv, the 4.2 branch follows what was observed on 4.2.0 then (noted
 
 Topics: engine ids, the compositor node tree and its sink (Composite vs. Group Output), the File
 Output node (paths, items, multilayer 32-bit EXR, the file name it writes), Render Layers socket
-names, the Cycles device, the denoiser's settings, colour management.
+names, the Cycles device, the denoiser's settings and sampling pattern, colour management.
 """
 from __future__ import annotations
 
@@ -268,6 +268,18 @@ def set_denoiser_settings(cy, prefilter: str, quality: str) -> None:
         from ..errors import ConfigError, Problem
         raise ConfigError(Problem("render.denoise_quality", f"this Blender ({bpy.app.version_string}) has no "
                                   "OpenImageDenoise quality setting", 'use "HIGH", or a Blender that has it (bpy 5.0.1 does)'))
+
+
+def set_sampling_pattern(cy, pattern: str) -> None:
+    """Cycles' sampling pattern (render.sampling_pattern). bpy 5.0.1 offers AUTOMATIC,
+    TABULATED_SOBOL and BLUE_NOISE (read back in tests/blender/test_renderer.py); a build that lacks
+    the one asked for is refused, naming the field and what the build offers."""
+    try:
+        cy.sampling_pattern = pattern
+    except TypeError as e:             # bpy: enum "X" not found in (...)
+        from ..errors import ConfigError, Problem
+        raise ConfigError(Problem("render.sampling_pattern", f"this Blender ({bpy.app.version_string}) has no "
+                                  f"sampling pattern {pattern!r}: {e}", 'use "SCENE" or one it lists')) from None
 
 
 def set_linear_color_management(scene) -> None:

@@ -115,6 +115,8 @@ class Renderer:
         self.device = compat.set_cycles_device(sc, r.device)    # "CPU", or the GPU backend used
         cy = sc.cycles
         cy.samples = int(r.samples)
+        if r.sampling_pattern != "SCENE":          # SCENE: as the scene has it (what a run did before the field)
+            compat.set_sampling_pattern(cy, r.sampling_pattern)
         # adaptive sampling off: `samples` means what it says, a fixed noise level; with a threshold
         # Cycles stops a pixel's sampling once its noise estimate is below it
         cy.use_adaptive_sampling = r.adaptive_threshold > 0
