@@ -10,6 +10,7 @@ names, the Cycles device, the denoiser's settings and sampling pattern, colour m
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 from pathlib import Path
@@ -270,16 +271,27 @@ def set_denoiser_settings(cy, prefilter: str, quality: str) -> None:
                                   "OpenImageDenoise quality setting", 'use "HIGH", or a Blender that has it (bpy 5.0.1 does)'))
 
 
-def set_sampling_pattern(cy, pattern: str) -> None:
-    """Cycles' sampling pattern (render.sampling_pattern). bpy 5.0.1 offers AUTOMATIC,
-    TABULATED_SOBOL and BLUE_NOISE (read back in tests/blender/test_renderer.py); a build that lacks
-    the one asked for is refused, naming the field and what the build offers."""
+@contextlib.contextmanager
+def sampling_pattern(cy, pattern: str):
+    """Cycles' sampling pattern `pattern` on `scene.cycles` for the calls inside, the scene's own
+    after them (render.sampling_pattern; "SCENE": the scene's own throughout, nothing set). bpy
+    5.0.1 offers AUTOMATIC, TABULATED_SOBOL and BLUE_NOISE (read back in tests/blender/
+    test_renderer.py); a build that lacks the one asked for is refused, naming the field and what
+    the build offers."""
+    if pattern == "SCENE":
+        yield
+        return
+    own = cy.sampling_pattern
     try:
         cy.sampling_pattern = pattern
     except TypeError as e:             # bpy: enum "X" not found in (...)
         from ..errors import ConfigError, Problem
         raise ConfigError(Problem("render.sampling_pattern", f"this Blender ({bpy.app.version_string}) has no "
                                   f"sampling pattern {pattern!r}: {e}", 'use "SCENE" or one it lists')) from None
+    try:
+        yield
+    finally:
+        cy.sampling_pattern = own
 
 
 def set_linear_color_management(scene) -> None:

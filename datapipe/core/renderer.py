@@ -115,8 +115,9 @@ class Renderer:
         self.device = compat.set_cycles_device(sc, r.device)    # "CPU", or the GPU backend used
         cy = sc.cycles
         cy.samples = int(r.samples)
-        if r.sampling_pattern != "SCENE":          # SCENE: as the scene has it (what a run did before the field)
-            compat.set_sampling_pattern(cy, r.sampling_pattern)
+        if r.sampling_pattern != "SCENE":          # checked here, set only around the native call (render())
+            with compat.sampling_pattern(cy, r.sampling_pattern):
+                pass
         # adaptive sampling off: `samples` means what it says, a fixed noise level; with a threshold
         # Cycles stops a pixel's sampling once its noise estimate is below it
         cy.use_adaptive_sampling = r.adaptive_threshold > 0
@@ -232,7 +233,10 @@ class Renderer:
         res = self.scene.render
         with self.progress.cycles("render", f"{', '.join(self.cfg.render.outputs)} at {res.resolution_x} x "
                                        f"{res.resolution_y}, {self.scene.cycles.samples} samples"):
-            bpy.ops.render.render(write_still=False, scene=self.scene.name)
+            # render.sampling_pattern is the native render's: the fringe calls keep the scene's own
+            # (blue noise moved the fringe decode's valid share beyond its seed spread: view_settings.md)
+            with compat.sampling_pattern(self.scene.cycles, self.cfg.render.sampling_pattern):
+                bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0
         self.progress.begin("write", "native files")
 

@@ -318,30 +318,39 @@ def test_denoiser_prefilter_and_quality_reach_cycles(factory_scene, tmp_path):
     assert not np.array_equal(rgb["cheap"], old) and not np.array_equal(rgb["none"], old)
 
 
-def test_sampling_pattern_reaches_cycles_and_scene_keeps_the_scenes(factory_scene, tmp_path):
-    """render.sampling_pattern is what Cycles reads back; its default SCENE leaves the scene's own
-    pattern untouched (a new scene's TABULATED_SOBOL, or any other a .blend carries), as the renderer
-    did before the field, and renders the same bytes as that pattern set by hand; BLUE_NOISE gives
+def test_sampling_pattern_reaches_the_native_render_only(factory_scene, tmp_path):
+    """render.sampling_pattern is what Cycles reads during the native render (render_pre handler) and
+    the scene's own pattern again after it (the fringe calls keep theirs); its default SCENE leaves
+    the scene's pattern (a new scene's TABULATED_SOBOL, or any other a .blend carries) as the
+    renderer did before the field, rendering the bytes of that pattern set by hand; BLUE_NOISE gives
     another image; a pattern this Blender lacks is refused naming the field."""
     from datapipe.errors import ConfigError
     scene = factory_scene
     add_plane(size=4.0, pass_index=1)
     add_sphere(0.08, (0.0, 0.0, 0.05), pass_index=2)
     add_light()
-    rgb = {}
-    for name, pattern, before in (("unset", "SCENE", "TABULATED_SOBOL"), ("kept", "SCENE", "AUTOMATIC"),
-                                  ("blue", "BLUE_NOISE", "TABULATED_SOBOL")):
-        scene.cycles.sampling_pattern = before
-        cfg = make_cfg(samples=2)
-        cfg.render.sampling_pattern = pattern
-        cam, ren = setup(scene, cfg)
-        assert scene.cycles.sampling_pattern == (before if pattern == "SCENE" else pattern)
-        rgb[name] = ren.render(tmp_path / name, seed=3).rgb
-    scene.cycles.sampling_pattern = "TABULATED_SOBOL"          # by hand, not through the config
-    np.testing.assert_array_equal(rgb["unset"], ren.render(tmp_path / "old", seed=3).rgb)
+    seen = []
+    probe = lambda *a: seen.append(scene.cycles.sampling_pattern)  # noqa: E731
+    bpy.app.handlers.render_pre.append(probe)
+    try:
+        rgb = {}
+        for name, pattern, own in (("unset", "SCENE", "TABULATED_SOBOL"), ("kept", "SCENE", "AUTOMATIC"),
+                                   ("blue", "BLUE_NOISE", "TABULATED_SOBOL")):
+            scene.cycles.sampling_pattern = own
+            cfg = make_cfg(samples=2)
+            cfg.render.sampling_pattern = pattern
+            cam, ren = setup(scene, cfg)
+            rgb[name] = ren.render(tmp_path / name, seed=3).rgb
+            assert seen[-1] == (own if pattern == "SCENE" else pattern)
+            assert scene.cycles.sampling_pattern == own
+        ren.cfg.render.sampling_pattern = "SCENE"       # the former renderer: TABULATED_SOBOL set by hand
+        np.testing.assert_array_equal(rgb["unset"], ren.render(tmp_path / "old", seed=3).rgb)
+    finally:
+        bpy.app.handlers.render_pre.remove(probe)
     assert not np.array_equal(rgb["blue"], rgb["unset"])
     with pytest.raises(ConfigError, match="render.sampling_pattern"):
-        compat.set_sampling_pattern(scene.cycles, "SOBOL_BURLEY")
+        with compat.sampling_pattern(scene.cycles, "SOBOL_BURLEY"):
+            pass
 
 
 def test_gpu_device_falls_back_to_cpu_with_one_message(factory_scene, tmp_path, capsys, monkeypatch):
