@@ -68,8 +68,8 @@ def slug(name: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in name)
 
 
-def build(tmp: Path):
-    """The preset's world at binning 4, scene 0 dropped, the camera at its first drawn pose."""
+def build(tmp: Path, binning: int = 4, crop: bool = True):
+    """The preset's world at `binning`, scene 0 dropped, the camera at its first drawn pose."""
     import bpy
     from datapipe.core.world import BlenderWorld
     from datapipe.draws.seeds import scene_rng
@@ -77,7 +77,7 @@ def build(tmp: Path):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     pre = C.presets_dir() / "bin_picking.json"
     d = json.loads(pre.read_text())
-    d["binning"] = 4
+    d["binning"] = binning
     d["render"]["samples"] = 16                       # the baseline: the preset before this study
     d["render"]["sampling_pattern"] = "SCENE"         # (it adopted 15 samples of BLUE_NOISE)
     d["structured_light"]["enabled"] = False          # the native render only
@@ -90,6 +90,8 @@ def build(tmp: Path):
     seed = cfg.scene.seed
     world.start_scene(0, seed, scene_rng(seed, 0), 1)
     world.variety.place_camera(None, seed, 0, 0)
+    if not crop:
+        return world
     rd = world.blend.scene.render
     rd.use_border, rd.use_crop_to_border = True, True
     rd.border_min_x, rd.border_max_x, rd.border_min_y, rd.border_max_y = BORDER
@@ -100,6 +102,7 @@ def apply(world, props: dict) -> dict:
     """The preset's Cycles settings (the Renderer's setup), then `props`; returns what Cycles reads back."""
     world.renderer._setup_cycles()
     cy = world.blend.scene.cycles
+    cy.sampling_pattern = "TABULATED_SOBOL"     # a new scene's, the baseline's: the Renderer leaves it (SCENE)
     for k, v in props.items():
         setattr(cy, k, v)
     return {k: getattr(cy, k) for k in ("samples", "use_denoising", "denoising_prefilter", "denoising_quality",
@@ -181,9 +184,35 @@ def report(rows, meta, out_dir: Path, elapsed: float):
     write_with_notes(out_dir / "view_settings.md", L)
 
 
+ADOPTED = "pattern BLUE_NOISE, samples 15"
+
+
+def timing_ab(rounds: int, log) -> None:
+    """The whole frame at the shipped binning 2 (1224 x 1024): the baseline and the adopted case
+    rendered in turns (`rounds` each, the same seed), so the machine's load falls on both alike;
+    prints each render's CPU seconds and the medians."""
+    tmp = Path(tempfile.mkdtemp(prefix="viewset_ab_"))
+    world = build(tmp, binning=2, crop=False)
+    cpu = {BASE: [], ADOPTED: []}
+    for _ in range(rounds):
+        for n in cpu:
+            apply(world, CASES[n])
+            _, wall, c = clocked(lambda: world.renderer.render(tmp / "ab", SEEDS[0]))
+            cpu[n].append(c)
+            log(f"  {n}: {c:.1f} CPU s ({wall:.0f} s wall)")
+    for n, v in cpu.items():
+        log(f"{n}: median {np.median(v):.1f} CPU s of {[round(x, 1) for x in v]}")
+    log(f"adopted / baseline: {np.median(cpu[ADOPTED]) / np.median(cpu[BASE]):.3f}")
+
+
 def main(argv=None):
-    a = sweep_parser(__doc__, "datapipe_view_settings", quick="the baseline and one case").parse_args(argv)
+    ap = sweep_parser(__doc__, "datapipe_view_settings", quick="the baseline and one case")
+    ap.add_argument("--timing-ab", type=int, default=0, metavar="ROUNDS", help="instead of the sweep: the "
+                    "baseline and the adopted case on the whole 1224 x 1024 frame, in turns, ROUNDS each")
+    a = ap.parse_args(argv)
     log = lambda s: print(s, flush=True)  # noqa: E731
+    if a.timing_ab:
+        return timing_ab(a.timing_ab, log)
     clock = Stopwatch().start()
     names = list(QUICK if a.quick else CASES)
     meta = cached_renders(a, names, render_all, log)
