@@ -268,7 +268,8 @@ def set_denoiser_settings(cy, prefilter: str, quality: str) -> None:
     elif quality != "HIGH":
         from ..errors import ConfigError, Problem
         raise ConfigError(Problem("render.denoise_quality", f"this Blender ({bpy.app.version_string}) has no "
-                                  "OpenImageDenoise quality setting", 'use "HIGH", or a Blender that has it (bpy 5.0.1 does)'))
+                                  "OpenImageDenoise quality setting",
+                                  'use "HIGH", or a Blender that has it (bpy 5.0.1 does)'))
 
 
 @contextlib.contextmanager

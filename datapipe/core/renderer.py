@@ -234,7 +234,7 @@ class Renderer:
         with self.progress.cycles("render", f"{', '.join(self.cfg.render.outputs)} at {res.resolution_x} x "
                                        f"{res.resolution_y}, {self.scene.cycles.samples} samples"):
             # render.sampling_pattern is the native render's: the fringe calls keep the scene's own
-            # (blue noise moved the fringe decode's valid share beyond its seed spread: view_settings.md)
+            # (blue noise moved the fringe decode's valid share beyond its seed spread: fringe_settings.md)
             with compat.sampling_pattern(self.scene.cycles, self.cfg.render.sampling_pattern):
                 bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0

@@ -17,8 +17,9 @@ class DATAPIPE_PG_render(PropertyGroup):
                          items=enum_choices(C.DEVICES), default=default(_R, "device"))
     samples: IntProperty(name="Samples", description="Cycles samples for the RGB / depth / normals / mask render",
                          default=default(_R, "samples"), min=1, soft_max=4096)
-    sampling_pattern: EnumProperty(name="Sampling Pattern", description="Cycles' sampling pattern (Scene: as "
-                                   "the scene has it)", items=enum_choices(C.SAMPLING_PATTERNS),
+    sampling_pattern: EnumProperty(name="Sampling Pattern", description="Cycles' sampling pattern of the RGB / "
+                                   "depth / normals / mask render (Scene: as the scene has it; the fringe renders "
+                                   "always keep the scene's)", items=enum_choices(C.SAMPLING_PATTERNS),
                                    default=default(_R, "sampling_pattern"))
     threads: IntProperty(name="Threads", description="CPU threads (0: all cores)",
                          default=default(_R, "threads"), min=0, soft_max=256)
