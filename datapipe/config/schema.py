@@ -220,8 +220,8 @@ class RenderConfig:
                                        # at 0.64x the time of 32 undenoised (36.9 dB): rgb_quality.md
     sampling_pattern: str = "SCENE"    # Cycles' sampling pattern of the native render (the fringe calls keep
                                        # the scene's): SCENE (the scene's own; a new scene's is TABULATED_SOBOL),
-                                       # TABULATED_SOBOL, BLUE_NOISE, AUTOMATIC (SAMPLING_PATTERNS); blue noise
-                                       # at 15 samples = tabulated at 16: benchmarks/results/view_settings.md
+                                       # TABULATED_SOBOL, BLUE_NOISE, AUTOMATIC (SAMPLING_PATTERNS); blue noise:
+                                       # +0.26-0.33 dB at the same CPU (benchmarks/results/view_settings.md)
     threads: int = 0                   # 0 = all cores
     denoise: bool = True               # OpenImageDenoise (CPU) on the RGB, albedo + normal guided
     denoise_prefilter: str = "ACCURATE"  # OIDN's guide passes: ACCURATE (denoised first), FAST, NONE (as
