@@ -11,6 +11,7 @@ denoise, output (compositing and the File Output's EXR). Per view it prints the 
 the fringe call's phases, and run.json's steps (decode, writing, annotations).
 
     python benchmarks/bench_view_cost.py --views 3 [--persistent-data] [--binning 4] [--no-denoise] [--json out.json]
+        [--samples 16 --sampling-pattern SCENE]   (the settings before the view study, for an A/B)
 """
 from __future__ import annotations
 
@@ -90,6 +91,9 @@ def main(argv=None) -> int:
     ap.add_argument("--persistent-data", action="store_true")
     ap.add_argument("--no-denoise", action="store_true", help="the native render without OpenImageDenoise "
                     "(to measure the denoiser's share; not the preset's output)")
+    ap.add_argument("--samples", type=int, default=None, help="the native render's samples instead of the preset's")
+    ap.add_argument("--sampling-pattern", default=None, help="render.sampling_pattern instead of the preset's "
+                    "(SCENE: the settings before issue #29's view study, with --samples 16)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, default=None, help="also write the numbers here")
     a = ap.parse_args(argv)
@@ -105,6 +109,10 @@ def main(argv=None) -> int:
     d["render"]["persistent_data"] = a.persistent_data
     if a.no_denoise:
         d["render"]["denoise"] = False
+    if a.samples is not None:
+        d["render"]["samples"] = a.samples
+    if a.sampling_pattern is not None:
+        d["render"]["sampling_pattern"] = a.sampling_pattern
     d["output"]["overview"] = False
     for o in d["objects"]:
         o["filepath"] = str((pre.parent / o["filepath"]).resolve())
@@ -121,7 +129,7 @@ def main(argv=None) -> int:
     res = cfg.camera.resolution
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20        # KiB on Linux -> GiB
     print(f"bin_picking.json, {res[0]} x {res[1]}, {a.views} views, persistent data {a.persistent_data}, "
-          f"denoise {cfg.render.denoise}: "
+          f"denoise {cfg.render.denoise}, {cfg.render.samples} samples, pattern {cfg.render.sampling_pattern}: "
           f"{cpu:.1f} CPU s, {wall:.0f} s wall, peak RSS {rss:.2f} GiB; run.json steps (CPU s): {steps}\n")
     print("| view | call | " + " | ".join(PHASES) + " | call CPU s |")
     print("|---|---|" + "---|" * (len(PHASES) + 1))
@@ -136,6 +144,7 @@ def main(argv=None) -> int:
     if a.json:
         a.json.write_text(json.dumps({"views": a.views, "persistent_data": a.persistent_data, "resolution": res,
                                       "denoise": cfg.render.denoise,
+                                      "samples": cfg.render.samples, "sampling_pattern": cfg.render.sampling_pattern,
                                       "cpu_s": cpu, "wall_s": wall, "peak_rss_gib": rss, "steps": steps, "calls": rows}, indent=1))
     return 0
 

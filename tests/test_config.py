@@ -170,6 +170,9 @@ CASES = [
     (lambda c: setattr(c.render, "samples", 0), "render.samples", ">= 1"),
     (lambda c: setattr(c.render, "outputs", ["rgb", "thermal"]), "render.outputs[1]", "unknown value"),
     (lambda c: setattr(c.render, "engine", "BLENDER_EEVEE"), "render.engine", "unknown value"),
+    (lambda c: setattr(c.render, "denoise_prefilter", "SLOW"), "render.denoise_prefilter", "unknown value"),
+    (lambda c: setattr(c.render, "denoise_quality", "balanced"), "render.denoise_quality", "unknown value"),
+    (lambda c: setattr(c.render, "sampling_pattern", "SOBOL_BURLEY"), "render.sampling_pattern", "unknown value"),
     (lambda c: (setattr(c.output, "formats", ["bop"]), setattr(c.render, "outputs", ["rgb", "depth"])),
      "render.outputs", "BOP format needs"),
     (lambda c: setattr(c.simulation, "max_frames", 0), "simulation.max_frames", ">= 1"),
@@ -340,3 +343,25 @@ def test_only_grey_materials_pack_three_images_per_layer():
     cfg.objects[0].material = "steel"
     cfg.scene.bin_material = [{"name": "blue_bin", "base_color": [0.1, 0.2, 0.6], "roughness": 0.6}]
     assert not grey_materials(cfg)
+
+
+def test_denoiser_settings_default_to_the_former_fixed_ones_and_are_checked():
+    """render.denoise_prefilter / denoise_quality: the defaults are the values the renderer hard-coded
+    before they were fields (ACCURATE, HIGH), and render.sampling_pattern's SCENE leaves the scene's
+    as the renderer did, so a preset that does not set them renders as before; a JSON value is
+    Cycles' name, checked before any work with the choices in the fix."""
+    r = C.RenderConfig()
+    assert (r.denoise_prefilter, r.denoise_quality, r.sampling_pattern) == ("ACCURATE", "HIGH", "SCENE")
+    cfg = C.loads(json.dumps({"render": {"denoise_prefilter": "FAST", "denoise_quality": "BALANCED"}}))
+    assert (cfg.render.denoise_prefilter, cfg.render.denoise_quality) == ("FAST", "BALANCED")
+    assert "render.denoise_prefilter" not in _problems(cfg) and "render.denoise_quality" not in _problems(cfg)
+    with pytest.raises(ConfigError) as e:
+        C.loads(json.dumps({"render": {"denoise_prefilter": "ACCURATEST", "denoise_quality": 2}}))
+    paths = e.value.paths()
+    assert "render.denoise_prefilter" in paths and "render.denoise_quality" in paths
+    p = _problems(C.loads(json.dumps({"render": {"denoise_prefilter": "fast"}})))["render.denoise_prefilter"]
+    assert "ACCURATE, FAST, NONE" in p.fix
+    cfg = C.loads(json.dumps({"render": {"sampling_pattern": "BLUE_NOISE"}}))
+    assert cfg.render.sampling_pattern == "BLUE_NOISE" and "render.sampling_pattern" not in _problems(cfg)
+    p = _problems(C.loads(json.dumps({"render": {"sampling_pattern": "blue"}})))["render.sampling_pattern"]
+    assert "SCENE, TABULATED_SOBOL, BLUE_NOISE, AUTOMATIC" in p.fix

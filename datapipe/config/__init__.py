@@ -26,7 +26,7 @@ from .limits import (AMBIENT_MODES, COLLISION_SHAPES, ORIGINS, DEVICES, ENGINES,
                      MAX_INT32, MAX_RENDERS, MAX_RESOLUTION, MAX_SAMPLES, MAX_SL_SAMPLES, MAX_STEPS, MESH_SUFFIXES,
                      MIN_FRINGE_CAMERA_PX, MIN_POSITIVE, OTHER_OBJECTS, OUTPUT_KINDS, PICK_ORDERS, REFLECTION_FILTERS, SAMPLER_KINDS,
                      SCHEMA_VERSION, SENSOR_FITS, UNWRAP_METHODS)
-from .limits import TEXTURE_KINDS, TEXTURE_TARGETS
+from .limits import DENOISE_PREFILTERS, DENOISE_QUALITIES, SAMPLING_PATTERNS, TEXTURE_KINDS, TEXTURE_TARGETS
 from .schema import (CameraConfig, CameraPose, CameraSamplerConfig, PicksConfig,
                      Config, LightingConfig, ObjectEntry, OutputConfig, ProjectorConfig, RenderConfig,
                      SceneConfig, SimulationConfig, StructuredLightConfig, TexturesConfig)
@@ -42,7 +42,8 @@ __all__ = [
     "MAX_FRINGE_BYTES", "MAX_INSTANCES", "MAX_PERIODS", "MAX_PICKLE_NESTING", "MAX_RENDERS", "MAX_RESOLUTION",
     "MAX_SAMPLES", "MAX_SL_SAMPLES", "MAX_STEPS", "MESH_SUFFIXES", "MIN_FRINGE_CAMERA_PX", "OTHER_OBJECTS",
     "OUTPUT_KINDS", "PICK_ORDERS", "REFLECTION_FILTERS", "SAMPLER_KINDS", "SCHEMA_VERSION", "SENSOR_FITS",
-    "TEXTURE_KINDS", "TEXTURE_TARGETS", "UNWRAP_METHODS",
+    "TEXTURE_KINDS", "TEXTURE_TARGETS", "UNWRAP_METHODS", "DENOISE_PREFILTERS", "DENOISE_QUALITIES",
+    "SAMPLING_PATTERNS",
     "CameraConfig", "CameraPose", "CameraSamplerConfig", "Config", "LightingConfig", "ObjectEntry", "OutputConfig",
     "PicksConfig", "ProjectorConfig", "RenderConfig", "SceneConfig", "SimulationConfig", "StructuredLightConfig", "TexturesConfig",
     "BLEND_MAGICS", "VALIDATION_STEPS", "validate",

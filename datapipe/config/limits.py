@@ -10,6 +10,13 @@ SL_OUTPUT_KINDS = ("sl_gray", "point_cloud")
 FORMATS = ("native", "bop")
 ENGINES = ("CYCLES",)
 DEVICES = ("CPU", "GPU")
+# render.denoise_prefilter / render.denoise_quality: Cycles' OpenImageDenoise settings, by their
+# Cycles names (scene.cycles.denoising_prefilter / denoising_quality); the first is the default
+DENOISE_PREFILTERS = ("ACCURATE", "FAST", "NONE")
+DENOISE_QUALITIES = ("HIGH", "BALANCED", "FAST")
+# render.sampling_pattern: "SCENE" leaves scene.cycles.sampling_pattern as the scene has it (a new
+# scene: TABULATED_SOBOL); the others are Cycles' names for it in bpy 5.0.1
+SAMPLING_PATTERNS = ("SCENE", "TABULATED_SOBOL", "BLUE_NOISE", "AUTOMATIC")
 # AUTO: DECOMPOSED for clearly concave meshes, else CONVEX_HULL. DECOMPOSED and MESH: a compound of
 # convex pieces (Blender's moving triangle meshes threw concave parts out; see collision.py)
 ORIGINS = ("file", "bbox_center")       # objects[i].origin

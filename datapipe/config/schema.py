@@ -218,8 +218,16 @@ class RenderConfig:
     device: str = "CPU"
     samples: int = 16                  # native RGB layer; with the denoiser 42 dB against 1024 samples
                                        # at 0.64x the time of 32 undenoised (36.9 dB): rgb_quality.md
+    sampling_pattern: str = "SCENE"    # Cycles' sampling pattern of the native render (the fringe calls keep
+                                       # the scene's): SCENE (the scene's own; a new scene's is TABULATED_SOBOL),
+                                       # TABULATED_SOBOL, BLUE_NOISE, AUTOMATIC (SAMPLING_PATTERNS); blue noise:
+                                       # +0.26-0.33 dB at the same CPU (benchmarks/results/view_settings.md)
     threads: int = 0                   # 0 = all cores
     denoise: bool = True               # OpenImageDenoise (CPU) on the RGB, albedo + normal guided
+    denoise_prefilter: str = "ACCURATE"  # OIDN's guide passes: ACCURATE (denoised first), FAST, NONE (as
+                                       # rendered); Cycles' denoising_prefilter (DENOISE_PREFILTERS)
+    denoise_quality: str = "HIGH"      # OIDN's network: HIGH, BALANCED, FAST; Cycles' denoising_quality
+                                       # (what each costs and loses: benchmarks/results/view_settings.md)
     adaptive_threshold: float = 0.0    # Cycles adaptive sampling noise threshold; 0 = off (fixed samples)
     persistent_data: bool = False      # keep Cycles' scene data between the renders of a scene
     max_bounces: int = 4

@@ -15,7 +15,8 @@ from ..io.input_files import MAX_MESH_BYTES, file_problem, read_regular
 from ..materials_spec import material_problem
 from ..text_rules import name_problem, output_folder_problem, short as _short
 from .checks import _Checks, _check_field_of_view, _finite, _is_number, _join, _range_problems, _split_field
-from .limits import (ORIGINS, COLLISION_SHAPES, DEVICES, ENGINES, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS,
+from .limits import (ORIGINS, COLLISION_SHAPES, DENOISE_PREFILTERS, DENOISE_QUALITIES, DEVICES, ENGINES,
+                     SAMPLING_PATTERNS, FORMATS, MAX_INSTANCES, MAX_INT32, MAX_RENDERS,
                      MAX_SAMPLES, MESH_SUFFIXES, OTHER_OBJECTS, OUTPUT_KINDS, PICK_ORDERS, SAMPLER_KINDS, SENSOR_FITS,
                      SL_OUTPUT_KINDS)
 from .validate_looks import _check_environment, _check_textures
@@ -310,6 +311,9 @@ def _check_render(ck: _Checks, cfg: Config, check_files: bool) -> None:
     ck.choice("render.engine", r.engine, ENGINES)
     ck.choice("render.device", r.device, DEVICES)
     ck.int_range("render.samples", r.samples, 1, MAX_SAMPLES, "samples")
+    ck.choice("render.denoise_prefilter", r.denoise_prefilter, DENOISE_PREFILTERS)
+    ck.choice("render.denoise_quality", r.denoise_quality, DENOISE_QUALITIES)
+    ck.choice("render.sampling_pattern", r.sampling_pattern, SAMPLING_PATTERNS)
     if r.threads < 0:
         ck.add("render.threads", f"must be >= 0, got {r.threads}", "use 0 for all cores")
     ck.at_most("render.threads", r.threads, 1024, "more threads than any machine has")

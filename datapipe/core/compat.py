@@ -6,10 +6,11 @@ repository's venv, the 4.2 branch follows what was observed on 4.2.0 then (noted
 
 Topics: engine ids, the compositor node tree and its sink (Composite vs. Group Output), the File
 Output node (paths, items, multilayer 32-bit EXR, the file name it writes), Render Layers socket
-names, the Cycles device, colour management.
+names, the Cycles device, the denoiser's settings and sampling pattern, colour management.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 from pathlib import Path
@@ -253,6 +254,45 @@ def set_cycles_device(scene, device: str) -> str:
               f"{', '.join(GPU_BACKENDS)}): rendering on the CPU (set render.device to \"CPU\" to "
               "silence this)", file=sys.stderr, flush=True)
     return "CPU"
+
+
+def set_denoiser_settings(cy, prefilter: str, quality: str) -> None:
+    """OpenImageDenoise's prefilter and quality on `scene.cycles` (render.denoise_prefilter,
+    render.denoise_quality). Both enums are in bpy 5.0.1 (prefilter NONE / FAST / ACCURATE, quality
+    HIGH / BALANCED / FAST, read back in tests/blender/test_renderer.py). The quality was set only
+    where the build has it (`hasattr`, as before this helper) and 4.2.0 could not be re-checked here:
+    a build without it renders HIGH's network, so any other quality asked of it is refused."""
+    cy.denoising_prefilter = prefilter
+    if hasattr(cy, "denoising_quality"):
+        cy.denoising_quality = quality
+    elif quality != "HIGH":
+        from ..errors import ConfigError, Problem
+        raise ConfigError(Problem("render.denoise_quality", f"this Blender ({bpy.app.version_string}) has no "
+                                  "OpenImageDenoise quality setting",
+                                  'use "HIGH", or a Blender that has it (bpy 5.0.1 does)'))
+
+
+@contextlib.contextmanager
+def sampling_pattern(cy, pattern: str):
+    """Cycles' sampling pattern `pattern` on `scene.cycles` for the calls inside, the scene's own
+    after them (render.sampling_pattern; "SCENE": the scene's own throughout, nothing set). bpy
+    5.0.1 offers AUTOMATIC, TABULATED_SOBOL and BLUE_NOISE (read back in tests/blender/
+    test_renderer.py); a build that lacks the one asked for is refused, naming the field and what
+    the build offers."""
+    if pattern == "SCENE":
+        yield
+        return
+    own = cy.sampling_pattern
+    try:
+        cy.sampling_pattern = pattern
+    except TypeError as e:             # bpy: enum "X" not found in (...)
+        from ..errors import ConfigError, Problem
+        raise ConfigError(Problem("render.sampling_pattern", f"this Blender ({bpy.app.version_string}) has no "
+                                  f"sampling pattern {pattern!r}: {e}", 'use "SCENE" or one it lists')) from None
+    try:
+        yield
+    finally:
+        cy.sampling_pattern = own
 
 
 def set_linear_color_management(scene) -> None:

@@ -115,6 +115,9 @@ class Renderer:
         self.device = compat.set_cycles_device(sc, r.device)    # "CPU", or the GPU backend used
         cy = sc.cycles
         cy.samples = int(r.samples)
+        if r.sampling_pattern != "SCENE":          # checked here, set only around the native call (render())
+            with compat.sampling_pattern(cy, r.sampling_pattern):
+                pass
         # adaptive sampling off: `samples` means what it says, a fixed noise level; with a threshold
         # Cycles stops a pixel's sampling once its noise estimate is below it
         cy.use_adaptive_sampling = r.adaptive_threshold > 0
@@ -126,9 +129,7 @@ class Renderer:
         if r.denoise:                 # OpenImageDenoise runs on the CPU; guided by albedo and normals
             cy.denoiser = "OPENIMAGEDENOISE"
             cy.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-            cy.denoising_prefilter = "ACCURATE"
-            if hasattr(cy, "denoising_quality"):
-                cy.denoising_quality = "HIGH"
+            compat.set_denoiser_settings(cy, r.denoise_prefilter, r.denoise_quality)
         sc.render.use_persistent_data = bool(r.persistent_data)
         cy.use_preview_denoising = False
         cy.time_limit = 0.0
@@ -232,7 +233,10 @@ class Renderer:
         res = self.scene.render
         with self.progress.cycles("render", f"{', '.join(self.cfg.render.outputs)} at {res.resolution_x} x "
                                        f"{res.resolution_y}, {self.scene.cycles.samples} samples"):
-            bpy.ops.render.render(write_still=False, scene=self.scene.name)
+            # render.sampling_pattern is the native render's: the fringe calls keep the scene's own
+            # (blue noise moved the fringe decode's valid share beyond its seed spread: fringe_settings.md)
+            with compat.sampling_pattern(self.scene.cycles, self.cfg.render.sampling_pattern):
+                bpy.ops.render.render(write_still=False, scene=self.scene.name)
         seconds = time.perf_counter() - t0
         self.progress.begin("write", "native files")
 

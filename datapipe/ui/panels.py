@@ -412,8 +412,9 @@ class DATAPIPE_PT_render(_DataPipePanel, Panel):
         layout.use_property_decorate = False
         r = _props(context).render
         col = layout.column()
-        for name in ("engine", "device", "samples", "adaptive_threshold", "denoise", "persistent_data", "threads",
-                     "max_bounces", "light_power"):
+        for name in ("engine", "device", "samples", "sampling_pattern", "adaptive_threshold", "denoise",
+                     "denoise_prefilter", "denoise_quality", "persistent_data", "threads", "max_bounces",
+                     "light_power"):
             col.prop(r, name)
 
 

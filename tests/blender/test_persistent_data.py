@@ -5,8 +5,9 @@ Ground truth is the same run without it: with equal seeds Cycles traces the same
 file of every render (RGB after the denoiser, depth, normals, mask, the structured-light depth and
 validity) is expected byte-identical, not merely within Monte-Carlo noise. Two scenes of two views
 each: the second scene's parts replace the first's (deleted objects, new ones), the views of one
-pile move only the camera, and each view's fringe call switches view layers, resolution and pixel
-filter, so a stale Cycles scene in any of these would show."""
+pile move only the camera, and each view's fringe call switches view layers, resolution, pixel
+filter and (render.sampling_pattern, as the bin presets) the sampling pattern, so a stale Cycles
+scene in any of these would show."""
 import json
 import sys
 from pathlib import Path
@@ -25,6 +26,8 @@ def _run(out, persistent):
     cfg = tiny_config(num_renders=4, res=(64, 48), samples=4)
     cfg.scene.min_renders_per_scene = cfg.scene.max_renders_per_scene = 2
     cfg.structured_light.fringe_mode = "quadrature"          # what bin_picking.json's steel parts use
+    cfg.render.sampling_pattern = "BLUE_NOISE"               # as bin_picking.json: set around the native call
+                                                             # only, so every render switches the pattern
     cfg.render.persistent_data = persistent
     cfg.output.overview = False
     run(cfg, out)

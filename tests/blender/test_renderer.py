@@ -290,6 +290,69 @@ def test_denoise_and_adaptive_sampling_options(factory_scene, tmp_path):
     assert err(clean) < 0.5 * err(noisy)
 
 
+def test_denoiser_prefilter_and_quality_reach_cycles(factory_scene, tmp_path):
+    """render.denoise_prefilter / denoise_quality are what Cycles reads back, and a config that does
+    not set them renders the bytes of the settings the renderer hard-coded before they were fields
+    (OIDN prefilter ACCURATE, quality HIGH, albedo + normal guides, set here on scene.cycles by hand);
+    another prefilter and quality give another image (the fields reach the denoiser)."""
+    scene = factory_scene
+    add_plane(size=4.0, pass_index=1)
+    add_sphere(0.08, (0.0, 0.0, 0.05), pass_index=2)
+    add_light()
+    rgb = {}
+    for name, fields in (("unset", {}), ("cheap", {"denoise_prefilter": "FAST", "denoise_quality": "BALANCED"}),
+                         ("none", {"denoise_prefilter": "NONE", "denoise_quality": "FAST"})):
+        cfg = make_cfg(samples=2)
+        cfg.render.denoise = True
+        for k, v in fields.items():
+            setattr(cfg.render, k, v)
+        cam, ren = setup(scene, cfg)
+        want = (fields.get("denoise_prefilter", "ACCURATE"), fields.get("denoise_quality", "HIGH"))
+        assert (scene.cycles.denoising_prefilter, scene.cycles.denoising_quality) == want
+        rgb[name] = ren.render(tmp_path / name, seed=3).rgb
+    cy = scene.cycles                     # the former hard-coded settings, not through the config
+    cy.denoiser, cy.denoising_input_passes = "OPENIMAGEDENOISE", "RGB_ALBEDO_NORMAL"
+    cy.denoising_prefilter, cy.denoising_quality = "ACCURATE", "HIGH"
+    old = ren.render(tmp_path / "old", seed=3).rgb
+    np.testing.assert_array_equal(rgb["unset"], old)
+    assert not np.array_equal(rgb["cheap"], old) and not np.array_equal(rgb["none"], old)
+
+
+def test_sampling_pattern_reaches_the_native_render_only(factory_scene, tmp_path):
+    """render.sampling_pattern is what Cycles reads during the native render (render_pre handler) and
+    the scene's own pattern again after it (the fringe calls keep theirs); its default SCENE leaves
+    the scene's pattern (a new scene's TABULATED_SOBOL, or any other a .blend carries) as the
+    renderer did before the field, rendering the bytes of that pattern set by hand; BLUE_NOISE gives
+    another image; a pattern this Blender lacks is refused naming the field."""
+    from datapipe.errors import ConfigError
+    scene = factory_scene
+    add_plane(size=4.0, pass_index=1)
+    add_sphere(0.08, (0.0, 0.0, 0.05), pass_index=2)
+    add_light()
+    seen = []
+    probe = lambda *a: seen.append(scene.cycles.sampling_pattern)  # noqa: E731
+    bpy.app.handlers.render_pre.append(probe)
+    try:
+        rgb = {}
+        for name, pattern, own in (("unset", "SCENE", "TABULATED_SOBOL"), ("kept", "SCENE", "AUTOMATIC"),
+                                   ("blue", "BLUE_NOISE", "TABULATED_SOBOL")):
+            scene.cycles.sampling_pattern = own
+            cfg = make_cfg(samples=2)
+            cfg.render.sampling_pattern = pattern
+            cam, ren = setup(scene, cfg)
+            rgb[name] = ren.render(tmp_path / name, seed=3).rgb
+            assert seen[-1] == (own if pattern == "SCENE" else pattern)
+            assert scene.cycles.sampling_pattern == own
+        ren.cfg.render.sampling_pattern = "SCENE"       # the former renderer: TABULATED_SOBOL set by hand
+        np.testing.assert_array_equal(rgb["unset"], ren.render(tmp_path / "old", seed=3).rgb)
+    finally:
+        bpy.app.handlers.render_pre.remove(probe)
+    assert not np.array_equal(rgb["blue"], rgb["unset"])
+    with pytest.raises(ConfigError, match="render.sampling_pattern"):
+        with compat.sampling_pattern(scene.cycles, "SOBOL_BURLEY"):
+            pass
+
+
 def test_gpu_device_falls_back_to_cpu_with_one_message(factory_scene, tmp_path, capsys, monkeypatch):
     """render.device GPU on a machine without a GPU (this one: Cycles' compute_device_type NONE)
     renders on the CPU and says so once per process on stderr; with a GPU it picks a backend."""

@@ -17,10 +17,21 @@ class DATAPIPE_PG_render(PropertyGroup):
                          items=enum_choices(C.DEVICES), default=default(_R, "device"))
     samples: IntProperty(name="Samples", description="Cycles samples for the RGB / depth / normals / mask render",
                          default=default(_R, "samples"), min=1, soft_max=4096)
+    sampling_pattern: EnumProperty(name="Sampling Pattern", description="Cycles' sampling pattern of the RGB / "
+                                   "depth / normals / mask render (Scene: as the scene has it; the fringe renders "
+                                   "always keep the scene's)", items=enum_choices(C.SAMPLING_PATTERNS),
+                                   default=default(_R, "sampling_pattern"))
     threads: IntProperty(name="Threads", description="CPU threads (0: all cores)",
                          default=default(_R, "threads"), min=0, soft_max=256)
     denoise: BoolProperty(name="Denoise", description="Denoise the RGB render (OpenImageDenoise on the CPU, "
                           "albedo and normal guided)", default=default(_R, "denoise"))
+    denoise_prefilter: EnumProperty(name="Denoise Prefilter", description="OpenImageDenoise's albedo and "
+                                    "normal guides: denoised first (ACCURATE), with the image (FAST), or as "
+                                    "rendered (NONE)", items=enum_choices(C.DENOISE_PREFILTERS),
+                                    default=default(_R, "denoise_prefilter"))
+    denoise_quality: EnumProperty(name="Denoise Quality", description="OpenImageDenoise's network: HIGH, "
+                                  "BALANCED or FAST", items=enum_choices(C.DENOISE_QUALITIES),
+                                  default=default(_R, "denoise_quality"))
     adaptive_threshold: FloatProperty(name="Noise Threshold", description="Adaptive sampling: stop sampling a "
                                       "pixel once its noise is below this (0: off, every pixel gets Samples)",
                                       min=0.0, max=0.999, soft_max=0.1, precision=3,
