@@ -38,6 +38,21 @@ def test_diffuse_parts_plan_the_fast_mode_without_a_row_code():
                                "exposure auto", "reflection filter auto"]
 
 
+@pytest.mark.parametrize("samples, paths", [(1, 4), (3, 4), (5, 8), (4, None), (8, None)])
+def test_the_plan_line_says_when_samples_are_rounded_up_to_the_point_grid(samples, paths):
+    """Every point of the 2 x 2 grid gets at least one path: samples 1-3 render what 4 renders, 5
+    what 8 does. validate's plan line says so instead of letting a user believe a cheaper setting."""
+    cfg = _cfg()
+    cfg.structured_light.samples = samples
+    plan = FringePlan.from_config(cfg)
+    line = plan.describe()[1]
+    assert plan.layer_samples * plan.supersample ** 2 == (paths or samples)
+    if paths is None:
+        assert line == "12 fringe images"
+    else:
+        assert f"{paths} Cycles paths per camera pixel (samples {samples} rounded up" in line
+
+
 def test_shiny_grey_parts_plan_packed_quadrature_with_the_row_code():
     plan = FringePlan.from_config(_cfg(material="steel"))
     assert plan.mode == "quadrature" and plan.packed and plan.grey

@@ -265,6 +265,10 @@ class FringePlan:
             else:
                 images += (", one per Cycles layer (a material has a colour or comes from its mesh file: three "
                            "per layer would mix its colours)" if not self.grey else ", one per Cycles layer")
+        paths = self.layer_samples * self.supersample ** 2
+        if paths != self.samples:       # at least one path per point sample: 1-3 render what 4 does
+            images += (f", {paths} Cycles paths per camera pixel (samples {self.samples} rounded up: one path "
+                       f"or more per point of the {self.supersample} x {self.supersample} grid)")
         hdr = f", HDR {self.hdr if isinstance(self.hdr, str) else list(self.hdr)}" if self.hdr else ""
         return [f"fringe mode {self.mode}{self._why()}", images, f"exposure {self.exposure}{hdr}",
                 f"reflection filter {self.reflection_filter}"]

@@ -165,7 +165,7 @@ class StructuredLightConfig:
                                           # finest ~5 camera px per period at 320 px wide (keep >= 4)
     steps: int = 4                     # phase steps per period (4: one clipped sample tolerated)
     unwrap: str = "auto"
-    samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples)
+    samples: int = 4                   # fringe render paths per camera pixel (2x2 point sub-samples; rounded up to 4n)
     fringe_mode: str = "auto"          # "fast": one flat-lit render (+ coarse bounce layers), patterns
                                        # synthesised (core/fringe_fast.py); "render": every pattern
                                        # path-traced (the reference; sl_fringe_modes.md); "quadrature":
