@@ -109,18 +109,26 @@ _LOW = np.float32(-3e18)   # stands for "no prediction": below every coordinate,
 def _nan_median(P):
     """Median over axis 0 ignoring NaN, and the count of finite entries; NaN where all are NaN.
     A copy of P with NaN -> ``_LOW`` (sorts first) is sorted along axis 0 by a sorting network
-    (element-wise min / max of rows: ~4x faster than ``np.sort(axis=0)`` on (12, n), same order)."""
+    (element-wise min / max of rows: ~4x faster than ``np.sort(axis=0)`` on (12, n), same order).
+    The rows live in one (rows + 1, n) buffer whose row order the network permutes (``at``), so
+    the two middle values are read by one flat gather each (``np.choose`` over a list of 12 rows
+    first copies them into one array)."""
     k = _count_rows(np.isfinite(P))
-    rows = list(np.fmax(P, _LOW))            # fmax(NaN, low) = low: no masked copy
-    tmp = np.empty(P.shape[1], P.dtype)
-    for a, b in (_SORT12 if P.shape[0] == 12 else _batcher_pairs(P.shape[0])):
-        np.minimum(rows[a], rows[b], out=tmp)
-        np.maximum(rows[a], rows[b], out=rows[b])
-        rows[a], tmp = tmp, rows[a]          # swap buffers instead of copying
-    n = P.shape[0]
+    n, m = P.shape
+    buf = np.empty((n + 1, m), P.dtype)
+    np.fmax(P, _LOW, out=buf[:n])            # fmax(NaN, low) = low: no masked copy
+    at = list(range(n + 1))                  # at[i]: the buffer row holding sorted row i; at[n]: scratch
+    for a, b in (_SORT12 if n == 12 else _batcher_pairs(n)):
+        ra, rb, tmp = buf[at[a]], buf[at[b]], buf[at[n]]
+        np.minimum(ra, rb, out=tmp)
+        np.maximum(ra, rb, out=rb)
+        at[a], at[n] = at[n], at[a]          # swap buffers instead of copying
     lo = np.minimum(n - k + np.maximum(k - 1, 0) // 2, n - 1)   # the k finite entries are the last k
     hi = np.minimum(n - k + k // 2, n - 1)
-    med = np.choose(lo, rows) + np.choose(hi, rows)
+    row_of = np.asarray(at[:n], np.intp)
+    flat, cols = buf.ravel(), np.arange(m)
+    med = flat[row_of[lo] * m + cols]
+    med += flat[row_of[hi] * m + cols]
     med *= np.float32(0.5)
     med[k == 0] = np.nan
     return med, k
