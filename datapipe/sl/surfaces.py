@@ -118,15 +118,15 @@ def _dilate(mask, reach):
 def _tree_steps(pred, child, a, b, step, flat, W):
     """Finest-order step of each tree edge ``pred -> child`` (local node numbers) from the links
     (a, b, step): a link joins 4-neighbours, so its end ``b`` lies at ``a + 1`` or ``a + W`` in the
-    image; the edge's direction there picks the link, without a lookup table over all pairs."""
-    n = flat.size
-    right, down = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    across = flat[b] - flat[a] == 1
-    right[a[across]] = step[across]
-    down[a[~across]] = step[~across]
+    image; the edge's direction there picks the link, without a lookup table over all pairs. One
+    (n, 2) table of each node's steps to its right and lower neighbour, read once per edge at its
+    upper / left end (negated where that end is the child)."""
+    steps = np.zeros((flat.size, 2), np.int64)
+    steps[a, (flat[b] - flat[a] != 1).astype(np.intp)] = step
     diff = flat[child] - flat[pred]
-    return np.select([diff == 1, diff == -1, diff == W],
-                     [right[pred], -right[child], down[pred]], -down[child])
+    fwd = diff > 0
+    val = steps[np.where(fwd, pred, child), (np.abs(diff) != 1).astype(np.intp)]
+    return np.where(fwd, val, -val)
 
 
 def relative_orders(n, a, b, step, flat, W):
