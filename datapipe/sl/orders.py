@@ -369,9 +369,11 @@ def _shifts_to_check(blk, max_wrong):
     S, sb, best, size, sure = blk["S"], blk["sb"], blk["best"], blk["size"], blk["sure"]
     Kf, nb = S.shape
     gain = (S - sb[None, :]) * np.minimum(1.0, LOCAL * LOCAL / np.maximum(size, 1))[None, :]
-    near = np.zeros(Kf, bool)
-    for d in range(1, Kf):
-        near[d] = np.any(gain[(best + d) % Kf, np.arange(nb)][sure] < 8 * 2.0 * np.log(1.0 / max_wrong))
+    d = np.arange(Kf)[:, None]
+    cols = np.flatnonzero(sure)
+    # (K_f, sure blocks): the gain of each block's offset m* + d, all d at once
+    near = np.any(gain[(best[None, cols] + d) % Kf, cols[None, :]] < 8 * 2.0 * np.log(1.0 / max_wrong), axis=1)
+    near[0] = False
     near[[1, Kf - 1]] = True
     return np.flatnonzero(near)
 
