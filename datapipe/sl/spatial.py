@@ -264,15 +264,15 @@ class _Scorer:
         vf = self.var_c[f][sel]
         var_sp = spread ** 2 + (0.05 * T) ** 2 + vf * T * T
         n0 = np.rint(xh / T - cf)
+        # the other frequencies' phases and variances at these pixels, gathered once for the 3 orders
+        others = [(k, self.cyc[i][sel], self.var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf)
+                  for i, k in enumerate(per) if i != f]
         scores, temps, spat, xs = [], [], [], []
         for dn in (-1.0, 0.0, 1.0):
             xn = (n0 + dn + cf) * T
             temp = np.zeros(xn.shape, xn.dtype)
-            for i, k in enumerate(per):
-                if i == f:
-                    continue
-                v = self.var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf
-                temp += _wrapd(k * xn / L - self.cyc[i][sel]) ** 2 / v
+            for k, c, v in others:
+                temp += _wrapd(k * xn / L - c) ** 2 / v
             sp = (xn - xh) ** 2 / var_sp
             scores.append(sp + temp)
             temps.append(temp)
