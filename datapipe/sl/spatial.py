@@ -173,7 +173,7 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     todo = np.ones(idx_all.size, bool)
     slot = np.full(xg.size, -1, np.int32)        # padded pixel -> its candidate number (-1: none)
     slot[p_all] = np.arange(idx_all.size, dtype=np.int32)
-    mark = np.zeros(idx_all.size, bool)
+    mark = np.zeros(idx_all.size + 1, bool)      # + 1: slot -1 (no candidate) marks the last, unused one
     active = np.zeros(idx_all.size, bool)
     for o in offs:
         active |= np.isfinite(xg[p_all + o])
@@ -205,7 +205,8 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         xg[pa] = xnew
         todo[sel_a] = False
         j = slot[(pa[:, None] + offs[None, :]).ravel()]    # the candidates next to the accepted ones
-        mark[j[j >= 0]] = True
+        mark[j] = True
+        mark[-1] = False
         frontier = np.flatnonzero(mark)
         mark[frontier] = False
         out_idx.append(idx_all[sel_a])
