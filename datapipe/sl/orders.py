@@ -159,9 +159,10 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     (NaN elsewhere), or a function of flat indices giving them at those pixels: a pooled pixel more
     than half a finest period away from one of its 4-neighbours there is refused (a depth step
     between them, or a wrong order on one side).
-    Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
-    in pixels, probability that the order is wrong)."""
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
+    Returns ``(idx, x, p_wrong, pos)`` of the accepted pixels (flat indices, finest-frequency
+    coordinate in pixels, probability that the order is wrong, and their positions in ``cand``:
+    the caller reads its per-candidate arrays there without searching)."""
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
     per = np.asarray(periods, np.float64)
     F, f = per.size, int(np.argmax(per))
     if F < 2 or cand.size < MIN_BLOCK:
@@ -169,6 +170,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     H, W = shape
     dim = np.zeros(cand.size, bool) if dim is None else dim
     keep, var_c = _precise_and_lit(cand, snr, dim, (H, W), f)
+    num = np.flatnonzero(keep)                   # their positions in the caller's candidates
     cand, dim = cand[keep], dim[keep]
     cyc = [c[keep] for c in cyc]
     var_c = [v[keep] for v in var_c]
@@ -224,7 +226,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     xs[sel[acc]], ps_[sel[acc]] = xr[acc], blk["p"][binv[acc]]
     mine = np.zeros(cand.size, bool)
     mine[sel[acc]] = True
-    return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32)
+    return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32), num[mine]
 
 
 def _block_folds(x, binv, starts, size, length):
