@@ -1,7 +1,7 @@
 """Decoder speed at 1080p (issue #31): today's decoder, main's decoder when this speed pass began
 and OpenCV, in one run; main's recorded figure beside them.
 
-Run as a script (not a test):  .venv/bin/python benchmarks/bench_sl_speed.py [--repeat 7]
+Run as a script (not a test):  .venv/bin/python benchmarks/bench_sl_speed.py [--repeat 7] [--also COMMIT]
 
 Stack: issue #19's adversarial bin-like scene (tests/sl/synth.py `dark_step_scene`: tilted floor,
 boxes 0.13 / 0.25 m high, two spheres, projector shadows, a dark box top of albedo 0.04 beside the
@@ -12,7 +12,9 @@ run in this process on the same stack, in turns (round robin), CPU time (`time.p
 threads) and wall time, median of `--repeat` runs. The recorded figure is the "today" row of
 benchmarks/results/sl_speed.csv at MAIN (measured in another run, under another load). OpenCV:
 `structured_light.SinusoidalPattern` PSP on the 3 images of K = 64 plus its spatial `unwrapPhaseMap`
-(its design: 3 images, one period set, relative phase, no depth).
+(its design: 3 images, one period set, relative phase, no depth). `--also COMMIT` adds the decoder as
+of COMMIT (e.g. where a later speed round began) to the timings, the stage table and the
+same-outputs table, so a round's gain is measured in one run.
 
 Writes benchmarks/results/sl_speed.md and sl_speed.csv (with the hand-written sl_speed_notes.md).
 """
@@ -173,7 +175,7 @@ def same_maps(a, b, lit) -> dict:
                 phase=float(max(np.max(np.abs(x.astype(np.float64) - y)) for x, y in zip(a.wrapped, b.wrapped))))
 
 
-def write_report(times, quality, same, st, recorded, repeat):
+def write_report(times, quality, same, st, recorded, repeat, refs):
     md = [
         "# Decoder speed, 1920x1080 (1, 8, 64) x 4 uint8 (issue #31)",
         "",
@@ -196,8 +198,8 @@ def write_report(times, quality, same, st, recorded, repeat):
            "| stage | " + " | ".join(f"{k} CPU ms" for k in st) + " |", "|---|" + "---|" * len(st)]
     md += [f"| {k} | " + " | ".join(f"{v[k]:.0f}" for v in st.values()) + " |" for k in STAGES]
     md += ["| sum | " + " | ".join(f"{sum(v.values()):.0f}" for v in st.values()) + " |", "",
-           f"Same outputs: today's maps against main's (git {MAIN}) on this stack:", "",
-           "| noise | reason codes differing | valid differing | valid agreement (lit) | NaN depth differing "
+           f"Same outputs: today's maps against {refs}'s on this stack:", "",
+           "| noise, against | reason codes differing | valid differing | valid agreement (lit) | NaN depth differing "
            "| max depth difference m | max confidence difference | max wrapped phase difference rad "
            "| modulation values differing |", "|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {k} | {v['reason']} | {v['valid']} | {v['agree']:.6f} | {v['nan']} | {v['depth']:.1e} | "
@@ -209,6 +211,7 @@ def write_report(times, quality, same, st, recorded, repeat):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--also", default=None, help="another commit's decoder to time and compare beside")
     args = ap.parse_args()
     u8, gt, cam, proj = stack_1080p()
     kw = dict(periods=PERIODS, steps=STEPS, P_cam=cam.P, P_proj=proj.P, proj_size=proj.size)
@@ -217,6 +220,11 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         old = frozen_decoder(MAIN, Path(tmp), "datapipe_main")
         decoders = {NEW: sl.decode, OLD: old.decode}
+        refs = {OLD: "datapipe_main"}
+        if args.also:
+            also = f"git {args.also}"
+            decoders[also] = frozen_decoder(args.also, Path(tmp), "datapipe_also").decode
+            refs[also] = "datapipe_also"
         fns = {}
         for name, dec in decoders.items():
             fns[name] = lambda dec=dec: dec(u8, **kw)
@@ -231,14 +239,16 @@ def main():
                 right = np.abs(r.proj_x - gt.proj_x) < half
                 quality[name if spatial else name + ", no neighbour pass"] = (
                     float(np.mean((r.valid & right)[gt.lit])), int(np.sum(r.valid & ~right)), int(r.valid.sum()))
-        # the same maps as main's? with the noise given and fitted from the stack
-        same = {label: same_maps(sl.decode(u8, **kw, **extra), old.decode(u8, **kw, **extra), gt.lit)
+        # the same maps as each reference's? with the noise given and fitted from the stack
+        same = {f"{label}, {ref}": same_maps(sl.decode(u8, **kw, **extra), decoders[ref](u8, **kw, **extra), gt.lit)
+                for ref in refs
                 for label, extra in (("noise given (noise_sigma=1.2)", dict(noise_sigma=1.2)), ("noise fitted", {}))}
-        st = {NEW: stages("datapipe", u8, kw, args.repeat), OLD: stages("datapipe_main", u8, kw, args.repeat)}
+        st = {NEW: stages("datapipe", u8, kw, args.repeat)}
+        st.update({ref: stages(pkg, u8, kw, args.repeat) for ref, pkg in refs.items()})
     rows = [dict(decoder=k, **{m: round(v, 1) for m, v in t.items()},
                  correct_of_lit=quality.get(k, (np.nan,))[0]) for k, t in times.items()]
     write_rows_csv(RESULTS / "sl_speed.csv", rows)
-    write_report(times, quality, same, st, recorded_figure(MAIN), args.repeat)
+    write_report(times, quality, same, st, recorded_figure(MAIN), args.repeat, " and ".join(refs))
 
 
 if __name__ == "__main__":

@@ -70,10 +70,9 @@ def neighbour_pass(st: DecodeSetup, out: DecodeMaps):
                     & (out.reason.ravel()[q] == 0)
             return np.where(sure, out.proj_x.ravel()[q], np.float32(np.nan))
 
-        ia, xf, pa = pooled_orders(idx, cyc, snr, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
-                                   dim=dim, x_sure=x_sure)
+        ia, xf, pa, pos = pooled_orders(idx, cyc, snr, st.plan.periods, st.wcoded, st.shape, max_wrong=st.max_wrong,
+                                        dim=dim, x_sure=x_sure)
         if ia.size:
-            pos = np.searchsorted(idx, ia)
             xa = _combine_from_fine(xf.astype(np.float64), [c[pos].astype(np.float64) for c in cyc],
                                     np.asarray(st.plan.periods, float), float(st.wcoded),
                                     _kept_weights(st.plan.periods)).astype(np.float32)

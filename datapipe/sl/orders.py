@@ -100,9 +100,10 @@ def _box(flat, shape, reach):
     return (r - r0) * w + (c - c0), h, w
 
 
-def _local_support(flat, capped, mq, shape, shifts):
+def _local_support(flat, capped_at, mq, Kf, shape, shifts):
     """Per pixel: the least, over the other offsets d, of the summed cost difference
-    ``capped(m* + d) - capped(m*)`` over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window
+    ``capped(m* + d) - capped(m*)`` (``capped_at(m)``: each pixel's capped cost at its offset m[q];
+    K_f offsets) over the pooled pixels in its ``LOCAL`` x ``LOCAL`` window
     (twice the log-likelihood ratio by which its neighbourhood prefers its block's offset), and the
     least of the same over the four halves of its ``HALF`` x ``HALF`` window that contain the pixel (top, bottom, left,
     right: at a depth step the half on the pixel's own side of it speaks for its own surface).
@@ -113,7 +114,6 @@ def _local_support(flat, capped, mq, shape, shifts):
     an axis, read at two places of an image with ``HALF // 2`` zero rows (columns) before it."""
     import cv2
 
-    Kf, n = capped.shape
     H, W = shape
     r, c = np.divmod(flat, W)
     r0, c0 = r.min(), c.min()
@@ -134,12 +134,12 @@ def _local_support(flat, capped, mq, shape, shifts):
     img_v, img_h = np.zeros((h + k) * w, np.float32), np.zeros(h * (w + k), np.float32)
     img_v[pv], img_h[ph] = 1, 1
     enough = [s >= HALF_MIN for s in halves(img_v, img_h)]
-    cols = np.arange(n)
-    base = capped[mq, cols]
+    n = flat.size
+    base = capped_at(mq)
     worst = np.full(n, np.inf, np.float32)
     worst_half = np.full(n, np.inf, np.float32)
     for d in shifts:
-        diff = capped[(mq + d) % Kf, cols] - base
+        diff = capped_at((mq + d) % Kf) - base
         img_v[pv], img_h[ph] = diff, diff
         s = cv2.boxFilter(img_v.reshape(h + k, w), -1, (LOCAL, LOCAL), normalize=False, borderType=border)
         np.minimum(worst, s.ravel()[pv], out=worst)
@@ -159,9 +159,10 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     (NaN elsewhere), or a function of flat indices giving them at those pixels: a pooled pixel more
     than half a finest period away from one of its 4-neighbours there is refused (a depth step
     between them, or a wrong order on one side).
-    Returns ``(idx, x, p_wrong)`` of the accepted pixels (flat indices, finest-frequency coordinate
-    in pixels, probability that the order is wrong)."""
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
+    Returns ``(idx, x, p_wrong, pos)`` of the accepted pixels (flat indices, finest-frequency
+    coordinate in pixels, probability that the order is wrong, and their positions in ``cand``:
+    the caller reads its per-candidate arrays there without searching)."""
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
     per = np.asarray(periods, np.float64)
     F, f = per.size, int(np.argmax(per))
     if F < 2 or cand.size < MIN_BLOCK:
@@ -169,6 +170,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     H, W = shape
     dim = np.zeros(cand.size, bool) if dim is None else dim
     keep, var_c = _precise_and_lit(cand, snr, dim, (H, W), f)
+    num = np.flatnonzero(keep)                   # their positions in the caller's candidates
     cand, dim = cand[keep], dim[keep]
     cyc = [c[keep] for c in cyc]
     var_c = [v[keep] for v in var_c]
@@ -195,17 +197,15 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     fine = rel[sel] + cyc[f][sel].astype(np.float64)          # finest cycles, up to the offset
     own_max = chi2_isf(OWN_P, max(1, F - 1))
     sub_cyc, sub_var = [c_[sel] for c_ in cyc], [v[sel] for v in var_c]
-    capped = _offset_costs(fine, sub_cyc, sub_var, per, cap=ROBUST_CAP)
-    # a pixel's own test: below the cap it reads the same from the capped costs
-    cost = capped if own_max < ROBUST_CAP else _offset_costs(fine, sub_cyc, sub_var, per)
-    blk = _block_posterior(capped, binv, max_wrong)
+    costs = _OffsetCosts(fine, sub_cyc, sub_var, per)
+    blk = _block_posterior(costs, binv, max_wrong)
     mq = blk["best"][binv]
-    acc = blk["sure"][binv] & (cost[mq, np.arange(sel.size)] <= own_max)
+    acc = blk["sure"][binv] & (costs.at(mq) <= own_max)       # the pixel's own test: uncapped
     if dim[sel].any():                   # below the modulation floor: only inside the surface (4 linked neighbours)
         deg = np.bincount(a, minlength=cand.size) + np.bincount(b, minlength=cand.size)
         acc &= ~dim[sel] | (deg[sel] >= 4)
     if acc.any():
-        full, half = _local_support(cand[sel], capped, mq, (H, W),
+        full, half = _local_support(cand[sel], lambda m: costs.at(m, ROBUST_CAP), mq, costs.Kf, (H, W),
                                     _shifts_to_check(blk, max_wrong))
         acc &= (full >= 2.0 * np.log(1.0 / max_wrong)) & (half >= 0)
     if not acc.any():
@@ -226,7 +226,7 @@ def pooled_orders(cand, cyc, snr, periods, length, shape, *, max_wrong, dim=None
     xs[sel[acc]], ps_[sel[acc]] = xr[acc], blk["p"][binv[acc]]
     mine = np.zeros(cand.size, bool)
     mine[sel[acc]] = True
-    return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32)
+    return cand[mine], xs[mine].astype(np.float32), ps_[mine].astype(np.float32), num[mine]
 
 
 def _block_folds(x, binv, starts, size, length):
@@ -272,54 +272,89 @@ def _precise_and_lit(cand, snr, dim, shape, f):
     return keep, var_c
 
 
-def _offset_costs(fine, cyc, var_c, per, cap=np.inf, chunk: int = 2048):
-    """(K_f, n) float32: ``min(chi2_q(m), cap)``, ``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2
-    / (v_i + (K_i / K_f)^2 v_f)`` with ``x_q(m) = (fine_q + m) T`` for every offset m of the finest
-    frequency.
+class _OffsetCosts:
+    """``chi2_q(m) = sum_{i != f} wrap(K_i x_q(m) / W - c_i)^2 / (v_i + (K_i / K_f)^2 v_f)`` with
+    ``x_q(m) = (fine_q + m) T``, for the offsets m of the finest frequency, optionally capped:
+    summed per block for every offset (:meth:`block_sums`), or per pixel at one offset each
+    (:meth:`at`). The (K_f, n) array of all of them is never kept: 34 MB on the benchmark's stack,
+    whose first touch alone (page faults of fresh memory) cost ~9 ms of the decision's ~150.
 
-    Computed ``chunk`` pixels at a time into one reused (K_f, chunk) buffer (it stays in the cache:
-    the same float32 operations as over the whole array, a third of the time); the first term
-    written, not added to zeros, and the cap applied while the chunk is in the cache (the same
-    values, two passes over the (K_f, n) array fewer)."""
-    f = int(np.argmax(per))
-    m = np.arange(int(round(per[f])), dtype=np.float32)[:, None]
-    terms = []
-    for i in range(per.size):
-        if i == f:
-            continue
-        ratio = per[i] / per[f]
-        # the phase each offset predicts, reduced to one cycle first (float32 keeps 1e-7 of a cycle)
-        t0 = ratio * fine - cyc[i]
-        terms.append((np.float32(ratio) * m, (t0 - np.rint(t0)).astype(np.float32),
-                      np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f])))
-    if not terms:
-        return np.zeros((m.size, fine.size), np.float32)
-    cost = np.empty((m.size, fine.size), np.float32)
-    buf = np.empty((m.size, min(chunk, fine.size)), np.float32)
-    rnd = np.empty_like(buf)
-    for j0 in range(0, fine.size, chunk):
-        j1 = min(fine.size, j0 + chunk)
-        t, r, out = buf[:, :j1 - j0], rnd[:, :j1 - j0], cost[:, j0:j1]
-        for first, (mk, frac, w) in zip((True,) + (False,) * len(terms), terms):
-            np.add(mk, frac[None, j0:j1], out=t)
+    Both give the float32 values of the same element-wise operations (an add, a rint, a subtract,
+    a square, a multiply, an add per term, then the cap), so a pixel's cost at m is the same number
+    whichever way it is read."""
+
+    def __init__(self, fine, cyc, var_c, per):
+        self.f = f = int(np.argmax(per))
+        self.Kf = int(round(per[f]))
+        self.n = fine.size
+        self.terms = []
+        for i in range(per.size):
+            if i == f:
+                continue
+            ratio = per[i] / per[f]
+            # the phase each offset predicts, reduced to one cycle first (float32 keeps 1e-7 of a cycle)
+            t0 = ratio * fine - cyc[i]
+            self.terms.append((np.float32(ratio), (t0 - np.rint(t0)).astype(np.float32),
+                               np.float32(1) / (var_c[i] + np.float32(ratio * ratio) * var_c[f])))
+
+    def _costs(self, mks, j0, j1, out, t, r, cap):
+        """Costs of pixels j0:j1 into ``out`` (t, r: scratch of its shape); ``mks`` per term its
+        offsets times its frequency ratio, broadcast against the pixels' columns."""
+        cols = (None, slice(j0, j1)) if out.ndim == 2 else slice(j0, j1)
+        for first, mk, (_, frac, w) in zip((True,) + (False,) * len(mks), mks, self.terms):
+            np.add(mk, frac[cols], out=t)
             t -= np.rint(t, out=r)
             t *= t
             if first:
-                np.multiply(t, w[None, j0:j1], out=out)
+                np.multiply(t, w[cols], out=out)
             else:
-                t *= w[None, j0:j1]
+                t *= w[cols]
                 out += t
         if cap < np.inf:
             np.minimum(out, np.float32(cap), out=out)
-    return cost
+        return out
+
+    def at(self, m, cap=np.inf):
+        """(n,) float32: pixel q's cost at offset ``m[q]``, capped at ``cap``."""
+        if not self.terms:
+            return np.zeros(self.n, np.float32)
+        mf = np.asarray(m).astype(np.float32)
+        out, t, r = (np.empty(self.n, np.float32) for _ in range(3))
+        return self._costs([ratio * mf for ratio, _, _ in self.terms], 0, self.n, out, t, r, cap)
+
+    def block_sums(self, starts, cap=np.inf, chunk: int = 2048):
+        """(K_f, nb) float32: per block (pixels contiguous from ``starts``) and offset the sum of its
+        pixels' capped costs, ``np.add.reduceat`` over the blocks of the whole (K_f, n) array,
+        computed a few whole blocks (~``chunk`` pixels) at a time in reused buffers that stay in
+        the cache: a block's sum reads only its own columns, in the same order, so the sums are
+        the whole array's."""
+        Kf, n = self.Kf, self.n
+        nb = starts.size
+        if not self.terms:
+            return np.zeros((Kf, nb), np.float32)
+        ends = np.r_[starts[1:], n]
+        width = max(chunk, int((ends - starts).max()))
+        bufs = [np.empty(Kf * width, np.float32) for _ in range(3)]
+        m = np.arange(Kf, dtype=np.float32)[:, None]
+        mks = [ratio * m for ratio, _, _ in self.terms]
+        S = np.empty((Kf, nb), np.float32)
+        b0 = 0
+        while b0 < nb:
+            b1 = max(b0 + 1, int(np.searchsorted(ends, starts[b0] + width, "right")))
+            j0, j1 = int(starts[b0]), int(ends[b1 - 1])
+            out, t, r = (buf[:Kf * (j1 - j0)].reshape(Kf, j1 - j0) for buf in bufs)
+            self._costs(mks, j0, j1, out, t, r, cap)
+            S[:, b0:b1] = np.add.reduceat(out, starts[b0:b1] - j0, axis=1)
+            b0 = b1
+        return S
 
 
-def _block_posterior(capped, binv, max_wrong):
-    """Per block (binv sorted: each block's pixels contiguous): summed costs S (K_f, nb), best
-    offset, probability that it is wrong (posterior mass of the others, flat prior), size, and
-    whether it decides (sure)."""
+def _block_posterior(costs, binv, max_wrong):
+    """Per block (binv sorted: each block's pixels contiguous): summed capped costs S (K_f, nb; costs:
+    an :class:`_OffsetCosts`), best offset, probability that it is wrong (posterior mass of the
+    others, flat prior), size, and whether it decides (sure)."""
     starts = np.flatnonzero(np.r_[True, np.diff(binv) != 0])
-    S = np.add.reduceat(capped, starts, axis=1)
+    S = costs.block_sums(starts, ROBUST_CAP)
     nb = S.shape[1]
     best = np.argmin(S, 0)
     sb = S[best, np.arange(nb)]
@@ -336,9 +371,11 @@ def _shifts_to_check(blk, max_wrong):
     S, sb, best, size, sure = blk["S"], blk["sb"], blk["best"], blk["size"], blk["sure"]
     Kf, nb = S.shape
     gain = (S - sb[None, :]) * np.minimum(1.0, LOCAL * LOCAL / np.maximum(size, 1))[None, :]
-    near = np.zeros(Kf, bool)
-    for d in range(1, Kf):
-        near[d] = np.any(gain[(best + d) % Kf, np.arange(nb)][sure] < 8 * 2.0 * np.log(1.0 / max_wrong))
+    d = np.arange(Kf)[:, None]
+    cols = np.flatnonzero(sure)
+    # (K_f, sure blocks): the gain of each block's offset m* + d, all d at once
+    near = np.any(gain[(best[None, cols] + d) % Kf, cols[None, :]] < 8 * 2.0 * np.log(1.0 / max_wrong), axis=1)
+    near[0] = False
     near[[1, Kf - 1]] = True
     return np.flatnonzero(near)
 

@@ -57,10 +57,13 @@ def _predictions(xg, p, Wp):
     prediction is formed in place, in the same float32 operations as ``0.5 * (a + b)`` /
     ``2 * a - b``."""
     n = p.size
+    # xg[p + o] read as xg[M + o:][p - M], M the largest reach back: one index array for all 24
+    # gathers instead of one sum p + o each
+    M = 2 * (Wp + 1)
+    pm = p - M
     near = {}
     for dy, dx in _DIRS:
-        o = dy * Wp + dx
-        near[(dy, dx)] = np.take(xg, p + o)
+        near[(dy, dx)] = np.take(xg[M + dy * Wp + dx:], pm)
     P = np.empty((len(_AXES) + len(_DIRS), n), np.float32)
     half, two = np.float32(0.5), np.float32(2.0)
     for j, (dy, dx) in enumerate(_AXES):
@@ -69,7 +72,7 @@ def _predictions(xg, p, Wp):
     for j, (dy, dx) in enumerate(_DIRS):
         row = P[len(_AXES) + j]
         np.multiply(near[(dy, dx)], two, out=row)
-        row -= np.take(xg, p + 2 * (dy * Wp + dx))
+        row -= np.take(xg[M + 2 * (dy * Wp + dx):], pm)
     return P
 
 
@@ -109,18 +112,26 @@ _LOW = np.float32(-3e18)   # stands for "no prediction": below every coordinate,
 def _nan_median(P):
     """Median over axis 0 ignoring NaN, and the count of finite entries; NaN where all are NaN.
     A copy of P with NaN -> ``_LOW`` (sorts first) is sorted along axis 0 by a sorting network
-    (element-wise min / max of rows: ~4x faster than ``np.sort(axis=0)`` on (12, n), same order)."""
+    (element-wise min / max of rows: ~4x faster than ``np.sort(axis=0)`` on (12, n), same order).
+    The rows live in one (rows + 1, n) buffer whose row order the network permutes (``at``), so
+    the two middle values are read by one flat gather each (``np.choose`` over a list of 12 rows
+    first copies them into one array)."""
     k = _count_rows(np.isfinite(P))
-    rows = list(np.fmax(P, _LOW))            # fmax(NaN, low) = low: no masked copy
-    tmp = np.empty(P.shape[1], P.dtype)
-    for a, b in (_SORT12 if P.shape[0] == 12 else _batcher_pairs(P.shape[0])):
-        np.minimum(rows[a], rows[b], out=tmp)
-        np.maximum(rows[a], rows[b], out=rows[b])
-        rows[a], tmp = tmp, rows[a]          # swap buffers instead of copying
-    n = P.shape[0]
+    n, m = P.shape
+    buf = np.empty((n + 1, m), P.dtype)
+    np.fmax(P, _LOW, out=buf[:n])            # fmax(NaN, low) = low: no masked copy
+    at = list(range(n + 1))                  # at[i]: the buffer row holding sorted row i; at[n]: scratch
+    for a, b in (_SORT12 if n == 12 else _batcher_pairs(n)):
+        ra, rb, tmp = buf[at[a]], buf[at[b]], buf[at[n]]
+        np.minimum(ra, rb, out=tmp)
+        np.maximum(ra, rb, out=rb)
+        at[a], at[n] = at[n], at[a]          # swap buffers instead of copying
     lo = np.minimum(n - k + np.maximum(k - 1, 0) // 2, n - 1)   # the k finite entries are the last k
     hi = np.minimum(n - k + k // 2, n - 1)
-    med = np.choose(lo, rows) + np.choose(hi, rows)
+    row_of = np.asarray(at[:n], np.intp)
+    flat, cols = buf.ravel(), np.arange(m)
+    med = flat[row_of[lo] * m + cols]
+    med += flat[row_of[hi] * m + cols]
     med *= np.float32(0.5)
     med[k == 0] = np.nan
     return med, k
@@ -165,7 +176,7 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
     todo = np.ones(idx_all.size, bool)
     slot = np.full(xg.size, -1, np.int32)        # padded pixel -> its candidate number (-1: none)
     slot[p_all] = np.arange(idx_all.size, dtype=np.int32)
-    mark = np.zeros(idx_all.size, bool)
+    mark = np.zeros(idx_all.size + 1, bool)      # + 1: slot -1 (no candidate) marks the last, unused one
     active = np.zeros(idx_all.size, bool)
     for o in offs:
         active |= np.isfinite(xg[p_all + o])
@@ -197,7 +208,8 @@ def correct_orders(x, good, cand, cyc, var_c, periods, length, *, max_wrong, pas
         xg[pa] = xnew
         todo[sel_a] = False
         j = slot[(pa[:, None] + offs[None, :]).ravel()]    # the candidates next to the accepted ones
-        mark[j[j >= 0]] = True
+        mark[j] = True
+        mark[-1] = False
         frontier = np.flatnonzero(mark)
         mark[frontier] = False
         out_idx.append(idx_all[sel_a])
@@ -256,15 +268,15 @@ class _Scorer:
         vf = self.var_c[f][sel]
         var_sp = spread ** 2 + (0.05 * T) ** 2 + vf * T * T
         n0 = np.rint(xh / T - cf)
+        # the other frequencies' phases and variances at these pixels, gathered once for the 3 orders
+        others = [(k, self.cyc[i][sel], self.var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf)
+                  for i, k in enumerate(per) if i != f]
         scores, temps, spat, xs = [], [], [], []
         for dn in (-1.0, 0.0, 1.0):
             xn = (n0 + dn + cf) * T
             temp = np.zeros(xn.shape, xn.dtype)
-            for i, k in enumerate(per):
-                if i == f:
-                    continue
-                v = self.var_c[i][sel] + np.float32((k / per[f]) ** 2) * vf
-                temp += _wrapd(k * xn / L - self.cyc[i][sel]) ** 2 / v
+            for k, c, v in others:
+                temp += _wrapd(k * xn / L - c) ** 2 / v
             sp = (xn - xh) ** 2 / var_sp
             scores.append(sp + temp)
             temps.append(temp)

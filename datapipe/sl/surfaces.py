@@ -30,24 +30,27 @@ LOOP_ROUNDS = 3         # rounds of cutting loops that do not close
 CUT_REACH = GRAD // 2 + 2
 
 
-def _pairs(ok, W):
+def _pairs(ok, W, idx=None):
     """Flat indices (a, b) of the horizontal and the vertical neighbour pairs of ``ok`` pixels (flat
-    bool of an image W wide), per direction."""
-    idx = np.flatnonzero(ok)
-    right = idx[(idx % W != W - 1)]
+    bool of an image W wide; ``idx``: their flat indices, ascending, when the caller has them), per
+    direction."""
+    idx = np.flatnonzero(ok) if idx is None else idx
+    right = idx[idx < ok.size - 1]
     right = right[ok[right + 1]]
+    right = right[right % W != W - 1]            # the row's last pixel has no right neighbour
     down = idx[idx + W < ok.size]
     down = down[ok[down + W]]
     return (right, right + 1), (down, down + W)
 
 
-def links(ok, cf, shape):
+def links(ok, cf, shape, idx=None):
     """4-neighbour links among ``ok`` pixels whose finest-phase difference fits the local gradient
     within ``LINK_MAX`` cycles: (a, b, step), flat indices and ``step = N_b - N_a`` (finest orders).
 
     The gradient (cycles per pixel, per axis) at a pixel is the angle of the summed phasors of the
     wrapped differences of the pairs in its ``GRAD`` x ``GRAD`` window (a surface's fringe gradient
-    varies slowly; one pair is too noisy). Work is done at the pairs only, not over the image."""
+    varies slowly; one pair is too noisy). Work is done at the pairs only, not over the image.
+    ``idx``: the flat indices of the ``ok`` pixels, ascending, where the caller has them."""
     import cv2
 
     H, W = shape
@@ -62,7 +65,7 @@ def links(ok, cf, shape):
     r0, c0 = max(rows[0] - GRAD // 2, 0), max(cols[0] - GRAD // 2, 0)
     h, w = min(rows[-1] + GRAD // 2 + 1, H) - r0, min(cols[-1] + GRAD // 2 + 1, W) - c0
     z = np.zeros((h * w, 2), np.float32)         # phasors, real and imaginary part as two channels
-    for a, b in _pairs(ok, W):
+    for a, b in _pairs(ok, W, idx):
         d = cf[b] - cf[a]
         ang = np.float32(2 * np.pi) * d
         ra, ca = np.divmod(a, W)
@@ -118,15 +121,15 @@ def _dilate(mask, reach):
 def _tree_steps(pred, child, a, b, step, flat, W):
     """Finest-order step of each tree edge ``pred -> child`` (local node numbers) from the links
     (a, b, step): a link joins 4-neighbours, so its end ``b`` lies at ``a + 1`` or ``a + W`` in the
-    image; the edge's direction there picks the link, without a lookup table over all pairs."""
-    n = flat.size
-    right, down = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    across = flat[b] - flat[a] == 1
-    right[a[across]] = step[across]
-    down[a[~across]] = step[~across]
+    image; the edge's direction there picks the link, without a lookup table over all pairs. One
+    (n, 2) table of each node's steps to its right and lower neighbour, read once per edge at its
+    upper / left end (negated where that end is the child)."""
+    steps = np.zeros((flat.size, 2), np.int64)
+    steps[a, (flat[b] - flat[a] != 1).astype(np.intp)] = step
     diff = flat[child] - flat[pred]
-    return np.select([diff == 1, diff == -1, diff == W],
-                     [right[pred], -right[child], down[pred]], -down[child])
+    fwd = diff > 0
+    val = steps[np.where(fwd, pred, child), (np.abs(diff) != 1).astype(np.intp)]
+    return np.where(fwd, val, -val)
 
 
 def relative_orders(n, a, b, step, flat, W):
@@ -194,7 +197,7 @@ def surfaces(cand, cf, shape):
     ok = np.zeros(H * W, bool)
     ok[cand] = True
     alive = np.ones(n, bool)
-    ga, gb, step = links(ok, cf_full, (H, W))
+    ga, gb, step = links(ok, cf_full, (H, W), cand)
     if ga.size == 0:
         return None
     a, b = local[ga], local[gb]

@@ -197,7 +197,7 @@ def test_local_support_is_the_window_sums():
     capped = np.minimum(rng.exponential(8.0, (64, flat.size)), orders.ROBUST_CAP).astype(np.float32)
     mq = rng.integers(0, 64, flat.size)
     shifts = [1, 7, 63]
-    full, half = orders._local_support(flat, capped, mq, (H, W), shifts)
+    full, half = orders._local_support(flat, lambda m: capped[m, np.arange(flat.size)], mq, 64, (H, W), shifts)
     r, c = np.divmod(flat, W)
     L, k = orders.LOCAL // 2, orders.HALF // 2
     cnt = np.zeros((H, W))
@@ -266,3 +266,33 @@ def test_local_loop_cutting_on_random_fields():
         np.testing.assert_array_equal(got[2][live], want[2][live], err_msg=f"seed {seed}")
         assert sorted(zip(got[3].tolist(), got[4].tolist())) == sorted(zip(want[3].tolist(), want[4].tolist()))
     assert {2, 3} <= rounds_seen
+
+
+def test_offset_costs_block_sums_and_single_offsets():
+    """The offset costs (datapipe/sl/orders.py, ``_OffsetCosts``) without the (K_f, n) array: the
+    block sums, computed a few whole blocks at a time (here a chunk of 50 pixels, blocks of 1-120
+    pixels, so chunks of several blocks and blocks wider than a chunk), and one offset per pixel,
+    equal the formula evaluated in float64 and summed per block (float32 rounding: rtol 1e-4)."""
+    from datapipe.sl.orders import ROBUST_CAP, _OffsetCosts
+
+    rng = np.random.default_rng(7)
+    per = np.array([1.0, 8.0, 64.0])
+    sizes = rng.integers(1, 121, 40)
+    sizes[5] = 120
+    n = int(sizes.sum())
+    fine = rng.uniform(0, 1, n) + rng.integers(0, 3, n)
+    cyc = [rng.uniform(-0.5, 0.5, n).astype(np.float32) for _ in per]
+    var_c = [rng.uniform(1e-4, 5e-3, n).astype(np.float32) for _ in per]
+    m = np.arange(64)[:, None]
+    want = np.zeros((64, n))
+    for i in (0, 1):
+        t = per[i] / 64 * (fine + m) - cyc[i].astype(np.float64)
+        want += (t - np.rint(t)) ** 2 / (var_c[i].astype(np.float64) + (per[i] / 64) ** 2 * var_c[2])
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    costs = _OffsetCosts(fine, cyc, var_c, per)
+    got = costs.block_sums(starts, ROBUST_CAP, chunk=50)
+    np.testing.assert_allclose(got, np.add.reduceat(np.minimum(want, ROBUST_CAP), starts, axis=1), rtol=1e-4, atol=1e-4)
+    mq = rng.integers(0, 64, n)
+    np.testing.assert_allclose(costs.at(mq), want[mq, np.arange(n)], rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(costs.at(mq, ROBUST_CAP), np.minimum(want[mq, np.arange(n)], ROBUST_CAP),
+                               rtol=1e-4, atol=1e-6)
