@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import ROOT, on_path, parser, run_child
+from harness import ROOT, on_path, parser, preset_dict, run_child
 
 on_path("tests")
 import bop_toolkit_check as btc  # noqa: E402
@@ -69,13 +69,10 @@ def ground_truth_counts(out: Path, bop: Path, scene: dict) -> str:
 def run_preset(a, out: Path) -> None:
     """distractors.json at --res with --views renders of one scene, through the CLI."""
     preset = ROOT / "datapipe" / "presets" / "distractors.json"
-    d = json.loads(preset.read_text())
+    d = preset_dict(preset)
     d["camera"]["resolution"] = a.res
     d["scene"].update(num_renders=a.views, min_renders_per_scene=a.views, max_renders_per_scene=a.views,
                       seed=a.seed)
-    for o in d["objects"]:
-        if o.get("filepath"):
-            o["filepath"] = str((preset.parent / o["filepath"]).resolve())
     out.parent.mkdir(parents=True, exist_ok=True)
     (out.parent / "preset.json").write_text(json.dumps(d))
     child = run_child([sys.executable, "-m", "datapipe", "run", str(out.parent / "preset.json"), "--out", str(out),

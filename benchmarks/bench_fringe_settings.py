@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import Stopwatch, cached_renders, clocked, on_path, sweep_parser, write_rows_csv, write_with_notes
+from harness import Stopwatch, cached_renders, clocked, on_path, slug, sweep_parser, write_rows_csv, write_with_notes
 
 on_path()
-from datapipe import config as C  # noqa: E402
 from datapipe import sl  # noqa: E402
+from bench_view_settings import bin_world  # noqa: E402
 
 BASE_SEEDS = (1234, 2345, 3456)
 SEED = BASE_SEEDS[0]
@@ -49,33 +49,6 @@ CASES = {
 QUICK = (BASE, "max_bounces 2")
 
 
-def slug(name: str) -> str:
-    return "".join(ch if ch.isalnum() else "_" for ch in name)
-
-
-def build(tmp: Path):
-    import bpy
-    from datapipe.core.world import BlenderWorld
-    from datapipe.draws.seeds import scene_rng
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    pre = C.presets_dir() / "bin_picking.json"
-    d = json.loads(pre.read_text())
-    d["binning"] = 4
-    d["render"]["samples"] = 16                       # the native render (the truth's z-buffer only) as
-    d["render"]["sampling_pattern"] = "SCENE"         # before the view study; the fringes never used them
-    d["output"]["overview"] = False
-    for o in d["objects"]:
-        o["filepath"] = str((pre.parent / o["filepath"]).resolve())
-    cfg = C.loads(json.dumps(d))
-    world = BlenderWorld(cfg, tmp / "world")
-    world.setup()
-    seed = cfg.scene.seed
-    world.start_scene(0, seed, scene_rng(seed, 0), 1)
-    T, _ = world.variety.place_camera(None, seed, 0, 0)
-    return world, T
-
-
 def render_all(names, cache: Path, log):
     meta_path = cache / "renders.json"
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
@@ -83,7 +56,7 @@ def render_all(names, cache: Path, log):
     if not todo and "truth" in meta:
         return meta
     tmp = Path(tempfile.mkdtemp(prefix="fringeset_"))
-    world, T = build(tmp)
+    world, T = bin_world(tmp, structured_light=True)   # the native render: the truth's z-buffer only
     cy = world.blend.scene.cycles
     out = world.renderer.render(tmp / "native", SEED)
     np.save(cache / "z.npy", out.depth)

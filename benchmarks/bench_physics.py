@@ -22,7 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from harness import RESULTS, ROOT, Stopwatch, md_table, on_path, parser, write_rows_csv
+from harness import RESULTS, ROOT, Stopwatch, md_table, on_path, parser, preset_dict, write_rows_csv
 
 on_path("tests")
 
@@ -220,10 +220,9 @@ def dense_drop(n_parts: int, seed: int) -> dict:
     """bin_picking.json's pile with `n_parts` steel parts split over its three meshes (as
     bench_production.py's cells), dropped in stages by `drop_scene`; CPU seconds of the drop."""
     pre = presets_dir() / "bin_picking.json"
-    p = json.loads(pre.read_text())
+    p = preset_dict(pre)
     p["scene"].pop("fill", None)
     for k, o in enumerate(p["objects"]):
-        o["filepath"] = str((pre.parent / o["filepath"]).resolve())
         o["min_instances"] = o["max_instances"] = n_parts // 3 + (1 if k < n_parts % 3 else 0)
         o["material"] = "steel"
     cfg = loads(json.dumps(p))

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import (RESULTS, ROOT, append_row_csv, log_x_frame, machine, parser, read_rows_csv, run_child,
-                     write_with_notes)
+from harness import (RESULTS, ROOT, append_row_csv, log_x_frame, machine, parser, preset_dict, read_rows_csv,
+                     run_child, write_with_notes)
 
 BASE_PRESET = ROOT / "datapipe" / "presets" / "bin_picking.json"
 DEVICE = "zivid2plus_m60"
@@ -86,7 +86,7 @@ def preset(res: str, parts: int, material: str, mode: str, samples: int | None, 
            gpu: bool = False) -> dict:
     """bin_picking.json with one render, `parts` parts split over its three meshes, one material, the
     fringe mode forced, at `res` (the device's lens; `full`: binning 1)."""
-    p = json.loads(BASE_PRESET.read_text())
+    p = preset_dict(BASE_PRESET)
     p["device"], p["binning"] = DEVICE, 1
     if res != FULL:
         p.setdefault("camera", {})["resolution"] = [int(v) for v in res.split("x")]
@@ -94,7 +94,6 @@ def preset(res: str, parts: int, material: str, mode: str, samples: int | None, 
     s.pop("fill", None)
     s.update(num_renders=1, min_renders_per_scene=1, max_renders_per_scene=1, seed=seed)
     for k, o in enumerate(p["objects"]):
-        o["filepath"] = str((BASE_PRESET.parent / o["filepath"]).resolve())
         o["min_instances"] = o["max_instances"] = parts // 3 + (1 if k < parts % 3 else 0)
         o["material"] = MATERIALS[material]
     p["structured_light"]["fringe_mode"] = mode

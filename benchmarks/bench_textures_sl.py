@@ -29,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harness import RESULTS, ROOT, machine, on_path, parser, run_child, write_rows_csv, write_with_notes
+from harness import RESULTS, ROOT, machine, on_path, parser, preset_dict, run_child, write_rows_csv, write_with_notes
 
 on_path()
 from datapipe.io.exr import read_depth, read_exr, read_mask  # noqa: E402
@@ -40,9 +40,8 @@ CONTRASTS = (None, 0.25, 0.5, 0.9)
 
 
 def preset(out: Path, contrast) -> dict:
-    d = json.loads((ROOT / "datapipe" / "presets" / "default.json").read_text())
+    d = preset_dict(ROOT / "datapipe" / "presets" / "default.json")
     for o in d["objects"]:
-        o["filepath"] = str((ROOT / "datapipe" / "presets" / o["filepath"]).resolve())
         o["material"] = "matte_plastic"
     d["scene"].update(num_renders=2, min_renders_per_scene=2, max_renders_per_scene=2, seed=0)
     if contrast is not None:

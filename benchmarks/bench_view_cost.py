@@ -33,6 +33,7 @@ import bpy  # noqa: E402
 from datapipe.config import loads, presets_dir  # noqa: E402
 from datapipe.engine.progress import Tracker  # noqa: E402
 from datapipe.engine.pipeline import Pipeline  # noqa: E402
+from harness import preset_dict  # noqa: E402
 
 PHASES = ("sync", "bvh", "path tracing", "denoise", "output")
 
@@ -100,7 +101,7 @@ def main(argv=None) -> int:
     if a.quick:
         a.views, a.binning = 1, 4 if a.binning is None else a.binning
     pre = presets_dir() / "bin_picking.json"
-    d = json.loads(pre.read_text())
+    d = preset_dict(pre)
     if a.binning is not None:
         d["binning"] = a.binning
     s = d["scene"]
@@ -114,8 +115,6 @@ def main(argv=None) -> int:
     if a.sampling_pattern is not None:
         d["render"]["sampling_pattern"] = a.sampling_pattern
     d["output"]["overview"] = False
-    for o in d["objects"]:
-        o["filepath"] = str((pre.parent / o["filepath"]).resolve())
     cfg = loads(json.dumps(d))
     log = CallLog()
     Tracker.cycles = lambda tracker, step, what: log.call(tracker, step, what)

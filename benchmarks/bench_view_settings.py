@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from harness import Stopwatch, cached_renders, clocked, on_path, sweep_parser, write_rows_csv, write_with_notes
+from harness import (Stopwatch, cached_renders, clocked, on_path, preset_dict, slug, sweep_parser, write_rows_csv,
+                     write_with_notes)
 
 on_path()
 from bench_rgb_quality import psnr, ssim  # noqa: E402
@@ -68,32 +69,33 @@ OTHER_VIEW = (BASE, "pattern BLUE_NOISE", "pattern BLUE_NOISE, samples 15", "pat
 VIEW = {"index": 0}                   # the camera pose drawn for render VIEW of scene 0 (main sets it)
 
 
-def slug(name: str) -> str:
-    return "".join(ch if ch.isalnum() else "_" for ch in name)
-
-
-def build(tmp: Path, binning: int = 4, crop: bool = True):
-    """The preset's world at `binning`, scene 0 dropped, the camera at its first drawn pose."""
+def bin_world(tmp: Path, binning: int = 4, view: int = 0, structured_light: bool = False):
+    """(world, camera pose): bin_picking.json's world at `binning`, scene 0 dropped, the camera at the
+    pose drawn for render `view`; the native render at the preset's settings before this study (16
+    samples, the scene's own sampling pattern: the study adopted BLUE_NOISE)."""
     import bpy
     from datapipe.core.world import BlenderWorld
     from datapipe.draws.seeds import scene_rng
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    pre = C.presets_dir() / "bin_picking.json"
-    d = json.loads(pre.read_text())
+    d = preset_dict(C.presets_dir() / "bin_picking.json")
     d["binning"] = binning
-    d["render"]["samples"] = 16                       # the baseline: the preset before this study
-    d["render"]["sampling_pattern"] = "SCENE"         # (it adopted BLUE_NOISE)
-    d["structured_light"]["enabled"] = False          # the native render only
+    d["render"]["samples"] = 16
+    d["render"]["sampling_pattern"] = "SCENE"
+    d["structured_light"]["enabled"] = structured_light
     d["output"]["overview"] = False
-    for o in d["objects"]:
-        o["filepath"] = str((pre.parent / o["filepath"]).resolve())
     cfg = C.loads(json.dumps(d))
     world = BlenderWorld(cfg, tmp / "world")
     world.setup()
     seed = cfg.scene.seed
     world.start_scene(0, seed, scene_rng(seed, 0), 1)
-    world.variety.place_camera(None, seed, 0, VIEW["index"])
+    T, _ = world.variety.place_camera(None, seed, 0, view)
+    return world, T
+
+
+def build(tmp: Path, binning: int = 4, crop: bool = True):
+    """The native render only, the camera at render VIEW's pose, cropped to the central BORDER."""
+    world, _ = bin_world(tmp, binning, VIEW["index"])
     if not crop:
         return world
     rd = world.blend.scene.render

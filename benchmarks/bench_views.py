@@ -19,14 +19,14 @@ import sys
 import tempfile
 from pathlib import Path
 
-from harness import ROOT, md_table, parser, run_child
+from harness import ROOT, md_table, parser, preset_dict, run_child
 
 DROP_STEPS = ("placement", "simulation")
 PER_SCENE_IGNORED = ("setup",)
 
 
 def measure(preset: Path, views: int, binning: int | None, out: Path, seed: int) -> dict:
-    d = json.loads(preset.read_text())
+    d = preset_dict(preset)   # the copy lives elsewhere: absolute mesh paths
     if binning is not None:
         d["binning"] = binning
     s = d["scene"]
@@ -34,8 +34,6 @@ def measure(preset: Path, views: int, binning: int | None, out: Path, seed: int)
     s["seed"] = seed
     d.setdefault("output", {})["overview"] = False
     tmp = out.parent / "preset.json"
-    for o in d["objects"]:            # the copy lives elsewhere: absolute mesh paths
-        o["filepath"] = str((preset.parent / o["filepath"]).resolve())
     tmp.write_text(json.dumps(d))
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     child = run_child([sys.executable, "-m", "datapipe", "run", str(tmp), "--out", str(out), "--force", "--quiet"],

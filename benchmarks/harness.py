@@ -89,6 +89,22 @@ class Stopwatch:
         self.stop()
 
 
+def preset_dict(path: Path) -> dict:
+    """A preset's JSON as a dict, its objects' mesh paths made absolute, so that a benchmark can change
+    it and load or write it anywhere (entries without a file, e.g. procedural distractors, as they are)."""
+    path = Path(path)
+    d = json.loads(path.read_text())
+    for o in d.get("objects", []):
+        if o.get("filepath"):
+            o["filepath"] = str((path.parent / o["filepath"]).resolve())
+    return d
+
+
+def slug(name: str) -> str:
+    """A case name as a file-name stem."""
+    return "".join(ch if ch.isalnum() else "_" for ch in name)
+
+
 def timed(fn, repeat: int = 1, warmup: bool = False) -> tuple[object, Timing]:
     """Call `fn()` `repeat` times (after one untimed call with `warmup`), garbage collected before
     each; returns the last result and the Timing of the timed calls."""

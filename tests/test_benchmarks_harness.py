@@ -34,6 +34,21 @@ def _rusage_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def test_preset_dict_makes_mesh_paths_absolute_and_leaves_shapes(tmp_path):
+    """A benchmark writes its changed preset elsewhere (or loads it from a string): the mesh paths
+    must then point at the preset's own assets, and a procedural distractor (no file) stays as it is."""
+    (tmp_path / "presets").mkdir()
+    pre = tmp_path / "presets" / "p.json"
+    pre.write_text(json.dumps({"objects": [{"filepath": "../assets/peg.obj"},
+                                           {"filepath": None, "shape": {"kind": "box"}}]}))
+    d = harness.preset_dict(pre)
+    assert d["objects"][0]["filepath"] == str((tmp_path / "assets" / "peg.obj").resolve())
+    assert d["objects"][1] == {"filepath": None, "shape": {"kind": "box"}}
+    shipped = harness.preset_dict(ROOT / "datapipe" / "presets" / "bin_picking.json")
+    assert all(Path(o["filepath"]).is_file() for o in shipped["objects"])
+    assert harness.slug("pattern BLUE_NOISE, samples 15") == "pattern_BLUE_NOISE__samples_15"
+
+
 def test_md_table_and_csv_round_trip(tmp_path):
     rows = [{"case": "a", "cpu_s": 1.5, "n": 3}, {"case": "b", "cpu_s": 0.25, "n": 4, "extra": "x"}]
     assert harness.md_table(["case", "n"], [["a", 3], ["b", 4]]) == ["| case | n |", "|---|---|", "| a | 3 |",
