@@ -171,3 +171,26 @@ def test_resume_refuses_another_seed(reference):
     cfg, out, _ = reference
     with pytest.raises(DataPipeError, match="different preset or seed"):
         Pipeline(cfg, out, resume=True, seed=cfg.scene.seed + 1, world=BoxWorld.factory()).check()
+
+
+class _GpuWorld(BoxWorld):
+    """A world whose renderer reports the Cycles backend it set (core/renderer.py: Renderer.device)."""
+    backend = "OPTIX"
+
+    def setup(self) -> None:
+        super().setup()
+        self.renderer = type("R", (), {"device": self.backend})()
+
+
+def test_run_json_says_which_backend_rendered_a_gpu_run(reference, tmp_path):
+    """render.device GPU: run.json names the backend Cycles used (OPTIX, CUDA, ... or CPU where the
+    machine has no GPU); a CPU run's run.json has no such key (nothing a run does not use)."""
+    _, ref, _ = reference
+    assert "render_device" not in json.loads((ref / layout.RUN_FILE).read_text())
+    cfg = small_cfg(tmp_path, formats=("native",))
+    cfg.render.device = "GPU"
+    for backend in ("OPTIX", "CPU"):
+        _GpuWorld.backend = backend
+        out = tmp_path / backend
+        run(cfg, out, world=_GpuWorld)
+        assert json.loads((out / layout.RUN_FILE).read_text())["render_device"] == backend

@@ -78,6 +78,7 @@ class Pipeline:
         self.stats: dict = {"imports": 0, "seconds": {k: 0.0 for k in STAGES}}
         self.stats["seconds"]["setup"] = 0.0
         self._earlier_stats: dict = {}
+        self._render_device: str | None = None      # the Cycles backend that renders (render.device GPU only)
         self._setup_step: dict = {}                 # the world's setup, as stats.steps counts a step
         self._scenes: dict[str, dict] = {}          # scene name -> its record (simulation, renders' visib_fract)
         self._models: dict = {}
@@ -247,6 +248,8 @@ class Pipeline:
         self.stats["seconds"]["setup"] = time.perf_counter() - t0
         self._setup_step = {"wall_s": self.stats["seconds"]["setup"], "cpu_s": time.process_time() - c0, "n": 1}
         self.stats["imports"] = world.import_count
+        if self.cfg.render.device == "GPU":          # which backend that was, or CPU where no GPU was found
+            self._render_device = getattr(getattr(world, "renderer", None), "device", None)
         # the models in mm, for the visible fractions (datapipe/visibility.py)
         self._models = {k: (np.asarray(m[0], dtype=np.float64) * 1000.0, m[1]) for k, m in meshes.items()}
         self._t_loop = time.perf_counter()
@@ -441,6 +444,8 @@ class Pipeline:
             "stats": self.run_stats(),
         })
         rec.setdefault("scenes_done", [])
+        if self._render_device is not None:
+            rec["render_device"] = self._render_device
         write_json_atomic(self.out / layout.RUN_FILE, rec)
 
     def run_stats(self) -> dict:
