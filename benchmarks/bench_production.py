@@ -129,6 +129,7 @@ def run_cell(cell: tuple, args) -> dict:
            "parts_kept": len(scene["objects"]), "material": material, "mode": sl.get("fringe_mode", mode),
            "reflection_filter": sl.get("reflection_filter"), "hdr": json.dumps(sl.get("hdr")),
            "sl_valid": round(float(sl.get("valid_fraction", float("nan"))), 4),
+           "cycles_device": rec.get("render_device", "CPU"),    # run.json names it for render.device GPU runs
            "samples": rec["config"]["render"]["samples"], "sl_samples": rec["config"]["structured_light"]["samples"],
            "sim_frames": scene["simulation"].get("frames"), "sim_stages": scene["simulation"].get("stages"),
            "process_wall_s": round(child.wall_s, 2), "process_cpu_s": round(child.cpu_s, 2),
@@ -217,7 +218,9 @@ def write_report(rows: list[dict], command: str, stem: str = "production", gpu: 
     L = ["# Production benchmark: one render of a dense bin, stage by stage", "",
          f"Cells measured by {', '.join(f'`{c}`' for c in measured_by)} (`benchmarks/bench_production.py`; the full grid of "
          f"{len(full_grid())} cells is its default). Machine: {machine()}. "
-         + ("Cycles on the GPU (`render.device: GPU`; the decode and the simulation stay on the CPU)."
+         + ("Cycles on the GPU (`render.device: GPU`; the decode and the simulation stay on the CPU); the "
+            "backend that rendered (run.json `render_device`; CPU: Cycles found no GPU): "
+            + ", ".join(sorted({str(r.get("cycles_device") or "not recorded") for r in rows})) + "."
             if gpu else "Cycles on the CPU. No GPU was lent when this was made: the same table on a GPU "
             "is `--gpu` (writes production_gpu.md)."), "",
          "Each cell is one `python -m datapipe run` of `presets/bin_picking.json` (Zivid 2+ M60 lens, "
