@@ -1,6 +1,6 @@
 """Structured-light depth against the truth on real Cycles renders: where the wrong points are.
 
-    .venv/bin/python benchmarks/bench_sl_truth.py [--cache DIR] [--no-render]
+    .venv/bin/python benchmarks/bench_sl_truth.py [--cache DIR] [--no-render] [--cases steel,aluminium]
 
 Cases (benchmarks/sl_truth_cases.py renders them once and caches them in an ignored folder, so a
 decoder change costs the decode alone): the shipped demo (`python -m datapipe demo`: 4 renders),
@@ -106,17 +106,18 @@ def bounce_map(cache: Path, key: str, mode: str):
     return f["flat_indirect"] > f["flat_direct"]
 
 
-def keys() -> list[tuple[str, str]]:
+def keys(only=None) -> list[tuple[str, str]]:
+    """(cache key, mode) of every case; `only`: substrings, a case is kept when its key holds one."""
     out = []
     for mode in MODES:
         out += [(T.demo_key(i, mode), mode) for i in range(T.DEMO_RENDERS)]
         out += [(T.rig_key(*c, mode), mode) for c in RIG_CASES]
-    return out
+    return [k for k in out if only is None or any(o in k[0] for o in only)]
 
 
-def run(cache: Path, log=print) -> list[dict]:
+def run(cache: Path, log=print, only=None) -> list[dict]:
     rows = []
-    for key, mode in keys():
+    for key, mode in keys(only):
         if not (cache / f"{key}.npz").is_file():
             log(f"  {key}: not rendered, skipped")
             continue
@@ -269,16 +270,24 @@ def main(argv=None) -> int:
     ap = parser(__doc__, quick="the demo in fast mode only (one Blender render)")
     ap.add_argument("--cache", type=Path, default=ROOT / "benchmarks" / ".cache" / "sl_truth")
     ap.add_argument("--no-render", action="store_true", help="decode what is cached, render nothing")
+    ap.add_argument("--cases", default=None,
+                    help="comma-separated substrings of case names (e.g. steel,aluminium): render and decode only "
+                         "those, print their rows and write no report (the report holds every case)")
     ap.add_argument("--baseline", type=Path, default=None,
                     help="a checkout to time the scan against, side by side (e.g. main: git archive main | tar -x -C DIR)")
     args = ap.parse_args(argv)
     args.cache.mkdir(parents=True, exist_ok=True)
+    only = [c for c in args.cases.split(",") if c] if args.cases else None
     if not args.no_render:
         for mode in MODES[:1] if args.quick else MODES:
-            T.render_demo(args.cache, mode)
+            if only is None or any(o in T.demo_key(0, mode) for o in only):
+                T.render_demo(args.cache, mode)
             if not args.quick:
-                T.render_rig(args.cache, RIG_CASES, mode)
-    rows = run(args.cache)
+                T.render_rig(args.cache, [c for c in RIG_CASES if only is None
+                                          or any(o in T.rig_key(*c, mode) for o in only)], mode)
+    rows = run(args.cache, only=only)
+    if only is not None:
+        return 0
     if args.baseline is not None:
         mine, base = {}, {}
         for _ in range(2):                      # alternately: the machine's load hits both alike
