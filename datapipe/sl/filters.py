@@ -261,7 +261,7 @@ def bounce_island_filter(keep, agree, global_ratio, *, max_pixels: int | None = 
 
     The numbers, from the 16 renders of benchmarks/results/sl_truth.md and the aluminium case at
     16 and 64 paths per pixel: every pixel > 5 mm off away from depth edges that lies in a region
-    of 1-15 pixels went at 20 px (12 px left the 15-pixel band of the 64-path render; 30 px
+    of 1-15 pixels went at 20 px (12 px left 15 pixels of the band in the 64-path render; 30 px
     removed the same); `ratio` 0.39 (the worst-case bound above) removed the same wrong pixels and
     0.54 points of the steel parts' pixels within 1 mm, 0.45 and 0.5 removed them at 0.32 points.
 
