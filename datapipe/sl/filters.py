@@ -225,7 +225,7 @@ def global_direct_ratio(modulation, offset, direct_freqs, *, direct_offset: floa
 # -- bounce islands: small regions where bounced light can decide the order -------------------------
 ISLAND_PIXELS = 20               # px: regions smaller than this (at 320 x 240, scaled with the image area)
 ISLAND_REFERENCE_PIXELS = 320 * 240   # the image size ISLAND_PIXELS was measured at
-ISLAND_GLOBAL_RATIO = 0.5        # g / d above which a region's bounce may have decided its order (doc below)
+ISLAND_GLOBAL_RATIO = 0.45       # mean g / d above which a region's bounce may have decided its order (doc below)
 
 
 def island_pixels(shape) -> int:
@@ -250,20 +250,23 @@ def bounce_island_filter(keep, agree, global_ratio, *, max_pixels: int | None = 
     right one: confidence ~1); the global-light filter keeps such pixels up to g / d = 0.7 plus its
     noise margin (~0.4 more at 60 DN of modulation); and neighbours wrong by the same whole fringe
     keep each other in the edge filter. What is left is a small region one 8-period fringe
-    (100-330 mm) off the surface around it, with more bounced light than half the direct. A real
+    (100-330 mm) off the surface around it, in light that is about half bounce or more. A real
     scanner with (1, 8, 64) fringes decodes the same wrong orders where the bounce's own bias is
     near the limit (aluminium parts at 0.6 m path-traced at 64 paths per pixel: 29 such pixels, a
     1-2 px band along a peg's highlight and a wall corner), and its speckle filter removes small
     regions (module `sl.regions`). Removed: the kept pixels of regions (`sl.regions.region_labels`
     over `keep` and `agree`) of fewer than `max_pixels` pixels (`island_pixels` of the image when
-    None) of which more than half have g / d above `ratio`. Small regions in direct light (a
+    None) whose mean g / d is above `ratio` (the mean: one pixel's g / d carries noise, 0.15 at
+    40 DN of modulation, and most islands have 1-6 pixels). Small regions in direct light (a
     sparse wall in good light, a thin part edge) stay.
 
-    The numbers, from the 16 renders of benchmarks/results/sl_truth.md and the aluminium case at
-    16 and 64 paths per pixel: every pixel > 5 mm off away from depth edges that lies in a region
-    of 1-15 pixels went at 20 px (12 px left 15 pixels of the band in the 64-path render; 30 px
-    removed the same); `ratio` 0.39 (the worst-case bound above) removed the same wrong pixels and
-    0.54 points of the steel parts' pixels within 1 mm, 0.45 and 0.5 removed them at 0.32 points.
+    The numbers, from the 16 renders of benchmarks/results/sl_truth.md, the aluminium case at 16
+    and 64 paths per pixel and the metal cases at 640 x 480: 20 px removed every pixel > 5 mm off
+    away from depth edges that lay in a region of 1-15 pixels at 320 x 240 (12 px left 15 pixels of
+    the band in the 64-path render; 30 px removed the same). `ratio`: 0.39 (the worst-case bound
+    above) cost up to 0.64 points of the parts' pixels within 1 mm (steel, 640 x 480); 0.45 up to
+    0.49 (aluminium, fast mode) and left 3 of the 47 wrong-order pixels of aluminium in render mode
+    at 640 x 480; the majority of pixels above 0.5 up to 0.42 and left 11 of them.
 
     keep: (H, W) bool, the pixels kept so far; agree: `neighbour_agreement`; global_ratio: (H, W)
     g / d (`global_direct_ratio`)."""
@@ -272,10 +275,9 @@ def bounce_island_filter(keep, agree, global_ratio, *, max_pixels: int | None = 
     keep = np.asarray(keep, bool)
     n = island_pixels(keep.shape) if max_pixels is None else int(max_pixels)
     labels, sizes = region_labels(keep, agree)
-    with np.errstate(invalid="ignore"):
-        heavy = keep & (np.asarray(global_ratio, np.float64) > float(ratio))
-    votes = np.bincount(labels[heavy], minlength=int(labels.max()) + 1)
-    return keep & (sizes < n) & (2 * votes[labels] > sizes)
+    g = np.asarray(global_ratio, np.float64)[keep]
+    total = np.bincount(labels[keep], weights=np.where(np.isfinite(g), g, 0.0), minlength=int(labels.max()) + 1)
+    return keep & (sizes < n) & (total[labels] > float(ratio) * sizes)     # the region's mean g / d
 
 
 # -- global reflection filter: row-coded patterns (epipolar consistency) ----------------------------

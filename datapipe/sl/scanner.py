@@ -60,8 +60,8 @@ Validity (what "valid" means)
 Pixels removed by 2. and 3. get reason FILTERED (7), depth NaN.
 4. bounce islands (`sl.filters.bounce_island_filter`, with the multipath filter; reason MULTIPATH):
    of what 3. kept, regions of agreeing pixels (`sl.regions`) smaller than 20 px at 320x240 (the
-   same share of a larger image) in which most pixels have more bounced light than half the direct
-   (g / d > 0.5, the global-light filter's measure): islands of wrong fringe orders whose coarse
+   same share of a larger image) whose light is about half bounce or more (mean g / d > 0.45, the
+   global-light filter's measure): islands of wrong fringe orders whose coarse
    phase the bounce turned, which 1b'. (0.7 and a noise margin) and 3. (they agree with each
    other) leave (benchmarks/results/sl_truth.md: aluminium parts at 0.6 m).
 """

@@ -280,7 +280,14 @@ def test_bounce_islands_of_wrong_orders_are_removed_small_regions_in_direct_ligh
     assert (res.reason[island & wrong(decoded)] == sl.Reason.MULTIPATH).all()
     assert res.valid[band].mean() > 0.99 and res.valid[small].all()
     assert not wrong(res).any()
-    # the filter alone: regions of fewer than 20 px (this 160 x 120 image) with g / d > 0.5 in most pixels
+    # the filter alone: regions of fewer than 20 px (this 160 x 120 image; 540 at 1080p) whose mean g / d is above 0.45
     assert sl.filters.island_pixels((120, 160)) == 20 and sl.filters.island_pixels((1080, 1920)) == 540
+    keep = np.zeros((3, 7), bool)
+    keep[1, 1:3] = keep[1, 4:6] = True                  # two 2-pixel regions
+    agree = sl.filters.neighbour_agreement(np.full((3, 7), 0.6), keep, np.full((3, 7), 1e-4), 1e-3)
+    gd = np.zeros((3, 7))
+    gd[1, 1:3], gd[1, 4:6] = (0.3, 0.7), (0.3, 0.55)     # means 0.5 and 0.425
+    assert sl.filters.bounce_island_filter(keep, agree, gd).tolist() == (keep & (np.arange(7) < 3)).tolist()
+    assert not sl.filters.bounce_island_filter(keep, agree, gd, max_pixels=2).any()   # 2 px is not below 2
     off = _scanner(cam, proj, multipath_filter=False).scan(img, 3, cam.K, cam.T).result
     assert wrong(off)[island].mean() > 0.9              # with the reflection filters off, nothing is removed
