@@ -1,7 +1,7 @@
 """Structured-light depth against the truth on real Cycles renders: where the wrong points are.
 
     .venv/bin/python benchmarks/bench_sl_truth.py [--cache DIR] [--no-render] [--cases steel,aluminium]
-                                                  [--samples 64] [--explain]
+                                                  [--samples 64] [--res 640x480] [--explain]
 
 Cases (benchmarks/sl_truth_cases.py renders them once and caches them in an ignored folder, so a
 decoder change costs the decode alone): the shipped demo (`python -m datapipe demo`: 4 renders),
@@ -26,6 +26,7 @@ Writes benchmarks/results/sl_truth.md, sl_truth.csv and sl_truth.png.
 """
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -98,7 +99,7 @@ def metrics(c: dict, scan, bounce_dominated) -> dict:
 def flat_passes(cache: Path, key: str, mode: str):
     """The fast render's flat-lit passes (direct, indirect radiance) of the same case and camera
     (any sample count), or None when that render is not cached."""
-    fk = key.split(f"_{mode}")[0] + "_fast"
+    fk = re.sub(r"_s\d+(?=_|$)", "", key.replace(f"_{mode}", "_fast"))   # any sample count: the same scene
     if not (cache / f"{fk}.npz").is_file():
         return None
     f = T.load(cache, fk)
@@ -112,14 +113,15 @@ def bounce_map(cache: Path, key: str, mode: str):
     return None if f is None else f[1] > f[0]
 
 
-def keys(only=None, samples=None) -> list[tuple[str, str]]:
+def keys(only=None, samples=None, res=None) -> list[tuple[str, str]]:
     """(cache key, mode) of every case; `only`: substrings, a case is kept when its key holds one;
-    `samples`: the rig cases rendered at that many fringe paths per pixel instead (no demo)."""
+    `samples`, `res`: the rig cases rendered at that many fringe paths per pixel or at (W, H)
+    instead (no demo)."""
     out = []
     for mode in MODES:
-        if not samples:
+        if not samples and not res:
             out += [(T.demo_key(i, mode), mode) for i in range(T.DEMO_RENDERS)]
-        out += [(T.rig_key(*c, mode, samples), mode) for c in RIG_CASES]
+        out += [(T.rig_key(*c, mode, samples, res), mode) for c in RIG_CASES]
     return [k for k in out if only is None or any(o in k[0] for o in only)]
 
 
@@ -163,9 +165,9 @@ def explain(c: dict, scan, sc, flat, log=print) -> None:
             f"g/d {gd[i, j]:.2f} bounced/direct {ratio} | region {size[i, j]} px")
 
 
-def run(cache: Path, log=print, only=None, samples=None, explain_pixels=False) -> list[dict]:
+def run(cache: Path, log=print, only=None, samples=None, res=None, explain_pixels=False) -> list[dict]:
     rows = []
-    for key, mode in keys(only, samples):
+    for key, mode in keys(only, samples, res):
         if not (cache / f"{key}.npz").is_file():
             log(f"  {key}: not rendered, skipped")
             continue
@@ -325,6 +327,7 @@ def main(argv=None) -> int:
                          "those, print their rows and write no report (the report holds every case)")
     ap.add_argument("--samples", type=int, default=None,
                     help="with --cases: the rig cases at this many fringe paths per pixel (cached as <key>_sN)")
+    ap.add_argument("--res", default=None, help="with --cases: the rig cases at WxH instead of 320x240 (cached as <key>_WxH)")
     ap.add_argument("--explain", action="store_true",
                     help="print every valid pixel > 5 mm off away from depth edges with what the decoder saw there")
     ap.add_argument("--baseline", type=Path, default=None,
@@ -332,17 +335,18 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     args.cache.mkdir(parents=True, exist_ok=True)
     only = [c for c in args.cases.split(",") if c] if args.cases else None
-    if args.samples and only is None:
-        ap.error("--samples needs --cases (the report holds the default sample count)")
+    if (args.samples or args.res) and only is None:
+        ap.error("--samples and --res need --cases (the report holds the default renders)")
+    res = tuple(int(v) for v in args.res.lower().split("x")) if args.res else None
     if not args.no_render:
         for mode in MODES[:1] if args.quick else MODES:
-            if not args.samples and (only is None or any(o in T.demo_key(0, mode) for o in only)):
+            if not (args.samples or res) and (only is None or any(o in T.demo_key(0, mode) for o in only)):
                 T.render_demo(args.cache, mode)
             if not args.quick:
                 T.render_rig(args.cache, [c for c in RIG_CASES if only is None
-                                          or any(o in T.rig_key(*c, mode, args.samples) for o in only)], mode,
-                             samples=args.samples)
-    rows = run(args.cache, only=only, samples=args.samples, explain_pixels=args.explain)
+                                          or any(o in T.rig_key(*c, mode, args.samples, res) for o in only)], mode,
+                             samples=args.samples, res=res)
+    rows = run(args.cache, only=only, samples=args.samples, res=res, explain_pixels=args.explain)
     if only is not None:
         return 0
     if args.baseline is not None:

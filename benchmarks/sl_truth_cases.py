@@ -107,15 +107,18 @@ def render_demo(cache: Path, mode: str, log=print) -> None:
         np.savez_compressed(cache / f"{demo_key(i, mode)}.npz", **d)
 
 
-def rig_key(rig: str, height: float, material, mode: str, samples: int | None = None) -> str:
-    """The cache key of a rig case; `samples`: fringe paths per camera pixel other than the default."""
-    return f"{S.case_key(rig, height, material)}_{mode}" + (f"_s{int(samples)}" if samples else "")
+def rig_key(rig: str, height: float, material, mode: str, samples: int | None = None, res=None) -> str:
+    """The cache key of a rig case; `samples`: fringe paths per camera pixel other than the default;
+    `res`: (W, H) other than 320 x 240."""
+    return (f"{S.case_key(rig, height, material)}_{mode}" + (f"_s{int(samples)}" if samples else "")
+            + (f"_{int(res[0])}x{int(res[1])}" if res else ""))
 
 
-def render_rig(cache: Path, cases, mode: str, log=print, samples: int | None = None) -> None:
+def render_rig(cache: Path, cases, mode: str, log=print, samples: int | None = None, res=None) -> None:
     """Rig cases (rig, height, material) in fringe mode `mode`, unless cached (one drop per rig and
     material); `samples`: structured_light.samples instead of the default (the Monte-Carlo noise of
-    the render against what a converged render shows), cached under their own key."""
+    the render against what a converged render shows), `res`: (W, H) instead of 320 x 240; both
+    cached under their own key."""
     import bpy
 
     from datapipe import config as C
@@ -124,11 +127,11 @@ def render_rig(cache: Path, cases, mode: str, log=print, samples: int | None = N
 
     groups: dict = {}
     for rig, h, mat in cases:
-        if not (cache / f"{rig_key(rig, h, mat, mode, samples)}.npz").is_file():
+        if not (cache / f"{rig_key(rig, h, mat, mode, samples, res)}.npz").is_file():
             groups.setdefault((rig, mat), []).append(h)
     for (rig, mat), heights in groups.items():
         bpy.ops.wm.read_factory_settings(use_empty=True)
-        cfg = S.case_config(rig, heights[0], mat)
+        cfg = S.case_config(rig, heights[0], mat, **({"res": tuple(res)} if res else {}))
         cfg.structured_light.fringe_mode = mode
         if samples:
             cfg.structured_light.samples = int(samples)
@@ -144,8 +147,9 @@ def render_rig(cache: Path, cases, mode: str, log=print, samples: int | None = N
                 world.camera.set_pose(k)
                 t0 = time.perf_counter()
                 world.render(tmp / f"r{k}", k, S.SEED, scene_id=0, render_id=k, base_seed=cfg.scene.seed)
-                log(f"  {rig_key(rig, h, mat, mode, samples)}: {time.perf_counter() - t0:.0f} s")
-                np.savez_compressed(cache / f"{rig_key(rig, h, mat, mode, samples)}.npz", **store[-1])
+                key = rig_key(rig, h, mat, mode, samples, res)
+                log(f"  {key}: {time.perf_counter() - t0:.0f} s")
+                np.savez_compressed(cache / f"{key}.npz", **store[-1])
             world.close()
         finally:
             undo()
