@@ -79,9 +79,9 @@ from .decode import decode
 from .decode_result import DecodeResult, Reason
 from .exposure import (Capture, ProjectorOff, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set,
                        lit_pixels, projector_off)
-from .filters import (bounce_island_filter, direct_frequencies, direct_offset_ratio, edge_speckle_filter, global_direct_ratio,
-                      global_light_filter, multipath_filter, neighbour_agreement, projector_rows, reflection_filter,
-                      row_from_phase, row_residual)
+from .filters import (bounce_island_filter, direct_frequencies, direct_offset_ratio, edge_speckle_filter,
+                      global_direct_ratio, global_light_filter, multipath_filter, neighbour_agreement, projector_rows,
+                      reflection_filter, row_from_phase, row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
 from .gray_image import fringe_mean
 from .metrics import pixel_depth_sigma
@@ -292,7 +292,8 @@ class Scanner:
         sigma_z = pixel_depth_sigma(res, cap.noise_sigma, self.proj_size[0], self.steps)
         multipath = global_ratio = None
         if self.multipath_filter:
-            direct, c = direct_frequencies(res.periods, self.proj_size[0]), direct_offset_ratio(self.projector_gamma, self.steps)
+            direct = direct_frequencies(res.periods, self.proj_size[0])
+            c = direct_offset_ratio(self.projector_gamma, self.steps)
             multipath = multipath_filter(res.modulation, res.offset, res.periods, self.steps, cap.noise_sigma,
                                          res.valid)
             multipath |= global_light_filter(res.modulation, res.offset, direct, self.steps, cap.noise_sigma, res.valid,

@@ -265,7 +265,8 @@ def test_bounce_islands_of_wrong_orders_are_removed_small_regions_in_direct_ligh
     for i, K in enumerate(PERIODS):
         for n in range(STEPS):
             for where, shift, g in ((island, W / 4.0, 0.9), (band, W / 32.0, 0.6)):
-                glob = g * (0.5 + 0.5 * kept[K] * np.cos(2 * np.pi * K * (r.proj_x + shift) / W + 2 * np.pi * n / STEPS))
+                phase = 2 * np.pi * K * (r.proj_x + shift) / W + 2 * np.pi * n / STEPS
+                glob = g * (0.5 + 0.5 * kept[K] * np.cos(phase))
                 img[i * STEPS + n] += np.where(where, glob, 0.0)
     img[:, ring] = 0.0
     img = img.astype(np.float32)
