@@ -6,7 +6,7 @@ Two kept pixels share a region when a chain of 8-neighbour pairs joins them, eac
 depth (`agree`, the edge filter's test: sl.filters.neighbour_agreement). Labelled on a grid three
 times the image in both axes: pixel (y, x) at cell (3y, 3x), each agreeing pair as the two cells
 between its ends, and OpenCV's 8-connected labelling of that grid (a graph search over the pixels,
-scipy.sparse.csgraph, took 0.8 s CPU at 1920x1080; this takes well under a tenth of it). With two
+scipy.sparse.csgraph, took 0.8 s CPU at 1920x1080; this 0.085-0.1 s). With two
 cells per link a link cell touches only its own ends and the links that share an end, except where
 both diagonals of a 2x2 block agree: their cells cross and join all four pixels. That can only join
 two regions, never split one, so a region is never measured smaller than it is.
