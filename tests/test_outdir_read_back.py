@@ -9,8 +9,9 @@ by a link after the run wrote it ended in a DataPipeError of the BOP writer ("no
 and had it led to a folder of valid models, those would have been copied into the dataset as the
 run's, with exit 0 (cases `models_folder`, `model_file`). The same held for a render map the BOP
 export converts (`render_map`: a link at rgb.png put the linked picture into bop/ as the run's,
-exit 0) and for a file of the user's put in place of a model (`user_model`). Each case compares the
-victim folder's hash tree before and after and checks that nothing of the victim's reached OUT.
+exit 0), for a file of the user's put in place of a model (`user_model`), and on --resume for
+bop/models/ and the chunk's JSON files. Each mid-run case compares the victim folder's hash tree
+before and after and checks that nothing of the victim's reached OUT.
 Every test here fails on the code before the change (checked against main at 2c519f3).
 """
 import json
@@ -122,3 +123,21 @@ def test_resume_never_reads_a_users_model_beside_the_bop_exports(finished, tmp_p
     assert events[-1].stage == "done"
     assert json.loads((out / "bop/train_pbr/000000/scene_gt_coco.json").read_text())["categories"] == ref
     assert hashes(out)[str(mine.relative_to(out))] == before
+
+
+def test_resume_refuses_a_users_file_in_place_of_a_bop_chunk_file(finished, tmp_path):
+    """--resume's BOP writer reads the chunk's JSON files back (to add the next scenes' images):
+    one of the user's in place of the run's is refused, naming it, and left as it is (before: read
+    as the run's, and a file that is not JSON stopped the run with "delete it")."""
+    cfg, out = finished
+    pipe = Pipeline(cfg, out, world=BoxWorld.factory(crash_at=1), force=True)
+    with pytest.raises(Crash):
+        list(pipe.run())                       # killed after the first scene: the chunk's files are written
+    theirs = out / "bop/train_pbr/000000/scene_gt.json"
+    os.rename(theirs, tmp_path / "moved_away")
+    theirs.write_text("my notes on the ground truth, not JSON")
+    before = hashes(out)[str(theirs.relative_to(out))]
+    with pytest.raises(outdir.OutputStateError) as ei:
+        run(cfg, out, resume=True)
+    assert str(theirs) in str(ei.value) and "fix:" in str(ei.value)
+    assert hashes(out)[str(theirs.relative_to(out))] == before

@@ -57,7 +57,7 @@ from .exr import COORDS_CHANNELS, read_depth, read_mask, read_object_coords, wri
 from . import layout
 from . import guard
 from .files import (copy_atomic, imwrite_atomic, make_dirs, own_file, own_file_present, read_json, read_json_or_empty,
-                    write_json_lines_atomic)
+                    read_own_json_or_empty, write_json_lines_atomic)
 from .models import (Model, copy_models, load_listed_models, model_filename, model_info, read_ply, write_models,
                      write_ply)
 from .models_eval import SPACING_MM, resample_for_eval, vertex_normals
@@ -253,13 +253,14 @@ class BopWriter:
     def _chunk(self, chunk: int) -> dict[str, dict]:
         if chunk not in self._chunks:
             d = self.chunk_dir(chunk)
-            data = {name: read_json_or_empty(d / f"{name}.json") for name in CHUNK_FILES}
+            # the run's own files read back (read_own_json_or_empty: never another file as the run's)
+            data = {name: read_own_json_or_empty(d / f"{name}.json") for name in CHUNK_FILES}
             for name in SENSOR_FILES:
-                data[f"{name}_"] = read_json_or_empty(d / f"{name}_{self.sensor}.json")
-            coco = read_json_or_empty(d / "scene_gt_coco.json")
+                data[f"{name}_"] = read_own_json_or_empty(d / f"{name}_{self.sensor}.json")
+            coco = read_own_json_or_empty(d / "scene_gt_coco.json")
             data["coco"] = _coco_per_image(coco)
             if self.amodal_coco:
-                data["coco_amodal"] = _coco_per_image(read_json_or_empty(d / AMODAL_COCO_FILE))
+                data["coco_amodal"] = _coco_per_image(read_own_json_or_empty(d / AMODAL_COCO_FILE))
             data["created"] = coco.get("info", {}).get("date_created")      # kept when the chunk grows
             self._chunks[chunk] = data
         return self._chunks[chunk]

@@ -197,6 +197,16 @@ def read_json_or_empty(path: str | os.PathLike) -> dict:
         raise DataPipeError(f"{path} is not valid JSON ({e}); delete it (or its folder) and write it again") from None
 
 
+def read_own_json_or_empty(path: str | os.PathLike) -> dict:
+    """read_json_or_empty of a file the run wrote and reads back (a BOP chunk's JSON files), through
+    `own_file`: in a run's output folder never through a link (a FIFO is not waited on), and only the
+    file the run wrote, else OutputStateError naming it; {} when nothing stands there."""
+    if not own_file_present(path):
+        return {}
+    with own_file(path) as p:
+        return read_json_or_empty(p)
+
+
 def json_lines_text(data: Any, *, compact: bool = False) -> str:
     """bop_toolkit's JSON layout: a dict keyed by integers gets one entry per line, keys sorted
     numerically; anything else sorted keys with indent 2; compact = no whitespace (COCO files)."""
