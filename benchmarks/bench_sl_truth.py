@@ -1,6 +1,7 @@
 """Structured-light depth against the truth on real Cycles renders: where the wrong points are.
 
-    .venv/bin/python benchmarks/bench_sl_truth.py [--cache DIR] [--no-render]
+    .venv/bin/python benchmarks/bench_sl_truth.py [--cache DIR] [--no-render] [--cases steel,aluminium]
+                                                  [--samples 64] [--res 640x480] [--explain]
 
 Cases (benchmarks/sl_truth_cases.py renders them once and caches them in an ignored folder, so a
 decoder change costs the decode alone): the shipped demo (`python -m datapipe demo`: 4 renders),
@@ -25,6 +26,7 @@ Writes benchmarks/results/sl_truth.md, sl_truth.csv and sl_truth.png.
 """
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -94,29 +96,78 @@ def metrics(c: dict, scan, bounce_dominated) -> dict:
             "multipath_px": int(scan.multipath.sum()) if scan.multipath is not None else 0}
 
 
-def bounce_map(cache: Path, key: str, mode: str):
-    """Direct-lit pixels with more bounced than direct light, from the fast render's flat-lit
-    passes of the same case (None when that render is not cached)."""
-    fk = key.replace(f"_{mode}", "_fast")
+def flat_passes(cache: Path, key: str, mode: str):
+    """The fast render's flat-lit passes (direct, indirect radiance) of the same case and camera
+    (any sample count), or None when that render is not cached."""
+    fk = re.sub(r"_s\d+(?=_|$)", "", key.replace(f"_{mode}", "_fast"))   # any sample count: the same scene
     if not (cache / f"{fk}.npz").is_file():
         return None
     f = T.load(cache, fk)
-    if "flat_direct" not in f:
-        return None
-    return f["flat_indirect"] > f["flat_direct"]
+    return (f["flat_direct"], f["flat_indirect"]) if "flat_direct" in f else None
 
 
-def keys() -> list[tuple[str, str]]:
+def bounce_map(cache: Path, key: str, mode: str):
+    """Direct-lit pixels with more bounced than direct light, from the fast render's flat-lit
+    passes of the same case (None when that render is not cached)."""
+    f = flat_passes(cache, key, mode)
+    return None if f is None else f[1] > f[0]
+
+
+def keys(only=None, samples=None, res=None) -> list[tuple[str, str]]:
+    """(cache key, mode) of every case; `only`: substrings, a case is kept when its key holds one;
+    `samples`, `res`: the rig cases rendered at that many fringe paths per pixel or at (W, H)
+    instead (no demo)."""
     out = []
     for mode in MODES:
-        out += [(T.demo_key(i, mode), mode) for i in range(T.DEMO_RENDERS)]
-        out += [(T.rig_key(*c, mode), mode) for c in RIG_CASES]
-    return out
+        if not samples and not res:
+            out += [(T.demo_key(i, mode), mode) for i in range(T.DEMO_RENDERS)]
+        out += [(T.rig_key(*c, mode, samples, res), mode) for c in RIG_CASES]
+    return [k for k in out if only is None or any(o in k[0] for o in only)]
 
 
-def run(cache: Path, log=print) -> list[dict]:
+def explain(c: dict, scan, sc, flat, log=print) -> None:
+    """One line per valid pixel > 5 mm off away from depth edges: where (row, column, instance
+    mask, directly lit), how far and which way, the projector-column error in fringes of each
+    period and each period's own phase error (periods), the confidence and reason, offset,
+    modulations, sensor noise, the global-light filter's g / d, the flat-lit passes' bounced /
+    direct light and the size of the pixel's region of agreeing kept pixels."""
+    from datapipe.sl.regions import region_labels
+
+    res = scan.result
+    z = c["depth"].astype(np.float64)
+    err = res.depth - z
+    bad = res.valid & np.isfinite(z) & (np.abs(err) > OFF) & ~depth_edges(z)
+    if not bad.any():
+        return
+    K = np.asarray(c["K"], np.float64)
+    H, W = z.shape
+    u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    Xc = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z, np.ones_like(z)], -1)
+    p = Xc @ (sc.K_proj @ np.linalg.inv(sc.T_cam_proj)[:3]).T
+    x_true = p[..., 0] / p[..., 2]                          # the z-buffer point's projector column
+    Wp = sc.proj_size[0]
+    A = res.offset.astype(np.float64)
+    sig = scan.capture.noise_sigma
+    sig = sig(np.maximum(A, 0)) if callable(sig) else np.broadcast_to(np.asarray(sig, np.float64), A.shape)
+    gd = SLF.global_direct_ratio(res.modulation, res.offset, SLF.direct_frequencies(res.periods, Wp))
+    agree = SLF.neighbour_agreement(res.depth, res.valid, scan.sigma_z, 1.0 / K[0, 0])
+    _, size = region_labels(res.valid, agree)
+    for i, j in zip(*np.nonzero(bad)):
+        dx = res.proj_x[i, j] - x_true[i, j]
+        fringes = " ".join(f"{dx * k / Wp:+.3f}" for k in res.periods)
+        phase = " ".join(f"{(w[i, j] / (2 * np.pi) - k * (x_true[i, j] + 0.5) / Wp + 0.5) % 1 - 0.5:+.3f}"
+                         for k, w in zip(res.periods, res.wrapped))
+        ratio = f"{flat[1][i, j] / flat[0][i, j]:.2f}" if flat is not None and flat[0][i, j] > 0 else "-"
+        log(f"    r{i} c{j} mask {int(c['mask'][i, j])} direct {int(c['direct'][i, j])} z {z[i, j] * 1e3:.1f} mm "
+            f"err {err[i, j] * 1e3:+.1f} mm | column {dx:+.2f} px = fringes {fringes} | phase error {phase} | "
+            f"conf {res.confidence[i, j]:.4f} reason {res.reason[i, j]} | A {A[i, j]:.0f} "
+            f"B {' / '.join(f'{b:.0f}' for b in res.modulation[:, i, j])} sigma {sig[i, j]:.1f} DN | "
+            f"g/d {gd[i, j]:.2f} bounced/direct {ratio} | region {size[i, j]} px")
+
+
+def run(cache: Path, log=print, only=None, samples=None, res=None, explain_pixels=False) -> list[dict]:
     rows = []
-    for key, mode in keys():
+    for key, mode in keys(only, samples, res):
         if not (cache / f"{key}.npz").is_file():
             log(f"  {key}: not rendered, skipped")
             continue
@@ -132,7 +183,9 @@ def run(cache: Path, log=print) -> list[dict]:
             sc.scan(rad, S.SEED, c["K"], c["T"])
         filt_s, scan_s = filt.cpu_s, t_scan.cpu_s
         m = metrics(c, scan, bounce_map(cache, key, mode))
-        m.update(case=key.removesuffix(f"_{mode}"), mode=mode, scan_cpu_s=scan_s, filter_cpu_s=filt_s,
+        if explain_pixels:
+            explain(c, scan, sc, flat_passes(cache, key, mode), log)
+        m.update(case=key.replace(f"_{mode}", ""), mode=mode, scan_cpu_s=scan_s, filter_cpu_s=filt_s,
                  baseline_cpu_s=float("nan"),
                  fringe_s=float(c["fringe_s"]))
         rows.append(m)
@@ -269,16 +322,33 @@ def main(argv=None) -> int:
     ap = parser(__doc__, quick="the demo in fast mode only (one Blender render)")
     ap.add_argument("--cache", type=Path, default=ROOT / "benchmarks" / ".cache" / "sl_truth")
     ap.add_argument("--no-render", action="store_true", help="decode what is cached, render nothing")
+    ap.add_argument("--cases", default=None,
+                    help="comma-separated substrings of case names (e.g. steel,aluminium): render and decode only "
+                         "those, print their rows and write no report (the report holds every case)")
+    ap.add_argument("--samples", type=int, default=None,
+                    help="with --cases: the rig cases at this many fringe paths per pixel (cached as <key>_sN)")
+    ap.add_argument("--res", default=None, help="with --cases: the rig cases at WxH instead of 320x240 (cached as <key>_WxH)")
+    ap.add_argument("--explain", action="store_true",
+                    help="print every valid pixel > 5 mm off away from depth edges with what the decoder saw there")
     ap.add_argument("--baseline", type=Path, default=None,
                     help="a checkout to time the scan against, side by side (e.g. main: git archive main | tar -x -C DIR)")
     args = ap.parse_args(argv)
     args.cache.mkdir(parents=True, exist_ok=True)
+    only = [c for c in args.cases.split(",") if c] if args.cases else None
+    if (args.samples or args.res) and only is None:
+        ap.error("--samples and --res need --cases (the report holds the default renders)")
+    res = tuple(int(v) for v in args.res.lower().split("x")) if args.res else None
     if not args.no_render:
         for mode in MODES[:1] if args.quick else MODES:
-            T.render_demo(args.cache, mode)
+            if not (args.samples or res) and (only is None or any(o in T.demo_key(0, mode) for o in only)):
+                T.render_demo(args.cache, mode)
             if not args.quick:
-                T.render_rig(args.cache, RIG_CASES, mode)
-    rows = run(args.cache)
+                T.render_rig(args.cache, [c for c in RIG_CASES if only is None
+                                          or any(o in T.rig_key(*c, mode, args.samples, res) for o in only)], mode,
+                             samples=args.samples, res=res)
+    rows = run(args.cache, only=only, samples=args.samples, res=res, explain_pixels=args.explain)
+    if only is not None:
+        return 0
     if args.baseline is not None:
         mine, base = {}, {}
         for _ in range(2):                      # alternately: the machine's load hits both alike

@@ -2,7 +2,10 @@
 must never write outside OUT, never change a file it did not write, and stop, if it stops, with
 DataPipe's own OutputStateError naming the path (CLI exit 1) — never a traceback, never a hang.
 
-    .venv/bin/python benchmarks/fuzz_outdir.py [--n 20] [--seed 33]
+    .venv/bin/python benchmarks/fuzz_outdir.py [--n 20] [--seed 33] [--verbose] [--trial K]
+
+`--verbose` prints each trial's mode, the event its changes came at and the changes; `--trial K`
+replays the trials up to K (they draw the random numbers K starts from), prints K's and keeps its folder.
 
 Each trial runs the run loop on the fake world of the tests (tests/fake_world.py: numpy boxes, no
 Blender; 5 renders of 64 x 48 in 4 scenes, native + BOP) as a fresh run, a `--resume` after a
@@ -31,7 +34,7 @@ import tempfile
 import traceback
 from pathlib import Path
 
-from harness import RESULTS, ROOT, Stopwatch, parser
+from harness import RESULTS, ROOT, Stopwatch, parser, write_with_notes
 
 sys.path.insert(0, str(ROOT / "tests"))     # the fake world and its fixtures
 sys.path.append(str(ROOT))                  # PYTHONPATH first: another checkout can be measured
@@ -69,7 +72,8 @@ def _fill(rng: random.Random, pattern: str) -> str:
     return pattern.format(s=layout.scene_name(rng.randrange(4)), r=layout.render_name(rng.randrange(2)))
 
 
-def change(rng: random.Random, out: Path, victim: Path, work: Path, user: dict, planted: list) -> None:
+def change(rng: random.Random, out: Path, victim: Path, work: Path, user: dict, planted: list,
+           log: list) -> None:
     """One random change in OUT (see the module doc); user files are remembered in `user` with
     their hash, planted paths in `planted`."""
     kind = rng.choice(["link", "link", "replace_with_link", "user_file"])
@@ -82,6 +86,7 @@ def change(rng: random.Random, out: Path, victim: Path, work: Path, user: dict, 
         p.write_text(f"the user's {rel}")
         user[rel] = hashlib.sha256(p.read_bytes()).hexdigest()     # as tests/tree_hash.py hashes it
         planted.append(str(p))
+        log.append(f"user file {rel}")
         return
     rel = _fill(rng, rng.choice(TARGETS))
     p = out / rel
@@ -97,6 +102,7 @@ def change(rng: random.Random, out: Path, victim: Path, work: Path, user: dict, 
     p.parent.mkdir(parents=True, exist_ok=True)
     p.symlink_to(target)
     planted.append(str(p))
+    log.append(f"{kind} {rel} -> {target.relative_to(work)}")
 
 
 def _makeable(out: Path, folder: Path) -> bool:
@@ -109,8 +115,9 @@ def _makeable(out: Path, folder: Path) -> bool:
     return True
 
 
-def trial(rng: random.Random, work: Path) -> tuple[str, str]:
-    """One run with changes; returns (outcome, detail)."""
+def trial(rng: random.Random, work: Path, story: list | None = None) -> tuple[str, str]:
+    """One run with changes; returns (outcome, detail). `story` (when given) receives what was done:
+    the mode, the event the changes came at and each change."""
     cfg = small_cfg(work)
     out = work / "OUT"
     victim = _victim(work)
@@ -122,17 +129,21 @@ def trial(rng: random.Random, work: Path) -> tuple[str, str]:
             pass
     elif mode == "force":
         list(Pipeline(cfg, out, world=BoxWorld.factory()).run())
-    user, planted = {}, []
+    user, planted, log = {}, [], []
+    if story is not None:
+        story.append(f"mode {mode}")
     victim_before = hashes(victim)
     at = rng.randrange(0, 12)
     n_changes = rng.randint(1, 3)
     pipe = Pipeline(cfg, out, world=BoxWorld.factory(), resume=mode == "resume", force=mode == "force")
     outcome, detail = "done", ""
     try:
-        for k, _ in enumerate(pipe.run()):
+        for k, ev in enumerate(pipe.run()):
             if k == at:
                 for _ in range(n_changes):
-                    change(rng, out, victim, work, user, planted)
+                    change(rng, out, victim, work, user, planted, log)
+                if story is not None:
+                    story += [f"at event {k} ({ev.stage}, scene {ev.scene}, render {ev.render}):", *log]
     except OutputStateError as e:
         named = any(p in str(e) for p in planted) and "fix:" in str(e)
         outcome, detail = ("refused, naming the path", "") if named else ("refused without a path", str(e)[:160])
@@ -157,6 +168,10 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=20)
     ap.add_argument("--seed", type=int, default=33)
     ap.add_argument("--out", default=None, help="the report (default benchmarks/results/fuzz_outdir.md)")
+    ap.add_argument("--trial", type=int, default=None,
+                    help="stop after trial K (the trials before it run too: they draw the random numbers it "
+                         "starts from), print what it did and keep its folder; no report is written")
+    ap.add_argument("--verbose", action="store_true", help="print each trial's mode, event and changes")
     args = ap.parse_args()
     if args.quick:
         args.n = 3
@@ -168,11 +183,12 @@ def main() -> None:
         raise Hang()
     signal.signal(signal.SIGALRM, on_alarm)
     clock = Stopwatch().start()
-    for i in range(args.n):
+    for i in range(args.n if args.trial is None else args.trial + 1):
         work = Path(tempfile.mkdtemp(prefix=f"fuzz_outdir_{i}_"))
+        story: list[str] = []
         signal.alarm(60)
         try:
-            outcome, detail = trial(rng, work)
+            outcome, detail = trial(rng, work, story)
         except Hang:
             outcome, detail = "hang (> 60 s)", ""
         finally:
@@ -180,6 +196,11 @@ def main() -> None:
         counts[outcome] += 1
         if outcome not in ("done", "refused, naming the path", "OS error naming the file"):
             bad.append(f"trial {i}: {outcome}: {detail}")
+        if args.verbose or i == args.trial:
+            print(f"trial {i}: {outcome}{': ' + detail if detail else ''}", *story, sep="\n  ", flush=True)
+        if i == args.trial:
+            print(f"its folder: {work}")
+            return
         shutil.rmtree(work, ignore_errors=True)
     wall = clock.stop().wall_s
     lines = ["# Mid-run file-system changes in the output folder", "",
@@ -191,8 +212,7 @@ def main() -> None:
              f"Data loss (the victim outside OUT or a user's file changed), tracebacks, hangs: "
              f"**{sum(v for k, v in counts.items() if k.startswith(('data loss', 'traceback', 'hang')))}**.",
              *(["", *[f"- {b}" for b in bad[:30]]] if bad else [])]
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("\n".join(lines) + "\n")
+    write_with_notes(Path(args.out), lines)          # the hand-written fuzz_outdir_notes.md appended
     print("\n".join(lines))
 
 

@@ -107,12 +107,18 @@ def render_demo(cache: Path, mode: str, log=print) -> None:
         np.savez_compressed(cache / f"{demo_key(i, mode)}.npz", **d)
 
 
-def rig_key(rig: str, height: float, material, mode: str) -> str:
-    return f"{S.case_key(rig, height, material)}_{mode}"
+def rig_key(rig: str, height: float, material, mode: str, samples: int | None = None, res=None) -> str:
+    """The cache key of a rig case; `samples`: fringe paths per camera pixel other than the default;
+    `res`: (W, H) other than 320 x 240."""
+    return (f"{S.case_key(rig, height, material)}_{mode}" + (f"_s{int(samples)}" if samples else "")
+            + (f"_{int(res[0])}x{int(res[1])}" if res else ""))
 
 
-def render_rig(cache: Path, cases, mode: str, log=print) -> None:
-    """Rig cases (rig, height, material) in fringe mode `mode`, unless cached (one drop per rig and material)."""
+def render_rig(cache: Path, cases, mode: str, log=print, samples: int | None = None, res=None) -> None:
+    """Rig cases (rig, height, material) in fringe mode `mode`, unless cached (one drop per rig and
+    material); `samples`: structured_light.samples instead of the default (the Monte-Carlo noise of
+    the render against what a converged render shows), `res`: (W, H) instead of 320 x 240; both
+    cached under their own key."""
     import bpy
 
     from datapipe import config as C
@@ -121,12 +127,14 @@ def render_rig(cache: Path, cases, mode: str, log=print) -> None:
 
     groups: dict = {}
     for rig, h, mat in cases:
-        if not (cache / f"{rig_key(rig, h, mat, mode)}.npz").is_file():
+        if not (cache / f"{rig_key(rig, h, mat, mode, samples, res)}.npz").is_file():
             groups.setdefault((rig, mat), []).append(h)
     for (rig, mat), heights in groups.items():
         bpy.ops.wm.read_factory_settings(use_empty=True)
-        cfg = S.case_config(rig, heights[0], mat)
+        cfg = S.case_config(rig, heights[0], mat, **({"res": tuple(res)} if res else {}))
         cfg.structured_light.fringe_mode = mode
+        if samples:
+            cfg.structured_light.samples = int(samples)
         cfg.camera.poses = [C.CameraPose(location=[0.0, 0.0, float(h)]) for h in heights]
         tmp = Path(tempfile.mkdtemp(prefix="sltruth_rig_"))
         store: list = []
@@ -139,8 +147,9 @@ def render_rig(cache: Path, cases, mode: str, log=print) -> None:
                 world.camera.set_pose(k)
                 t0 = time.perf_counter()
                 world.render(tmp / f"r{k}", k, S.SEED, scene_id=0, render_id=k, base_seed=cfg.scene.seed)
-                log(f"  {rig_key(rig, h, mat, mode)}: {time.perf_counter() - t0:.0f} s")
-                np.savez_compressed(cache / f"{rig_key(rig, h, mat, mode)}.npz", **store[-1])
+                key = rig_key(rig, h, mat, mode, samples, res)
+                log(f"  {key}: {time.perf_counter() - t0:.0f} s")
+                np.savez_compressed(cache / f"{key}.npz", **store[-1])
             world.close()
         finally:
             undo()

@@ -417,18 +417,21 @@ def test_bop_copies_models_info_last(tmp_path, monkeypatch):
     import fixtures_native as fx
     from datapipe.io import bop, models
     models.write_models(tmp_path / "models", fx.box_meshes(1))
-    real, copied = bop.copy_atomic, []
+    real, copied = models.copy_atomic, []
 
-    def fill_up(src, dst):
-        if len(copied) == 1:
-            raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+    def copy(src, dst):
         copied.append(os.path.basename(dst))
         return real(src, dst)
-    monkeypatch.setattr(bop, "copy_atomic", fill_up)
+
+    def full(dst, data):                    # models_info.json is written from the bytes read (models.copy_models)
+        raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+    monkeypatch.setattr(models, "copy_atomic", copy)
+    monkeypatch.setattr(models, "write_bytes_atomic", full)
     w = bop.BopWriter(tmp_path / "bop")
     with pytest.raises(OSError):
         w.set_models(tmp_path / "models")
-    assert copied == ["obj_000001.ply"] and not (w.models_dir / layout.MODELS_INFO).exists()
+    assert copied == [models.model_filename(i) for i in sorted(fx.box_meshes(1))]      # every model first
+    assert not (w.models_dir / layout.MODELS_INFO).exists()
 
 
 def test_disk_full_at_the_first_record_then_resume(one_run, tmp_path, monkeypatch):

@@ -55,8 +55,11 @@ import numpy as np
 from ..errors import DataPipeError
 from .exr import COORDS_CHANNELS, read_depth, read_mask, read_object_coords, write_exr
 from . import layout
-from .files import copy_atomic, imwrite_atomic, make_dirs, read_json, read_json_or_empty, write_json_lines_atomic
-from .models import Model, load_models, model_filename, model_info, read_ply, write_models, write_ply
+from . import guard
+from .files import (copy_atomic, imwrite_atomic, make_dirs, own_file, own_file_present, read_json, read_json_or_empty,
+                    read_own_json_or_empty, write_json_lines_atomic)
+from .models import (Model, copy_models, load_listed_models, model_filename, model_info, read_ply, write_models,
+                     write_ply)
 from .models_eval import SPACING_MM, resample_for_eval, vertex_normals
 from .bop_sensor import CUSTOM_RIG, check_sensor_name, sensor_for_config
 from .silhouette import mask_bbox, rasterize_silhouette
@@ -216,19 +219,7 @@ class BopWriter:
         if isinstance(source, Mapping):
             write_models(self.models_dir, source)
         else:
-            src = Path(source)
-            if not (src / layout.MODELS_INFO).is_file():
-                raise DataPipeError(f"{src}: no {layout.MODELS_INFO} (the run's models/ folder is written at the "
-                                    "start of a run by datapipe.io.models.write_models)")
-            if src.resolve() != self.models_dir.resolve():
-                make_dirs(self.models_dir)
-                # only the models models_info.json lists (another .ply of yours in models/ is not the
-                # run's); models_info.json last: add_scene takes its presence for "the models are copied"
-                info = read_json(src / layout.MODELS_INFO)
-                ids = sorted(int(k) for k in info if str(k).isdigit()) if isinstance(info, dict) else []
-                for name in [model_filename(i) for i in ids] + [layout.MODELS_INFO]:
-                    if (src / name).is_file():
-                        copy_atomic(src / name, self.models_dir / name)
+            copy_models(source, self.models_dir)
         self._models = None
         self._write_models_eval()
 
@@ -238,7 +229,8 @@ class BopWriter:
         gives the same numbers); symmetries are the models/ entries' (the same object)."""
         out = self.root / MODELS_EVAL_DIR
         make_dirs(out)
-        base = read_json(self.models_dir / layout.MODELS_INFO)
+        with own_file(self.models_dir / layout.MODELS_INFO) as p:
+            base = read_json(p)
         info = {}
         for obj_id, m in self.models().items():
             v, f = resample_for_eval(m.verts_mm, m.faces, self.eval_spacing_mm)
@@ -251,7 +243,7 @@ class BopWriter:
 
     def models(self) -> dict[int, Model]:
         if self._models is None:
-            self._models = load_models(self.models_dir)
+            self._models = load_listed_models(self.models_dir)
         return self._models
 
     # -- chunks -----------------------------------------------------------------------------------
@@ -261,13 +253,14 @@ class BopWriter:
     def _chunk(self, chunk: int) -> dict[str, dict]:
         if chunk not in self._chunks:
             d = self.chunk_dir(chunk)
-            data = {name: read_json_or_empty(d / f"{name}.json") for name in CHUNK_FILES}
+            # the run's own files read back (read_own_json_or_empty: never another file as the run's)
+            data = {name: read_own_json_or_empty(d / f"{name}.json") for name in CHUNK_FILES}
             for name in SENSOR_FILES:
-                data[f"{name}_"] = read_json_or_empty(d / f"{name}_{self.sensor}.json")
-            coco = read_json_or_empty(d / "scene_gt_coco.json")
+                data[f"{name}_"] = read_own_json_or_empty(d / f"{name}_{self.sensor}.json")
+            coco = read_own_json_or_empty(d / "scene_gt_coco.json")
             data["coco"] = _coco_per_image(coco)
             if self.amodal_coco:
-                data["coco_amodal"] = _coco_per_image(read_json_or_empty(d / AMODAL_COCO_FILE))
+                data["coco_amodal"] = _coco_per_image(read_own_json_or_empty(d / AMODAL_COCO_FILE))
             data["created"] = coco.get("info", {}).get("date_created")      # kept when the chunk grows
             self._chunks[chunk] = data
         return self._chunks[chunk]
@@ -370,14 +363,17 @@ class BopWriter:
         self._write_rgb(_required(scene_dir, rd, "rgb"), cdir / rgb_name)
         depth_valid = self._write_depth(_required(scene_dir, rd, "depth"), cdir / "depth" / f"{stem}.png", W, H)
         sl_src = layout.render_file(scene_dir, rd, "sl_depth")
-        if sl_src.is_file():
+        has_sl = own_file_present(sl_src)
+        if has_sl:
             make_dirs(cdir / "depth_sl")
-            imwrite_atomic(cdir / "depth_sl" / f"{stem}.png",
-                           encode_depth(read_depth(sl_src), self.depth_scale, what=str(sl_src)))
-        inst = read_mask(_required(scene_dir, rd, "mask"))
+            with own_file(sl_src) as p:
+                sl_depth = read_depth(p)
+            imwrite_atomic(cdir / "depth_sl" / f"{stem}.png", encode_depth(sl_depth, self.depth_scale, what=str(sl_src)))
+        with own_file(_required(scene_dir, rd, "mask")) as p:
+            inst = read_mask(p)
         gts, infos, coco_anns, sils, amodal_anns = self._annotate_objects(scene_dir, rd, models, inst, depth_valid,
                                                                           K, cdir, stem)
-        sensor = self._write_sensor(scene_dir, rd, sl_src, cdir, stem, gts, sils) if sl_src.is_file() else None
+        sensor = self._write_sensor(scene_dir, rd, sl_src, cdir, stem, gts, sils) if has_sl else None
         if not self._camera_written:
             write_json_lines_atomic(self.root / "camera.json", {
                 "cx": float(K[0, 2]), "cy": float(K[1, 2]), "fx": float(K[0, 0]), "fy": float(K[1, 1]),
@@ -385,11 +381,11 @@ class BopWriter:
             self._camera_written = True
         meta = {"image_id": image_id, "scene": scene_dir.name, "render": rd["name"],
                 "scene_id": int(scene.get("scene_id", -1)), "render_seed": rd.get("seed"),
-                "depth_sl": sl_src.is_file()}
+                "depth_sl": has_sl}
         if sensor is not None:
             meta["sensor"] = self.sensor
         coords = layout.render_file(scene_dir, rd, "object_coords")
-        if coords.is_file():
+        if own_file_present(coords):
             self._write_object_coords(coords, cdir / OBJECT_COORDS_DIR / f"{stem}.exr", W, H)
         coco = {"image": {"id": im_id, "file_name": rgb_name, "width": W, "height": H},
                 "annotations": coco_anns}
@@ -412,33 +408,37 @@ class BopWriter:
         S = self.sensor
         for sub in ("depth", "mask", "mask_visib"):
             make_dirs(cdir / f"{sub}_{S}")
-        sl = read_depth(sl_src)
+        with own_file(sl_src) as p:
+            sl = read_depth(p)
         if sl.shape != (H, W):
             raise DataPipeError(f"{sl_src}: shape {sl.shape} but scene.json says {W}x{H}")
         imwrite_atomic(cdir / f"depth_{S}" / f"{stem}.png", encode_depth(sl, self.depth_scale, what=str(sl_src)))
         sl_valid = np.isfinite(sl) & (sl > 0)
         gray = layout.render_file(scene_dir, rd, "sl_gray")
-        if gray.is_file():
+        if own_file_present(gray):
             make_dirs(cdir / f"gray_{S}")
-            copy_atomic(gray, cdir / f"gray_{S}" / f"{stem}.png")
+            with own_file(gray) as p:
+                copy_atomic(p, cdir / f"gray_{S}" / f"{stem}.png")
         infos = []
         for gt_id, (sil, count, bbox, visib) in enumerate(sils):
             infos.append(gt_info(sil, count, bbox, visib, sl_valid))
             name = f"{stem}_{gt_id:06d}.png"
             for sub in ("mask", "mask_visib"):
-                copy_atomic(cdir / sub / name, cdir / f"{sub}_{S}" / name)
+                with own_file(cdir / sub / name) as p:
+                    copy_atomic(p, cdir / f"{sub}_{S}" / name)
         K = _mat(rd["K"], (3, 3))
         return {"scene_camera": self._camera_entry(K, rd), "scene_gt": gts, "scene_gt_info": infos}
 
     def _write_rgb(self, src: Path, dst: Path) -> None:
         """The native rgb.png as JPEG (at jpg_quality), or as it is for PNG when it is 8-bit
         3-channel (the pipeline's), else converted."""
-        rgb = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
-        if rgb is None:
-            raise DataPipeError(f"{src}: not a readable image")
-        if rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8 and self.rgb_format == "png":
-            copy_atomic(src, dst)
-            return
+        with own_file(src) as p:
+            rgb = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            if rgb is None:
+                raise DataPipeError(f"{src}: not a readable image")
+            if rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8 and self.rgb_format == "png":
+                copy_atomic(p, dst)
+                return
         if rgb.dtype == np.uint16:
             rgb = (rgb.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
         if rgb.ndim == 2:
@@ -451,7 +451,8 @@ class BopWriter:
     def _write_object_coords(src: Path, dst: Path, W: int, H: int) -> None:
         """The native object_coords.exr (m) as BOP's object_coords/IMID.exr: model X, Y, Z in mm in
         channels R, G, B (COORDS_CHANNELS), the names OpenCV reads as one 3-channel image."""
-        xyz = read_object_coords(src) * np.float32(1000.0)
+        with own_file(src) as p:
+            xyz = read_object_coords(p) * np.float32(1000.0)
         if xyz.shape[:2] != (H, W):
             raise DataPipeError(f"{src}: shape {xyz.shape[:2]} but scene.json says {W}x{H}")
         make_dirs(dst.parent)
@@ -459,7 +460,8 @@ class BopWriter:
 
     def _write_depth(self, src: Path, dst: Path, W: int, H: int) -> np.ndarray:
         """Ground-truth z-buffer depth as BOP's uint16 PNG; returns where it has data."""
-        depth = read_depth(src)
+        with own_file(src) as p:
+            depth = read_depth(p)
         if depth.shape != (H, W):
             raise DataPipeError(f"{src}: shape {depth.shape} but scene.json says {W}x{H}")
         imwrite_atomic(dst, encode_depth(depth, self.depth_scale, what=str(src)))
@@ -538,7 +540,8 @@ def _complete_scene(scene_dir: Path) -> dict:
 
 def _required(scene_dir: Path, rd: dict, kind: str) -> Path:
     p = layout.render_file(scene_dir, rd, kind)
-    if not p.is_file():
+    # in a run's own folder own_file says what stands there instead (removed, a link, not the run's)
+    if guard.active_for(p) is None and not p.is_file():
         raise DataPipeError(f"{p}: missing (BOP needs the {kind!r} output)")
     return p
 

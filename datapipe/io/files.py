@@ -104,6 +104,32 @@ def scratch_dir(fallback: str | os.PathLike) -> Path:
     return g.scratch_dir() if g is not None else Path(fallback)
 
 
+@contextmanager
+def own_file(path: str | os.PathLike) -> Iterator[Path]:
+    """A path to read a file the run wrote by: inside a run's output folder `/proc/self/fd/N` of the
+    file opened through the folder's handle (datapipe/io/guard.py, `open_own`: never through a link,
+    and only when the run's manifest records that file with that content; else OutputStateError
+    naming it), so that nothing put at its name meanwhile is read as the run's; elsewhere `path`."""
+    g = guard.active_for(path)
+    if g is None:
+        yield Path(path)
+        return
+    fd = g.open_own(path)
+    try:
+        yield Path(f"/proc/self/fd/{fd}")
+    finally:
+        os.close(fd)
+
+
+def own_file_present(path: str | os.PathLike) -> bool:
+    """Whether an optional output (a render's scanner depth) stands at `path`: inside a run's output
+    folder anything at the name counts (a link there is then refused by `own_file`, not taken for
+    "absent"); elsewhere a regular file, links followed."""
+    if guard.active_for(path) is not None:
+        return os.path.lexists(path)
+    return Path(path).is_file()
+
+
 def write_text_atomic(path: str | os.PathLike, text: str, *, fsync: bool = False) -> None:
     with atomic_path(path) as tmp, open(tmp, "w") as f:
         f.write(text)
@@ -169,6 +195,16 @@ def read_json_or_empty(path: str | os.PathLike) -> dict:
         return {}
     except json.JSONDecodeError as e:
         raise DataPipeError(f"{path} is not valid JSON ({e}); delete it (or its folder) and write it again") from None
+
+
+def read_own_json_or_empty(path: str | os.PathLike) -> dict:
+    """read_json_or_empty of a file the run wrote and reads back (a BOP chunk's JSON files), through
+    `own_file`: in a run's output folder never through a link (a FIFO is not waited on), and only the
+    file the run wrote, else OutputStateError naming it; {} when nothing stands there."""
+    if not own_file_present(path):
+        return {}
+    with own_file(path) as p:
+        return read_json_or_empty(p)
 
 
 def json_lines_text(data: Any, *, compact: bool = False) -> str:

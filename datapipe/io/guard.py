@@ -12,7 +12,11 @@ an opened directory handle of the folder instead of a path (datapipe/io/files.py
 - the rename is `os.replace(src_dir_fd=, dst_dir_fd=)`, after checking that the temporary name still
   holds the file written and that what stands at the destination is not a link, not a folder and,
   when it is a file, one the run wrote (the ledger: datapipe/io/outdir.py's Manifest);
-- the ledger records each file (path, size, sha256) before it is renamed into place.
+- the ledger records each file (path, size, sha256) before it is renamed into place;
+- a file the run wrote and reads back (the BOP export reads the run's models/ and render maps) is
+  opened the same way (`open_own`): never through a link, and only when the ledger records that very
+  file with that content, so a link or a file of the user's put there meanwhile is refused, not read
+  as the run's.
 
 Linux only (dir_fd and /proc/self/fd): elsewhere `active_for` returns None and the writes use paths
 as before (docs/RUNNING.md, data safety). Every refusal is an OutputStateError naming the path (exit 1).
@@ -51,6 +55,8 @@ class Ledger(Protocol):
 
     def may_replace(self, rel: str, st: os.stat_result) -> bool: ...
 
+    def owns(self, rel: str, st: os.stat_result, fd: int) -> bool: ...
+
 
 def link_refusal(out: Path, rel: str, target: str | None = None) -> OutputStateError:
     path = Path(out) / rel
@@ -70,6 +76,16 @@ def not_ours_refusal(out: Path, rel: str) -> OutputStateError:
         f"output: {Path(out) / rel} is not a file this run wrote (its manifest has no record of it, or it "
         "changed since) but stands where the run writes; DataPipe never overwrites it and never adopts it "
         "(fix: move it out of the folder, then run again with --resume, or choose another --out)")
+
+
+def read_refusal(out: Path, rel: str, why: str) -> OutputStateError:
+    """A file the run reads back as its own (a model, a render map) that is no longer the one it wrote."""
+    return OutputStateError(
+        f"output: {Path(out) / rel} {why}; the run reads it back as its own file, and DataPipe never reads "
+        "another file (or one through a link) as the run's (fix: leave the output folder alone during a run; "
+        "move what was put there out of the folder, then run again with --resume, which makes a scene whose "
+        "files are missing again, or, where that is refused again (the run's models/ is written only when a run "
+        "starts), with --force, which keeps every file of yours; or choose another --out)")
 
 
 class OutGuard:
@@ -232,6 +248,38 @@ class OutGuard:
                 os.unlink(name, dir_fd=d)
         except OSError:
             pass
+
+    # -- reads of the run's own files ---------------------------------------------------------------
+    def open_own(self, path: str | os.PathLike) -> int:
+        """A read-only handle of the file the run wrote at `path` (see the module doc): every folder
+        on the way entered without following a link, the file opened with O_NOFOLLOW (O_NONBLOCK: a
+        FIFO put there is not waited on), and, with a ledger, only when it records this very file
+        with this content. A link, a file that is not the run's (or changed), a removed file or
+        folder: OutputStateError naming it. The caller closes the handle."""
+        rel = self.rel(path)
+        folder, _, name = rel.rpartition("/")
+        try:
+            d = self.open_dir(folder, create=False)
+        except FileNotFoundError:
+            raise read_refusal(self.out, folder, "was removed during the run") from None
+        try:
+            try:
+                fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, dir_fd=d)
+            except FileNotFoundError:
+                raise read_refusal(self.out, rel, "was removed during the run") from None
+            except OSError as e:
+                if e.errno == errno.ELOOP:
+                    raise read_refusal(self.out, rel, f"was replaced during the run by a symbolic link (to "
+                                                      f"{os.readlink(name, dir_fd=d)})") from None
+                raise
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or (self.ledger is not None and not self.ledger.owns(rel, st, fd)):
+                os.close(fd)
+                raise read_refusal(self.out, rel, "is not the file the run wrote there (its manifest has no record "
+                                                  "of this content)")
+            return fd
+        finally:
+            os.close(d)
 
     # -- other writes -----------------------------------------------------------------------------
     def open_append(self, path: str | os.PathLike) -> int:

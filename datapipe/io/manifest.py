@@ -146,6 +146,14 @@ class Manifest:
             return True
         if rel == MANIFEST_FILE:                 # written by this process, else read as a DataPipe manifest
             return self._known.get(rel) == _stamp(st) or Manifest._read(self.out) is not None
+        return self._recorded(rel, st, lambda: _digest(self.out / rel))
+
+    def owns(self, rel: str, st: os.stat_result, fd: int) -> bool:
+        """Whether the opened file `fd` (its fstat `st`) at `rel` is one the run wrote, with the
+        content it wrote: as may_replace, the content read through `fd`, never again by path."""
+        return self._recorded(rel, st, lambda: _fd_digest(fd))
+
+    def _recorded(self, rel: str, st: os.stat_result, digest) -> bool:
         if rel not in self._files:
             return False
         versions = self._files[rel]
@@ -153,7 +161,7 @@ class Manifest:
             return True
         if not any(v[0] == st.st_size for v in versions):
             return False                         # a changed size: no need to read it
-        return [st.st_size, _digest(self.out / rel)] in versions
+        return [st.st_size, digest()] in versions
 
     def _content(self, rel: str) -> list | None:
         try:
@@ -249,6 +257,16 @@ def _digest(path: Path) -> str | None:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             return None
         return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def _fd_digest(fd: int) -> str:
+    """sha256 of the opened regular file `fd`, read from its start (its offset left as it was)."""
+    with os.fdopen(os.dup(fd), "rb") as f:
+        at = f.seek(0, os.SEEK_CUR)
+        f.seek(0)
+        digest = hashlib.file_digest(f, "sha256").hexdigest()
+        f.seek(at)
+    return digest
 
 
 def _ino(path: Path) -> list | None:

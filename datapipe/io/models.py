@@ -5,6 +5,7 @@ into the BOP dataset. Model coordinates are the mesh file's times the entry's sc
 """
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,7 +15,7 @@ import numpy as np
 
 from ..errors import DataPipeError
 from . import layout
-from .files import atomic_path, make_dirs, write_json_lines_atomic
+from .files import atomic_path, copy_atomic, make_dirs, own_file, read_json, write_bytes_atomic, write_json_lines_atomic
 from .input_files import MAX_MESH_BYTES, read_regular
 
 def write_ply(path: str | os.PathLike, verts: np.ndarray, faces: np.ndarray,
@@ -236,3 +237,42 @@ def load_models(models_dir: str | os.PathLike) -> dict[int, Model]:
     return out
 
 
+def load_listed_models(models_dir: str | os.PathLike) -> dict[int, Model]:
+    """The models the folder's models_info.json lists (as load_models reads them; an obj_*.ply beside
+    them that it does not list, e.g. a file of the user's, is not read), each file read through
+    `own_file`: in a run's output folder never through a link and only the file the run wrote. A
+    folder without models_info.json (outside a run): every obj_*.ply, as load_models."""
+    models_dir = Path(models_dir)
+    with own_file(models_dir / layout.MODELS_INFO) as p:
+        if not p.is_file():
+            return load_models(models_dir)
+        info = read_json(p)
+    out = {}
+    for obj_id in sorted(int(k) for k in info if str(k).isdigit()) if isinstance(info, dict) else []:
+        with own_file(models_dir / model_filename(obj_id)) as p:
+            if p.is_file():                  # outside a run a missing one is left out, as load_models does
+                out[obj_id] = Model(*read_ply(p))
+    return out
+
+
+def copy_models(src: str | os.PathLike, dst: str | os.PathLike) -> None:
+    """Copy a models folder the run wrote (OUT/models/, into the BOP export's): only the models its
+    models_info.json lists (another .ply of yours in models/ is not the run's), models_info.json last
+    (the BOP writer takes its presence for "the models are copied"). Read through `own_file`: in the
+    run's output folder never through a link, and only the files the run wrote, so a models/ (or a
+    model) replaced during the run is refused, never copied as the run's."""
+    src, dst = Path(src), Path(dst)
+    with own_file(src / layout.MODELS_INFO) as p:
+        if not p.is_file():
+            raise DataPipeError(f"{src}: no {layout.MODELS_INFO} (the run's models/ folder is written at the "
+                                "start of a run by datapipe.io.models.write_models)")
+        info_bytes = p.read_bytes()
+    if src.resolve() == dst.resolve():
+        return
+    make_dirs(dst)
+    info = json.loads(info_bytes)
+    for obj_id in sorted(int(k) for k in info if str(k).isdigit()) if isinstance(info, dict) else []:
+        with own_file(src / model_filename(obj_id)) as p:
+            if p.is_file():                  # outside a run a missing one is left out, as before
+                copy_atomic(p, dst / model_filename(obj_id))
+    write_bytes_atomic(dst / layout.MODELS_INFO, info_bytes)    # the bytes checked above, not read again

@@ -25,7 +25,8 @@ class Reason(IntEnum):
     ILL_CONDITIONED = 5     # camera ray (nearly) in a projector column plane: |dZ/dx| over the cap
     INVALID_INPUT = 6       # NaN or inf in a sample
     FILTERED = 7            # removed by a post-filter outside the decoder (the pipeline's edge/speckle filter)
-    MULTIPATH = 8           # removed by the reflection/multipath filter (sl.filters.multipath_filter)
+    MULTIPATH = 8           # removed by the local reflection filters (sl.filters: multipath_filter,
+                            # global_light_filter, bounce_island_filter)
     INCONSISTENT = 9        # the frequencies disagree by more than the noise allows (aliasing, mixed pixel,
                             # inter-reflection, tone curve): see datapipe.sl.confidence
     REFLECTION = 10         # removed by the global reflection filter: the row-coded patterns say the light

@@ -8,10 +8,39 @@ EDGE_SLOPE = 3.7                 # tan(75 deg): steepest surface whose neighbour
 EDGE_MIN_SUPPORT = 3             # agreeing 8-neighbours a valid pixel needs
 
 
+def neighbour_agreement(depth, valid, sigma_z, pixel_angle: float, *, sigmas: float = EDGE_SIGMAS,
+                        slope: float = EDGE_SLOPE) -> dict:
+    """{(dy, dx): (H, W) bool} for the 8 neighbour directions: valid pixel (y, x) and valid pixel
+    (y + dy, x + dx) agree in depth within
+
+        tol = sigmas * sqrt(sigma_p^2 + sigma_q^2) + slope * Z_p * pixel_angle * |q - p|
+
+    (False where either is invalid or off the image): the edge filter's test, and what joins pixels
+    into regions (sl.regions)."""
+    z = np.where(valid, depth, np.nan).astype(np.float64)
+    s = np.where(valid, sigma_z, np.nan).astype(np.float64)
+    s = np.where(np.isfinite(s), s, 0.0)
+    H, W = z.shape
+    zp = np.pad(z, 1, constant_values=np.nan)
+    sp = np.pad(s, 1, constant_values=0.0)
+    agree = {}
+    with np.errstate(invalid="ignore"):
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dx == 0 and dy == 0:
+                    continue
+                zq = zp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
+                sq = sp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
+                tol = sigmas * np.sqrt(s * s + sq * sq) + slope * z * pixel_angle * np.hypot(dx, dy)
+                agree[(dy, dx)] = np.abs(zq - z) <= tol
+    return agree
+
+
 def edge_speckle_filter(depth, valid, sigma_z, pixel_angle: float, *, sigmas: float = EDGE_SIGMAS,
-                        slope: float = EDGE_SLOPE, min_support: int = EDGE_MIN_SUPPORT) -> np.ndarray:
+                        slope: float = EDGE_SLOPE, min_support: int = EDGE_MIN_SUPPORT, agree=None) -> np.ndarray:
     """Valid pixels with fewer than `min_support` agreeing 8-neighbours (see the module doc), and
-    the remnants of islands that test leaves; returns the bool mask of pixels to remove.
+    the remnants of islands that test leaves; returns the bool mask of pixels to remove. `agree`:
+    `neighbour_agreement` of the same maps, where the caller has it.
 
     Remnants. The support test looks at all valid pixels at once, so in a small island of wrong
     points (a band of wrong fringe orders) the rim pixels lose their support and go while the
@@ -25,32 +54,20 @@ def edge_speckle_filter(depth, valid, sigma_z, pixel_angle: float, *, sigmas: fl
     suffices. Not done instead: repeating the support test until what it keeps passes it (eroded
     0.5-2 points of correct pixels off the 16 renders of sl_truth.md, thin strips and steep walls)
     or removing every kept pixel without an agreeing kept neighbour (16-94 pixels a render,
-    nearly all within 1 mm of the truth)."""
-    z = np.where(valid, depth, np.nan).astype(np.float64)
-    s = np.where(valid, sigma_z, np.nan).astype(np.float64)
-    s = np.where(np.isfinite(s), s, 0.0)
-    H, W = z.shape
-    zp = np.pad(z, 1, constant_values=np.nan)
-    sp = np.pad(s, 1, constant_values=0.0)
+    nearly all within 1 mm of the truth). Islands the support test keeps whole (every pixel with
+    3 agreeing neighbours) are `bounce_island_filter`'s."""
+    if agree is None:
+        agree = neighbour_agreement(depth, valid, sigma_z, pixel_angle, sigmas=sigmas, slope=slope)
+    H, W = np.shape(depth)
     support = np.zeros((H, W), np.int32)
-    agree = []                       # per 8-neighbour: does the pixel agree with it?
-    with np.errstate(invalid="ignore"):
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dx == 0 and dy == 0:
-                    continue
-                zq = zp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
-                sq = sp[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
-                tol = sigmas * np.sqrt(s * s + sq * sq) + slope * z * pixel_angle * np.hypot(dx, dy)
-                a = np.abs(zq - z) <= tol
-                support += a
-                agree.append((dy, dx, a))
+    for a in agree.values():
+        support += a
     valid = np.asarray(valid, bool)
     removed = valid & (support < min_support)
     kept = np.pad(valid & ~removed, 1)
     kept_agree = np.zeros((H, W), np.int32)
     kept_near = np.zeros((H, W), np.int32)
-    for dy, dx, a in agree:
+    for (dy, dx), a in agree.items():
         k = kept[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
         kept_agree += a & k
         kept_near += k
@@ -192,6 +209,75 @@ def global_light_filter(modulation, offset, direct_freqs, steps: int, noise_sigm
                                + s_off * s_off)
     with np.errstate(invalid="ignore"):
         return np.asarray(valid, bool) & (A - k * Bd > tol)
+
+
+def global_direct_ratio(modulation, offset, direct_freqs, *, direct_offset: float = 1.0, ambient=None) -> np.ndarray:
+    """Global / direct light per pixel, g / d = (A - c B) / (c B) (float64; NaN where B <= 0): the
+    quantity `global_light_filter` tests, without its noise margin (same arguments)."""
+    B = np.asarray(modulation)[np.asarray(direct_freqs, bool)].max(axis=0).astype(np.float64) * float(direct_offset)
+    A = np.asarray(offset, np.float64)
+    if ambient is not None:
+        A = A - np.asarray(ambient, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(B > 0, (A - B) / B, np.nan)
+
+
+# -- bounce islands: small regions where bounced light can decide the order -------------------------
+ISLAND_PIXELS = 20               # px: regions smaller than this (at 320 x 240, scaled with the image area)
+ISLAND_REFERENCE_PIXELS = 320 * 240   # the image size ISLAND_PIXELS was measured at
+ISLAND_GLOBAL_RATIO = 0.45       # mean g / d above which a region's bounce may have decided its order (doc below)
+
+
+def island_pixels(shape) -> int:
+    """The region size below which `bounce_island_filter` removes a region, for an (H, W) image:
+    ISLAND_PIXELS at 320 x 240, scaled with the image area above it (a region of the scene is
+    judged alike at any resolution: 540 px at 1920 x 1080), never fewer than ISLAND_PIXELS (an
+    island made by per-pixel noise does not shrink with the image)."""
+    H, W = shape
+    return max(ISLAND_PIXELS, int(round(ISLAND_PIXELS * H * W / ISLAND_REFERENCE_PIXELS)))
+
+
+def bounce_island_filter(keep, agree, global_ratio, *, max_pixels: int | None = None,
+                         ratio: float = ISLAND_GLOBAL_RATIO) -> np.ndarray:
+    """Small regions of kept pixels in bounced light: islands of wrong fringe orders; returns the
+    bool mask of pixels to remove.
+
+    Why. Where bounced light is a large share of a pixel's light (a bin wall lit at grazing
+    incidence beside a bright floor; an aluminium peg beside its highlight) it keeps the coarse
+    fringe (98% of the 1-period modulation) and turns the coarse phase: a bounce phasor of relative
+    size 0.98 g / d turns it by up to asin(0.98 g / d), past the 1 -> 8 stage's pi / 8 from g / d =
+    0.39 on. The decoder cannot see that (the frequencies fit the wrong order as well as the
+    right one: confidence ~1); the global-light filter keeps such pixels up to g / d = 0.7 plus its
+    noise margin (~0.4 more at 60 DN of modulation); and neighbours wrong by the same whole fringe
+    keep each other in the edge filter. What is left is a small region one 8-period fringe
+    (100-330 mm) off the surface around it, in light that is about half bounce or more. A real
+    scanner with (1, 8, 64) fringes decodes the same wrong orders where the bounce's own bias is
+    near the limit (aluminium parts at 0.6 m path-traced at 64 paths per pixel: 29 such pixels, a
+    1-2 px band along a peg's highlight and a wall corner), and its speckle filter removes small
+    regions (module `sl.regions`). Removed: the kept pixels of regions (`sl.regions.region_labels`
+    over `keep` and `agree`) of fewer than `max_pixels` pixels (`island_pixels` of the image when
+    None) whose mean g / d is above `ratio` (the mean: one pixel's g / d carries noise, 0.15 at
+    40 DN of modulation, and most islands have 1-6 pixels). Small regions in direct light (a
+    sparse wall in good light, a thin part edge) stay.
+
+    The numbers, from the 16 renders of benchmarks/results/sl_truth.md, the aluminium case at 16
+    and 64 paths per pixel and the metal cases at 640 x 480: 20 px removed every pixel > 5 mm off
+    away from depth edges that lay in a region of 1-15 pixels at 320 x 240 (12 px left 15 pixels of
+    the band in the 64-path render; 30 px removed the same). `ratio`: 0.39 (the worst-case bound
+    above) cost up to 0.64 points of the parts' pixels within 1 mm (steel, 640 x 480); 0.45 up to
+    0.49 (aluminium, fast mode) and left 3 of the 47 wrong-order pixels of aluminium in render mode
+    at 640 x 480; the majority of pixels above 0.5 up to 0.42 and left 11 of them.
+
+    keep: (H, W) bool, the pixels kept so far; agree: `neighbour_agreement`; global_ratio: (H, W)
+    g / d (`global_direct_ratio`)."""
+    from .regions import region_labels
+
+    keep = np.asarray(keep, bool)
+    n = island_pixels(keep.shape) if max_pixels is None else int(max_pixels)
+    labels, sizes = region_labels(keep, agree)
+    g = np.asarray(global_ratio, np.float64)[keep]
+    total = np.bincount(labels[keep], weights=np.where(np.isfinite(g), g, 0.0), minlength=int(labels.max()) + 1)
+    return keep & (sizes < n) & (total[labels] > float(ratio) * sizes)     # the region's mean g / d
 
 
 # -- global reflection filter: row-coded patterns (epipolar consistency) ----------------------------

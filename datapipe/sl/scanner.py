@@ -58,6 +58,12 @@ Validity (what "valid" means)
    pixel that test keeps alone among at least EDGE_MIN_SUPPORT kept neighbours, none agreeing with
    it: the middle of a small island of wrong orders whose rim the test removed.
 Pixels removed by 2. and 3. get reason FILTERED (7), depth NaN.
+4. bounce islands (`sl.filters.bounce_island_filter`, with the multipath filter; reason MULTIPATH):
+   of what 3. kept, regions of agreeing pixels (`sl.regions`) smaller than 20 px at 320x240 (the
+   same share of a larger image) whose light is about half bounce or more (mean g / d > 0.45, the
+   global-light filter's measure): islands of wrong fringe orders whose coarse
+   phase the bounce turned, which 1b'. (0.7 and a noise margin) and 3. (they agree with each
+   other) leave (benchmarks/results/sl_truth.md: aluminium parts at 0.6 m).
 """
 from __future__ import annotations
 
@@ -73,8 +79,9 @@ from .decode import decode
 from .decode_result import DecodeResult, Reason
 from .exposure import (Capture, ProjectorOff, auto_exposure, auto_hdr, capture, check_exposure, check_hdr, exposure_set,
                        lit_pixels, projector_off)
-from .filters import (direct_frequencies, direct_offset_ratio, edge_speckle_filter, global_light_filter, multipath_filter,
-                      projector_rows, reflection_filter, row_from_phase, row_residual)
+from .filters import (bounce_island_filter, direct_frequencies, direct_offset_ratio, edge_speckle_filter,
+                      global_direct_ratio, global_light_filter, multipath_filter, neighbour_agreement, projector_rows,
+                      reflection_filter, row_from_phase, row_residual)
 from .gamma import correct_cycles, gamma_phase_lut
 from .gray_image import fringe_mean
 from .metrics import pixel_depth_sigma
@@ -283,16 +290,18 @@ class Scanner:
             + (", per pixel at its HDR exposure after fusion" if cap.chosen is not None else
                f", exposure {cap.reference:.4g}")}
         sigma_z = pixel_depth_sigma(res, cap.noise_sigma, self.proj_size[0], self.steps)
-        multipath = None
+        multipath = global_ratio = None
         if self.multipath_filter:
+            direct = direct_frequencies(res.periods, self.proj_size[0])
+            c = direct_offset_ratio(self.projector_gamma, self.steps)
             multipath = multipath_filter(res.modulation, res.offset, res.periods, self.steps, cap.noise_sigma,
                                          res.valid)
-            multipath |= global_light_filter(res.modulation, res.offset, direct_frequencies(res.periods, self.proj_size[0]),
-                                             self.steps, cap.noise_sigma, res.valid,
-                                             direct_offset=direct_offset_ratio(self.projector_gamma, self.steps),
-                                             ambient=None if off is None else off.signal,
+            multipath |= global_light_filter(res.modulation, res.offset, direct, self.steps, cap.noise_sigma, res.valid,
+                                             direct_offset=c, ambient=None if off is None else off.signal,
                                              ambient_sigma=None if off is None else off.sigma)
             _remove(res, multipath, MULTIPATH)
+            global_ratio = global_direct_ratio(res.modulation, res.offset, direct, direct_offset=c,
+                                               ambient=None if off is None else off.signal)
         reflection = residual = None
         if self.row_check and cap.images.shape[0] > n:
             code = self.row_code(res, cap)
@@ -302,7 +311,9 @@ class Scanner:
             _remove(res, reflection, REFLECTION)
         filtered = np.zeros(res.valid.shape, bool)
         if self.edge_filter:
-            filtered = self._filter(res, sigma_z, float(np.asarray(K_cam)[0, 0]))
+            filtered, islands = self._filter(res, sigma_z, float(np.asarray(K_cam)[0, 0]), global_ratio)
+            if islands is not None:
+                multipath |= islands
         sigma_z[~res.valid] = np.nan
         return Scan(res, sigma_z, filtered, P_cam, P_proj, model, time.perf_counter() - t0, cap,
                     "auto" if self.exposure == "auto" else "fixed", multipath, reflection, residual, off)
@@ -326,15 +337,22 @@ class Scanner:
         return RowCode(residual, rows.modulation, np.broadcast_to(np.asarray(sig, np.float64), readable.shape),
                        readable)
 
-    def _filter(self, res: DecodeResult, sigma_z: np.ndarray, fx: float) -> np.ndarray:
-        """Projector-border and edge/speckle filters; removed pixels become FILTERED, NaN."""
+    def _filter(self, res: DecodeResult, sigma_z: np.ndarray, fx: float, global_ratio=None):
+        """Projector-border and edge/speckle filters (removed pixels become FILTERED, NaN), then,
+        given the light split `global_ratio` (g / d), the bounce-island filter on what they kept
+        (MULTIPATH). Returns (filtered, islands); islands None without `global_ratio`."""
         margin = self.border_px * float(self.K_proj[0, 0]) / fx + 0.5
         with np.errstate(invalid="ignore"):
             filtered = res.valid & ((res.proj_x < margin - 0.5)
                                     | (res.proj_x > self.proj_size[0] - 0.5 - margin))
-        filtered |= edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
+        agree = neighbour_agreement(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx)
+        filtered |= edge_speckle_filter(res.depth, res.valid & ~filtered, sigma_z, 1.0 / fx, agree=agree)
         _remove(res, filtered, FILTERED)
-        return filtered
+        islands = None
+        if global_ratio is not None:
+            islands = bounce_island_filter(res.valid, agree, global_ratio)
+            _remove(res, islands, MULTIPATH)
+        return filtered, islands
 
 
 def _lens_grid(cfg):

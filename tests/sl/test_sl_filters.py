@@ -234,3 +234,61 @@ def test_global_light_filter_removes_bounce_decided_orders_and_bounce_only_light
     assert (res.reason[right & ~res.valid] == sl.Reason.MULTIPATH).mean() > 0.5 and res.valid[clean].mean() > 0.99
     off = _scanner(cam, proj, multipath_filter=False).scan(img, 3, cam.K, cam.T).result
     assert (off.valid & right & (np.abs(off.depth - r.depth) > 5e-3)).mean() > 0.3
+
+
+def test_bounce_islands_of_wrong_orders_are_removed_small_regions_in_direct_light_stay(rig):
+    """Plane, periods (1, 8, 64), the pipeline's bounce model (98% / 21% / 0%). A 3 x 4 px patch
+    gets, besides its direct light d, bounced light g = 0.9 d from a point W/4 away in projector
+    columns: the 1-period phasor turns by atan(0.98 * 0.9) = 41 deg, 8 x that is 0.92 of an
+    8-period fringe, so the patch decodes one whole fringe off, consistently (the frequencies fit
+    the wrong order: confidence ~1). The 8-period bounce is in phase with the direct light, so the
+    filter's g / d = 0.79 g / (1 + 0.21 g) = 0.6 is under the global-light filter's 0.7, and the
+    12 wrong pixels support each other in the edge filter -- an island, as the aluminium parts'
+    renders left them (benchmarks/results/sl_truth.md). It must go (reason MULTIPATH). A band of
+    rows with g = 0.6 d from W/32 away (1-period phasor turned by 4 deg: orders right; 8-period
+    bounce in quadrature: g / d = 0.59 as well) is large and stays; a 3 x 3 patch of directly lit
+    plane inside a dark ring (a small region in direct light) stays."""
+    cam, proj = rig
+    r = synth.render(synth.plane_scene(), cam, proj, PERIODS, STEPS)
+    W = proj.size[0]
+    island = np.zeros(r.lit.shape, bool)
+    island[40:43, 60:64] = True
+    band = np.zeros(r.lit.shape, bool)
+    band[80:100, 10:150] = True
+    small, ring = np.zeros(r.lit.shape, bool), np.zeros(r.lit.shape, bool)
+    ring[20:27, 100:107] = True
+    small[22:25, 102:105] = True
+    ring &= ~small
+    assert r.lit[island | band | ring].all()
+    img = r.images.copy()
+    kept = {1: 0.98, 8: 0.21, 64: 0.0}
+    for i, K in enumerate(PERIODS):
+        for n in range(STEPS):
+            for where, shift, g in ((island, W / 4.0, 0.9), (band, W / 32.0, 0.6)):
+                phase = 2 * np.pi * K * (r.proj_x + shift) / W + 2 * np.pi * n / STEPS
+                glob = g * (0.5 + 0.5 * kept[K] * np.cos(phase))
+                img[i * STEPS + n] += np.where(where, glob, 0.0)
+    img[:, ring] = 0.0
+    img = img.astype(np.float32)
+    wrong = lambda res: res.valid & (np.abs(res.depth - r.depth) > 5e-3)   # noqa: E731
+    decoded = sl.decode(img, **decode_kw(cam, proj))
+    assert wrong(decoded)[island].mean() > 0.9 and decoded.confidence[wrong(decoded)].min() > 0.99
+    gd = sl.filters.global_direct_ratio(decoded.modulation, decoded.offset, sl.filters.direct_frequencies(PERIODS, W))
+    assert 0.55 < np.median(gd[island]) < 0.65 and 0.55 < np.median(gd[band]) < 0.65 and np.median(gd[small]) < 0.1
+    scan = _scanner(cam, proj).scan(img, 3, cam.K, cam.T)
+    res = scan.result
+    assert not wrong(res)[island].any()
+    assert (res.reason[island & wrong(decoded)] == sl.Reason.MULTIPATH).all()
+    assert res.valid[band].mean() > 0.99 and res.valid[small].all()
+    assert not wrong(res).any()
+    # the filter alone: regions of fewer than 20 px (this 160 x 120 image; 540 at 1080p) whose mean g / d is above 0.45
+    assert sl.filters.island_pixels((120, 160)) == 20 and sl.filters.island_pixels((1080, 1920)) == 540
+    keep = np.zeros((3, 7), bool)
+    keep[1, 1:3] = keep[1, 4:6] = True                  # two 2-pixel regions
+    agree = sl.filters.neighbour_agreement(np.full((3, 7), 0.6), keep, np.full((3, 7), 1e-4), 1e-3)
+    gd = np.zeros((3, 7))
+    gd[1, 1:3], gd[1, 4:6] = (0.3, 0.7), (0.3, 0.55)     # means 0.5 and 0.425
+    assert sl.filters.bounce_island_filter(keep, agree, gd).tolist() == (keep & (np.arange(7) < 3)).tolist()
+    assert not sl.filters.bounce_island_filter(keep, agree, gd, max_pixels=2).any()   # 2 px is not below 2
+    off = _scanner(cam, proj, multipath_filter=False).scan(img, 3, cam.K, cam.T).result
+    assert wrong(off)[island].mean() > 0.9              # with the reflection filters off, nothing is removed
