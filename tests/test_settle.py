@@ -12,17 +12,22 @@ SETTLE_SPEED = 0.005            # m/s (bin_picking.json's simulation.settle_spee
 BOX = np.array([[x, y, z] for x in (0, SIZE) for y in (0, 0.01) for z in (0, 0.01)], dtype=np.float64)
 
 
-def run(velocities: np.ndarray) -> np.ndarray:
-    """Feed per-frame velocities (frames x n x 3, m/s) of n translating boxes; returns frames x n
-    at-rest flags."""
+def _feed(velocities: np.ndarray, flag) -> np.ndarray:
+    """Feed per-frame velocities (frames x n x 3, m/s) of n translating boxes to one RestTest;
+    returns frames x n of `flag(test, update's at-rest flags)` after each frame."""
     frames, n, _ = velocities.shape
     pos = np.zeros((n, 3))
     test = RestTest(np.full(n, SIZE), SETTLE_SPEED, 5, DT, BOX[None] + pos[:, None])
     out = []
     for k in range(frames):
         pos = pos + velocities[k] * DT
-        out.append(test.update(np.linalg.norm(velocities[k], axis=1), BOX[None] + pos[:, None]))
+        out.append(flag(test, test.update(np.linalg.norm(velocities[k], axis=1), BOX[None] + pos[:, None])))
     return np.array(out)
+
+
+def run(velocities: np.ndarray) -> np.ndarray:
+    """Frames x n at-rest flags of n translating boxes fed these velocities."""
+    return _feed(velocities, lambda test, rest: rest)
 
 
 def test_window_is_half_a_second_at_24_fps():
@@ -73,15 +78,7 @@ def test_back_and_forth_inside_the_window_counts_its_furthest_point():
 
 def creeping(velocities: np.ndarray) -> np.ndarray:
     """As `run`, but returns frames x n `creeping()` flags (below the speed limit over the window)."""
-    frames, n, _ = velocities.shape
-    pos = np.zeros((n, 3))
-    test = RestTest(np.full(n, SIZE), SETTLE_SPEED, 5, DT, BOX[None] + pos[:, None])
-    out = []
-    for k in range(frames):
-        pos = pos + velocities[k] * DT
-        test.update(np.linalg.norm(velocities[k], axis=1), BOX[None] + pos[:, None])
-        out.append(test.creeping())
-    return np.array(out)
+    return _feed(velocities, lambda test, rest: test.creeping())
 
 
 def test_a_slow_slide_creeps_a_fast_one_does_not():
