@@ -107,6 +107,21 @@ def test_timed_repeats_and_round_robin():
     assert set(tt) == {"a", "b"} and len(tt["a"].wall) == 2
 
 
+def _run_child_from_a_small_parent(code: str, parent_mib: int = 0) -> dict:
+    """harness.run_child of `python -c code` (one thread: numpy's BLAS pool would otherwise add its
+    threads' CPU, and a single-threaded child cannot spend more CPU than wall time), called from a
+    fresh Python process that first held `parent_mib` MiB and let it go: the measurement does not
+    depend on how large this test process has grown (Linux carries the spawning process's peak
+    into the child's ru_maxrss, see harness.ChildRun.peak_is_childs)."""
+    one = {**os.environ, **{k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
+    driver = (f"import json, sys; sys.path.insert(0, {str(BENCH)!r}); import harness, numpy as np\n"
+              f"a = np.ones({parent_mib} * 2**20, np.uint8); del a\n"
+              f"c = harness.run_child([sys.executable, '-c', {code!r}])\n"
+              "print(json.dumps({**c.__dict__, 'peak_is_childs': c.peak_is_childs}))\n")
+    out = subprocess.run([sys.executable, "-c", driver], env=one, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
+
+
 def test_child_cpu_and_peak_memory():
     """A child that spins 0.3 s of its own CPU and holds 200 MiB: os.wait4 reports both."""
     code = ("import resource, numpy as np\n"
@@ -114,14 +129,21 @@ def test_child_cpu_and_peak_memory():
             "cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])\n"
             "s = cpu()\n"
             "while cpu() - s < 0.3: pass\n")
-    # one thread (numpy's BLAS pool would otherwise add its threads' CPU): a single-threaded child
-    # cannot spend more CPU than wall time
-    one = {**os.environ, **{k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
-    c = harness.run_child([sys.executable, "-c", code], env=one)
-    assert c.returncode == 0
-    assert c.cpu_s >= 0.3 - CPU_TOL_S and c.wall_s >= c.cpu_s - CPU_TOL_S
-    assert 200 <= c.peak_rss_mib < 2000
+    c = _run_child_from_a_small_parent(code)
+    assert c["returncode"] == 0
+    assert c["cpu_s"] >= 0.3 - CPU_TOL_S and c["wall_s"] >= c["cpu_s"] - CPU_TOL_S
+    assert 200 <= c["peak_rss_mib"] < 2000
+    assert c["peak_is_childs"]
     assert harness.run_child([sys.executable, "-c", "raise SystemExit(3)"]).returncode == 3
+
+
+def test_a_childs_peak_memory_below_the_parents_is_flagged():
+    """A child that holds nothing, started by a process that once held 600 MiB: ru_maxrss says
+    >= 600 MiB (the parent's peak, carried over fork and exec), and run_child says it is not the
+    child's own."""
+    c = _run_child_from_a_small_parent("pass", parent_mib=600)
+    assert c["peak_rss_mib"] >= 600 and c["parent_peak_mib"] >= 600
+    assert not c["peak_is_childs"]
 
 
 def test_machine_line_names_the_cpus():
